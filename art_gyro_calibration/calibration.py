@@ -1,0 +1,272 @@
+"""Calibration files: one ROS 2 parameters file per gyro serial number.
+
+A file is ``/**: ros__parameters: {...}`` so that the node takes it with
+``--params-file``; the offline tools read and write the same files. Parameters
+(dotted names, as the node sees them):
+
+- ``serial_number`` (str), ``rate_scale_factor`` (deg/s per count),
+  ``temp_scale_factor`` (degC per count),
+- ``polynomial.rows``, ``polynomial.columns``, ``polynomial.coefficients``
+  (flat, row-major, exactly the report's matrix),
+- ``temperature_range_c`` ([min, max], where the calibration is trusted),
+- optional ``filters.temperature_rate_tau_s`` and ``filters.rate_change_tau_s``,
+- optional extended terms: ``extended.signals`` (list, one term per signal) and
+  for each ``extended.<signal>.form``, ``.coefficients``, ``.powers`` (power form),
+  ``.time_constant_s`` (exp_decay form); see :mod:`art_gyro_calibration.terms`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from art_gyro_calibration.model import ArtPolynomial, ErrorModel
+from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalFilters
+from art_gyro_calibration.terms import Term
+
+PACKAGE = 'art_gyro_calibration'
+TEMP_SCALE_FACTOR = 0.05  # degC per count, the same for every RD2100 (report, section 1)
+SERIAL_PATTERN = re.compile(r'^[A-Za-z0-9_-]+$')
+SIGNAL_PATTERN = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
+
+
+class CalibrationError(ValueError):
+    """A calibration that cannot be used, with where and why."""
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Everything needed to turn raw counts into a compensated rate."""
+
+    serial_number: str
+    rate_scale_factor: float
+    polynomial: ArtPolynomial
+    temperature_range_c: tuple[float, float]
+    temp_scale_factor: float = TEMP_SCALE_FACTOR
+    terms: tuple[Term, ...] = ()
+    filters: SignalFilters = field(default_factory=SignalFilters)
+
+    @property
+    def model(self) -> ErrorModel:
+        """The error model: polynomial and extended terms."""
+        return ErrorModel(self.polynomial, self.terms)
+
+    def to_parameters(self) -> dict[str, Any]:
+        """Flat dotted parameters, the inverse of :func:`from_parameters`."""
+        params: dict[str, Any] = {
+            'serial_number': self.serial_number,
+            'rate_scale_factor': self.rate_scale_factor,
+            'temp_scale_factor': self.temp_scale_factor,
+            'polynomial.rows': self.polynomial.rows,
+            'polynomial.columns': self.polynomial.columns,
+            'polynomial.coefficients': [float(c) for c in self.polynomial.coefficients.ravel()],
+            'temperature_range_c': [float(v) for v in self.temperature_range_c],
+            'filters.temperature_rate_tau_s': self.filters.temperature_rate_tau_s,
+            'filters.rate_change_tau_s': self.filters.rate_change_tau_s,
+        }
+        if self.terms:
+            params['extended.signals'] = [t.signal for t in self.terms]
+        for t in self.terms:
+            prefix = f'extended.{t.signal}.'
+            params[prefix + 'form'] = t.form
+            params[prefix + 'coefficients'] = [float(c) for c in t.coefficients]
+            if t.form == 'power':
+                params[prefix + 'powers'] = list(t.powers)
+            if t.form == 'exp_decay':
+                params[prefix + 'time_constant_s'] = t.time_constant_s
+        return params
+
+
+def _get(params: Mapping[str, Any], key: str, where: str, default: Any = None) -> Any:
+    if key in params:
+        return params[key]
+    if default is not None:
+        return default
+    raise CalibrationError(f'{where}: missing parameter {key!r}')
+
+
+def _number(value: Any, key: str, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise CalibrationError(f'{where}: {key} must be a finite number, got {value!r}')
+    return float(value)
+
+
+def _integer(value: Any, key: str, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise CalibrationError(f'{where}: {key} must be a whole number >= 1, got {value!r}')
+    return value
+
+
+def _numbers(value: Any, key: str, where: str) -> list[float]:
+    if isinstance(value, (str, bytes)) or not hasattr(value, '__iter__'):
+        raise CalibrationError(f'{where}: {key} must be a list of numbers, got {value!r}')
+    out = []
+    for i, v in enumerate(value):
+        out.append(_number(v, f'{key}[{i}]', where))
+    return out
+
+
+def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
+    """Build and check a calibration from flat dotted parameters; ``where`` names their source."""
+    serial = _get(params, 'serial_number', where)
+    if not isinstance(serial, str) or not SERIAL_PATTERN.match(serial):
+        raise CalibrationError(f'{where}: serial_number must be letters, digits, _ or -, got {serial!r}')
+    rate_scale = _number(_get(params, 'rate_scale_factor', where), 'rate_scale_factor', where)
+    temp_scale = _number(_get(params, 'temp_scale_factor', where), 'temp_scale_factor', where)
+    if rate_scale <= 0 or temp_scale <= 0:
+        raise CalibrationError(f'{where}: scale factors must be positive, got rate {rate_scale}, '
+                               f'temperature {temp_scale}')
+    rows = _integer(_get(params, 'polynomial.rows', where), 'polynomial.rows', where)
+    columns = _integer(_get(params, 'polynomial.columns', where), 'polynomial.columns', where)
+    coefficients = _numbers(_get(params, 'polynomial.coefficients', where), 'polynomial.coefficients', where)
+    if len(coefficients) != rows * columns:
+        raise CalibrationError(f'{where}: polynomial.coefficients has {len(coefficients)} numbers, '
+                               f'rows x columns = {rows} x {columns} needs {rows * columns}')
+    temp_range = _numbers(_get(params, 'temperature_range_c', where), 'temperature_range_c', where)
+    if len(temp_range) != 2 or not temp_range[0] < temp_range[1]:
+        raise CalibrationError(f'{where}: temperature_range_c must be [min, max] with min < max, '
+                               f'got {temp_range}')
+    try:
+        filters = SignalFilters(
+            _number(params.get('filters.temperature_rate_tau_s', SignalFilters.temperature_rate_tau_s),
+                    'filters.temperature_rate_tau_s', where),
+            _number(params.get('filters.rate_change_tau_s', SignalFilters.rate_change_tau_s),
+                    'filters.rate_change_tau_s', where))
+    except ValueError as e:
+        raise CalibrationError(f'{where}: {e}') from None
+    return Calibration(
+        serial_number=serial, rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
+        polynomial=ArtPolynomial(np.reshape(coefficients, (rows, columns))),
+        temperature_range_c=(temp_range[0], temp_range[1]),
+        terms=_terms(params, where), filters=filters)
+
+
+def _terms(params: Mapping[str, Any], where: str) -> tuple[Term, ...]:
+    signals = params.get('extended.signals', [])
+    if isinstance(signals, str) or not all(isinstance(s, str) and SIGNAL_PATTERN.match(s) for s in signals):
+        raise CalibrationError(f'{where}: extended.signals must be a list of signal names, got {signals!r}')
+    if len(set(signals)) != len(signals):
+        raise CalibrationError(f'{where}: extended.signals names a signal twice: {signals}')
+    terms = []
+    for signal in signals:
+        prefix = f'extended.{signal}.'
+        form = _get(params, prefix + 'form', where)
+        powers = params.get(prefix + 'powers', [])
+        if not all(isinstance(p, int) and not isinstance(p, bool) for p in powers):
+            raise CalibrationError(f'{where}: {prefix}powers must be whole numbers, got {powers!r}')
+        try:
+            terms.append(Term(
+                signal=signal, form=form,
+                coefficients=tuple(_numbers(_get(params, prefix + 'coefficients', where),
+                                            prefix + 'coefficients', where)),
+                powers=tuple(powers),
+                time_constant_s=_number(params.get(prefix + 'time_constant_s', 0.0),
+                                        prefix + 'time_constant_s', where)))
+        except ValueError as e:
+            raise CalibrationError(f'{where}: {e}') from None
+    return tuple(terms)
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    """Nested YAML mappings to dotted parameter names, as ROS 2 does."""
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
+
+
+def _nest(params: Mapping[str, Any]) -> dict[str, Any]:
+    tree: dict[str, Any] = {}
+    for name, value in params.items():
+        node = tree
+        *parents, leaf = name.split('.')
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = value
+    return tree
+
+
+def load_calibration(path: str | os.PathLike[str], expected_serial: str | None = None) -> Calibration:
+    """Read and check a calibration file, which must be for ``expected_serial`` if given."""
+    where = str(path)
+    try:
+        text = Path(path).read_text(encoding='utf-8')
+    except OSError as e:
+        raise CalibrationError(f'{where}: cannot read: {e.strerror}') from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise CalibrationError(f'{where}: not valid YAML: {e}') from None
+    if not isinstance(doc, Mapping) or len(doc) != 1:
+        raise CalibrationError(f'{where}: expected one node entry such as "/**:" with ros__parameters')
+    (node_name, body), = doc.items()
+    if not isinstance(body, Mapping) or not isinstance(body.get('ros__parameters'), Mapping):
+        raise CalibrationError(f'{where}: entry {node_name!r} has no ros__parameters mapping')
+    calibration = from_parameters(flatten(body['ros__parameters']), where)
+    if expected_serial is not None and calibration.serial_number != expected_serial:
+        raise CalibrationError(f'{where}: serial_number is {calibration.serial_number!r}, '
+                               f'expected {expected_serial!r}')
+    return calibration
+
+
+def dump_calibration(calibration: Calibration, header: str = '') -> str:
+    """Text of a calibration file; ``header`` lines become comments."""
+    comments = ''.join(f'# {line}\n' for line in header.splitlines())
+    doc = {'/**': {'ros__parameters': _nest(calibration.to_parameters())}}
+    return comments + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=100)
+
+
+def write_calibration(path: str | os.PathLike[str], calibration: Calibration, header: str = '') -> None:
+    """Write a calibration file that the node and the offline tools both load."""
+    Path(path).write_text(dump_calibration(calibration, header), encoding='utf-8')
+
+
+def config_dirs() -> list[Path]:
+    """Where packaged ``config/<SERIAL>.yaml`` files may be, most specific first.
+
+    An ament (colcon) install lists its prefix in ``AMENT_PREFIX_PATH``; a pip install
+    puts the data files under ``sys.prefix``; a source checkout has them beside the package.
+    """
+    dirs = [Path(p) / 'share' / PACKAGE / 'config'
+            for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+    dirs.append(Path(sys.prefix) / 'share' / PACKAGE / 'config')
+    dirs.append(Path(__file__).resolve().parent.parent / 'config')
+    return dirs
+
+
+def find_calibration_file(serial_number: str) -> Path:
+    """Path of the packaged calibration of ``serial_number``."""
+    if not SERIAL_PATTERN.match(serial_number):
+        raise CalibrationError(f'serial_number {serial_number!r} is not a valid serial number')
+    searched = config_dirs()
+    for d in searched:
+        candidate = d / f'{serial_number}.yaml'
+        if candidate.is_file():
+            return candidate
+    raise CalibrationError(f'no calibration file {serial_number}.yaml in ' + ', '.join(map(str, searched)))
+
+
+def load_packaged_calibration(serial_number: str) -> Calibration:
+    """Load the packaged calibration of a gyro by its KVH serial number."""
+    return load_calibration(find_calibration_file(serial_number), expected_serial=serial_number)
+
+
+def check_signals_available(calibration: Calibration, available: tuple[str, ...] = DERIVED_SIGNALS) -> None:
+    """Refuse a calibration whose terms need signals that are not ``available``."""
+    missing = [t.signal for t in calibration.terms if t.signal not in available]
+    if missing:
+        raise CalibrationError(f'calibration {calibration.serial_number}: extended terms need '
+                               f'signals {missing} that are not available here ({", ".join(available)})')

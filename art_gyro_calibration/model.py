@@ -1,0 +1,114 @@
+"""The ART error model: the report's polynomial in rate and temperature, plus extended terms.
+
+The error is what the gyro reads too much, in deg/s; compensation subtracts it
+(``CompRate = GyroRate - StaticBiasDrift - comp + CalcStaticBiasDrift``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from art_gyro_calibration.signals import Signals, SignalTracker
+from art_gyro_calibration.terms import Term
+
+
+class ArtPolynomial:
+    """``CompFunction`` of the report, for any ROWS x COLUMNS.
+
+    ``coefficients[j][i]`` multiplies ``temp**(rows-1-j) * rate**(columns-1-i)``:
+    rows are powers of temperature and columns powers of rate, highest first.
+    """
+
+    def __init__(self, coefficients: ArrayLike) -> None:
+        c = np.array(coefficients, dtype=float, ndmin=2)
+        if c.ndim != 2 or c.size == 0:
+            raise ValueError(f'polynomial coefficients must be a non-empty matrix, got shape {c.shape}')
+        if not np.all(np.isfinite(c)):
+            raise ValueError('polynomial coefficients must be finite numbers')
+        c.setflags(write=False)
+        self.coefficients: NDArray[np.float64] = c
+        # Per rate power, the temperature coefficients as plain floats: the per-sample path
+        # then runs on Python floats with no array allocation.
+        self._columns = tuple(tuple(float(x) for x in c[:, i]) for i in range(c.shape[1]))
+
+    @property
+    def rows(self) -> int:
+        """Number of temperature powers."""
+        return int(self.coefficients.shape[0])
+
+    @property
+    def columns(self) -> int:
+        """Number of rate powers."""
+        return int(self.coefficients.shape[1])
+
+    def error(self, rate_dps: ArrayLike, temp_c: ArrayLike) -> NDArray[np.float64]:
+        """Return comp(rate, temp) in deg/s for arrays (Horner in temperature, then in rate)."""
+        rate = np.asarray(rate_dps, dtype=float)
+        temp = np.asarray(temp_c, dtype=float)
+        comp = np.zeros(np.broadcast_shapes(rate.shape, temp.shape))
+        for column in self._columns:
+            per_temp = np.full(temp.shape, column[0])
+            for c in column[1:]:
+                per_temp *= temp
+                per_temp += c
+            comp *= rate
+            comp += per_temp
+        return comp
+
+    def error_one(self, rate_dps: float, temp_c: float) -> float:
+        """Return comp(rate, temp) for one sample, on floats."""
+        comp = 0.0
+        for column in self._columns:
+            per_temp = 0.0
+            for c in column:
+                per_temp = per_temp * temp_c + c
+            comp = comp * rate_dps + per_temp
+        return comp
+
+    def __repr__(self) -> str:
+        return f'ArtPolynomial(rows={self.rows}, columns={self.columns})'
+
+
+@dataclass(frozen=True)
+class ErrorModel:
+    """The report's polynomial plus the extended terms found beyond it."""
+
+    polynomial: ArtPolynomial
+    terms: tuple[Term, ...] = ()
+
+    def error(self, signals: Signals) -> NDArray[np.float64]:
+        """Modelled error in deg/s of every sample of a log."""
+        comp = self.polynomial.error(signals.rate, signals.temperature)
+        for term in self.terms:
+            comp += term.evaluate(signals.get(term.signal))
+        return comp
+
+    def error_one(self, tracker: SignalTracker) -> float:
+        """Modelled error of the sample ``tracker`` was last updated with."""
+        comp = self.polynomial.error_one(tracker.rate, tracker.temperature)
+        for term in self.terms:
+            comp += term.evaluate_one(tracker.value(term.signal))
+        return comp
+
+    @property
+    def signals_used(self) -> Sequence[str]:
+        """Signals the extended terms need, in term order."""
+        return [term.signal for term in self.terms]
+
+
+def measured_from_true(polynomial: ArtPolynomial, true_rate_dps: ArrayLike, temp_c: ArrayLike,
+                       iterations: int = 6) -> NDArray[np.float64]:
+    """Reading ``m`` of a gyro whose error is ``comp(m, T)``: solves ``m - comp(m, T) = true``.
+
+    The model is written in the measured rate, so a simulator must invert it; the
+    fixed point converges because the scale-factor error is far below one.
+    """
+    true_rate = np.asarray(true_rate_dps, dtype=float)
+    measured = true_rate.copy()
+    for _ in range(iterations):
+        measured = true_rate + polynomial.error(measured, temp_c)
+    return measured
