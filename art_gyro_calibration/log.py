@@ -14,6 +14,7 @@ from __future__ import annotations
 import io
 import math
 import os
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,7 +62,9 @@ def read_log(path: str | os.PathLike[str], rate_scale_factor: float | None = Non
             if not header_line.strip() or len(set(header)) != len(header) or '' in header:
                 raise LogError(f'{where}:1: header must name each column once, got {header_line.strip()!r}')
             try:
-                data = np.loadtxt(f, delimiter=',', dtype=float, ndmin=2)
+                with warnings.catch_warnings():
+                    warnings.simplefilter('ignore', UserWarning)  # an empty log is refused below
+                    data = np.loadtxt(f, delimiter=',', dtype=float, ndmin=2)
             except ValueError as e:
                 raise LogError(f'{where}: {e} (row 1 is the first after the header)') from None
     except OSError as e:

@@ -101,7 +101,7 @@ class ErrorModel:
 
 
 def measured_from_true(polynomial: ArtPolynomial, true_rate_dps: ArrayLike, temp_c: ArrayLike,
-                       iterations: int = 6) -> NDArray[np.float64]:
+                       tolerance_dps: float = 1e-12, max_iterations: int = 100) -> NDArray[np.float64]:
     """Reading ``m`` of a gyro whose error is ``comp(m, T)``: solves ``m - comp(m, T) = true``.
 
     The model is written in the measured rate, so a simulator must invert it; the
@@ -109,6 +109,11 @@ def measured_from_true(polynomial: ArtPolynomial, true_rate_dps: ArrayLike, temp
     """
     true_rate = np.asarray(true_rate_dps, dtype=float)
     measured = true_rate.copy()
-    for _ in range(iterations):
-        measured = true_rate + polynomial.error(measured, temp_c)
-    return measured
+    for _ in range(max_iterations):
+        updated = true_rate + polynomial.error(measured, temp_c)
+        step = np.max(np.abs(updated - measured), initial=0.0)
+        measured = updated
+        if step <= tolerance_dps:
+            return measured
+    raise ValueError(f'the model does not invert: its rate derivative is not small over these inputs '
+                     f'(last step {step:.3g} deg/s)')

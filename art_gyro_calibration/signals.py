@@ -188,7 +188,7 @@ class SignalTracker:
         if name == 'rate_abs':
             return abs(self.rate)
         if name == 'rate_sign':
-            return float((self.rate > 0.0) - (self.rate < 0.0))
+            return 1.0 if self.rate > 0.0 else -1.0 if self.rate < 0.0 else 0.0
         if name == 'rate_change':
             return self._rate_change.value
         if name == 'angle':

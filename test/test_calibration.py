@@ -1,0 +1,139 @@
+"""Calibration files: the report's digits, loading, round trips and refusals."""
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from art_gyro_calibration.calibration import (Calibration, CalibrationError, dump_calibration, find_calibration_file,
+                                              flatten, from_parameters, load_calibration, load_packaged_calibration,
+                                              write_calibration)
+from art_gyro_calibration.terms import Term
+
+REPO = Path(__file__).resolve().parent.parent
+SEED = REPO.parent / 'shared' / 'seeds' / '000_e616fa3fb2e01c6d.txt'
+NUMBER = r'-?\d+\.\d+'
+
+
+def report_sections() -> dict[str, tuple[str, str, str, list[str]]]:
+    """Per serial, the report's (rows, columns, scale factor, coefficient tokens) as printed."""
+    if not SEED.is_file():
+        pytest.skip(f'the ART report is not at {SEED}')
+    text = SEED.read_text(encoding='utf-8')
+    sections = {}
+    for m in re.finditer(r'# Gyro #\d, S/N: (\w+)\s+Polynomial function with ROWS = (\d+), COLUMNS = (\d+), '
+                         r'Scale Factor = ([\d.]+):', text):
+        rows, columns = int(m.group(2)), int(m.group(3))
+        tokens = re.findall(NUMBER, text[m.end():])[:rows * columns]
+        sections[m.group(1)] = (m.group(2), m.group(3), m.group(4), tokens)
+    return sections
+
+
+def test_the_report_has_five_gyros() -> None:
+    assert sorted(report_sections()) == ['NAVC3545', 'NAVC4058', 'NAVC4253', 'NAVC4361', 'NAVC4377']
+
+
+def test_files_hold_every_printed_digit(serial: str) -> None:
+    rows, columns, scale, tokens = report_sections()[serial]
+    text = find_calibration_file(serial).read_text(encoding='utf-8')
+    body = text[text.index('coefficients:'):]
+    assert re.findall(NUMBER, body[:body.index(']')]) == tokens
+    assert re.search(rf'^\s+rate_scale_factor: {re.escape(scale)}$', text, re.M)
+    assert re.search(rf'^\s+rows: {rows}$', text, re.M) and re.search(rf'^\s+columns: {columns}$', text, re.M)
+    cal = load_packaged_calibration(serial)
+    np.testing.assert_array_equal(cal.polynomial.coefficients.ravel(), [float(t) for t in tokens])
+    assert cal.serial_number == serial and cal.temp_scale_factor == 0.05
+
+
+def test_files_are_ros2_parameter_files(serial: str) -> None:
+    doc = yaml.safe_load(find_calibration_file(serial).read_text(encoding='utf-8'))
+    assert list(doc) == ['/**'] and list(doc['/**']) == ['ros__parameters']
+    coefficients = doc['/**']['ros__parameters']['polynomial']['coefficients']
+    # rcl's YAML parser needs one type per array: every coefficient is written as a float.
+    assert all(isinstance(c, float) for c in coefficients)
+
+
+def test_round_trip_with_extended_terms(tmp_path: Path) -> None:
+    base = load_packaged_calibration('NAVC4058')
+    cal = Calibration(base.serial_number, base.rate_scale_factor, base.polynomial, base.temperature_range_c,
+                      terms=(Term('temperature_rate', 'power', (12.5,), (1,)),
+                             Term('time', 'exp_decay', (0.02,), (), 900.0),
+                             Term('angle', 'harmonic', (0.001, -0.002)),
+                             Term('supply_v', 'power', (0.003,), (1,))))
+    path = tmp_path / 'cal.yaml'
+    write_calibration(path, cal, header='fitted by a test')
+    assert path.read_text().startswith('# fitted by a test\n/**:')
+    again = load_calibration(path, expected_serial='NAVC4058')
+    assert again.terms == cal.terms
+    np.testing.assert_array_equal(again.polynomial.coefficients, cal.polynomial.coefficients)
+
+
+def _params(serial: str = 'NAVC3545') -> dict:
+    return load_packaged_calibration(serial).to_parameters()
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'polynomial.coefficients': [1.0] * 11}, 'has 11 numbers'),
+    ({'polynomial.coefficients': [1.0] * 11 + ['x']}, r'polynomial.coefficients\[11\] must be a finite number'),
+    ({'polynomial.coefficients': [1.0] * 11 + [float('nan')]}, 'finite number'),
+    ({'polynomial.rows': 0}, 'polynomial.rows must be a whole number'),
+    ({'polynomial.rows': 2.5}, 'polynomial.rows must be a whole number'),
+    ({'rate_scale_factor': -0.00305}, 'scale factors must be positive'),
+    ({'rate_scale_factor': 'fast'}, 'rate_scale_factor must be a finite number'),
+    ({'temperature_range_c': [50.0, 10.0]}, 'min < max'),
+    ({'serial_number': 'NAVC 3545'}, 'serial_number must be'),
+    ({'extended.signals': ['time']}, "missing parameter 'extended.time.form'"),
+    ({'extended.signals': ['time'], 'extended.time.form': 'exp_decay', 'extended.time.coefficients': [0.1]},
+     'time_constant_s must be positive'),
+    ({'extended.signals': ['rate'], 'extended.rate.form': 'spline', 'extended.rate.coefficients': [0.1]},
+     "form 'spline' is not one of"),
+    ({'filters.temperature_rate_tau_s': 0.0}, 'temperature_rate_tau_s must be a positive'),
+])
+def test_malformed_parameters_are_refused(change: dict, message: str) -> None:
+    params = _params()
+    params.update(change)
+    with pytest.raises(CalibrationError, match=message) as info:
+        from_parameters(params, 'test.yaml')
+    assert str(info.value).startswith('test.yaml: ')
+
+
+@pytest.mark.parametrize('key', ['serial_number', 'rate_scale_factor', 'temp_scale_factor', 'polynomial.rows',
+                                 'polynomial.columns', 'polynomial.coefficients', 'temperature_range_c'])
+def test_missing_keys_are_refused(key: str) -> None:
+    params = _params()
+    del params[key]
+    with pytest.raises(CalibrationError, match=f"missing parameter '{re.escape(key)}'"):
+        from_parameters(params, 'test.yaml')
+
+
+def test_bad_files_are_refused_with_their_path(tmp_path: Path) -> None:
+    good = find_calibration_file('NAVC4361').read_text()
+    cases = {
+        'not_yaml.yaml': 'a: [b',
+        'no_params.yaml': '/**:\n  other: 1\n',
+        'two_nodes.yaml': good + '\nnode2:\n  ros__parameters: {}\n',
+        'wrong_count.yaml': good.replace('0.00069842373067,', ''),
+        'a_word.yaml': good.replace('0.00069842373067', 'zero'),
+    }
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+        with pytest.raises(CalibrationError, match=re.escape(str(tmp_path / name))):
+            load_calibration(tmp_path / name)
+    with pytest.raises(CalibrationError, match='cannot read'):
+        load_calibration(tmp_path / 'absent.yaml')
+    (tmp_path / 'NAVC3545.yaml').write_text(good)
+    with pytest.raises(CalibrationError, match="serial_number is 'NAVC4361', expected 'NAVC3545'"):
+        load_calibration(tmp_path / 'NAVC3545.yaml', expected_serial='NAVC3545')
+
+
+def test_unknown_serial_names_where_it_looked() -> None:
+    with pytest.raises(CalibrationError, match='no calibration file NAVC0000.yaml in'):
+        load_packaged_calibration('NAVC0000')
+
+
+def test_flatten_matches_the_dump() -> None:
+    cal = load_packaged_calibration('NAVC4377')
+    doc = yaml.safe_load(dump_calibration(cal))
+    assert flatten(doc['/**']['ros__parameters']) == cal.to_parameters()

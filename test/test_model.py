@@ -1,0 +1,152 @@
+"""The model against straight transcriptions of the report's C program (Python and gcc)."""
+
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration.compensation import Compensator, apply_calibration
+from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.model import ArtPolynomial, measured_from_true
+
+C_SOURCE = Path(__file__).parent / 'c' / 'art_reference.c'
+RATES = np.linspace(-100.0, 100.0, 41)     # the RD2100's full scale, deg/s
+TEMPS = np.linspace(-10.0, 60.0, 15)       # beyond the calibrated range on both sides, degC
+
+
+def comp_function_transcribed(coef: list[list[float]], gyro_rate: float, gyro_temp: float) -> float:
+    """CompFunction() of the report, line by line, in single precision like the C floats."""
+    f = np.float32
+    rows, columns = len(coef), len(coef[0])
+    sum_t = [f(0)] * columns
+    comp = f(0)
+    for i in range(columns):
+        sum_t[i] = f(0)
+        for j in range(rows):
+            aux = f(math.pow(f(gyro_temp), rows - j - 1)) if rows - j - 1 else f(1)
+            sum_t[i] = f(sum_t[i] + f(aux * f(coef[j][i])))
+    for i in range(columns):
+        aux = f(math.pow(f(gyro_rate), columns - i - 1)) if columns - i - 1 else f(1)
+        comp = f(comp + f(aux * sum_t[i]))
+    return float(comp)
+
+
+def test_comp_matches_the_transcription_over_the_whole_range(serial: str) -> None:
+    poly = load_packaged_calibration(serial).polynomial
+    coef = poly.coefficients.tolist()
+    rate, temp = np.meshgrid(RATES, TEMPS)
+    expected = np.vectorize(lambda r, t: comp_function_transcribed(coef, r, t))(rate, temp)
+    scale = np.abs(expected).max()
+    assert scale > 1e-3  # the error surface is not trivially zero
+    np.testing.assert_allclose(poly.error(rate, temp), expected, rtol=0, atol=2e-6 * max(scale, 1.0))
+    one = np.vectorize(poly.error_one)(rate, temp)
+    np.testing.assert_allclose(one, poly.error(rate, temp), rtol=1e-12, atol=1e-15)
+
+
+def test_rows_are_temperature_powers_and_columns_rate_powers() -> None:
+    # Only coef[0][1] set: the term temp**(rows-1) * rate**(columns-2).
+    c = np.zeros((3, 4))
+    c[0, 1] = 1.0
+    assert ArtPolynomial(c).error_one(2.0, 3.0) == pytest.approx(3.0 ** 2 * 2.0 ** 2)
+    assert ArtPolynomial([[1.0]]).error(np.array([5.0, -7.0]), 30.0).tolist() == [1.0, 1.0]
+
+
+@pytest.mark.parametrize('bad', [[[]], [[1.0, float('nan')]], [[float('inf')]]])
+def test_bad_coefficients_are_refused(bad: list[list[float]]) -> None:
+    with pytest.raises(ValueError):
+        ArtPolynomial(bad)
+
+
+def test_measured_from_true_inverts_the_model(serial: str) -> None:
+    poly = load_packaged_calibration(serial).polynomial
+    rate, temp = np.meshgrid(RATES, TEMPS)
+    measured = measured_from_true(poly, rate, temp)
+    np.testing.assert_allclose(measured - poly.error(measured, temp), rate, atol=1e-9)
+
+
+def _raw_run(serial: str, n: int = 3000, bias_samples: int = 100) -> tuple[np.ndarray, np.ndarray]:
+    """Raw counts: still for the bias samples, then rates and temperatures over the whole range."""
+    cal = load_packaged_calibration(serial)
+    rng = np.random.default_rng(7)
+    true = np.concatenate([np.zeros(bias_samples), rng.uniform(-100, 100, n - bias_samples)])
+    temp = np.concatenate([np.full(bias_samples, 22.0), rng.uniform(-10, 60, n - bias_samples)])
+    measured = measured_from_true(cal.polynomial, true, temp) + rng.normal(0, 0.005, n)
+    raw_rate = np.round(measured / cal.rate_scale_factor).astype(np.int32)
+    raw_temp = np.round(temp / cal.temp_scale_factor).astype(np.int32)
+    return raw_rate, raw_temp
+
+
+def _transcribed_program(serial: str, raw_rate: np.ndarray, raw_temp: np.ndarray,
+                         bias_samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """StaticBias() then main() of the report, in Python single precision."""
+    cal = load_packaged_calibration(serial)
+    f = np.float32
+    coef = cal.polynomial.coefficients.tolist()
+    scale, tscale = f(cal.rate_scale_factor), f(cal.temp_scale_factor)
+    sum_b = sum_c = f(0)
+    for k in range(bias_samples):
+        sum_b = f(sum_b + f(raw_rate[k]))
+        sum_c = f(sum_c + f(comp_function_transcribed(coef, f(scale * f(raw_rate[k])), f(tscale * f(raw_temp[k])))))
+    static_bias_drift = f(f(sum_b * scale) / f(bias_samples))
+    calc_static_bias_drift = f(sum_c / f(bias_samples))
+    comps, rates = [], []
+    for k in range(len(raw_rate)):
+        gyro_rate = f(scale * f(raw_rate[k]))
+        comp = f(comp_function_transcribed(coef, gyro_rate, f(tscale * f(raw_temp[k]))))
+        comps.append(comp)
+        rates.append(f(f(f(gyro_rate - static_bias_drift) - comp) + calc_static_bias_drift))
+    return np.array(comps, dtype=float), np.array(rates, dtype=float)
+
+
+def test_comp_rate_matches_the_transcribed_program(serial: str) -> None:
+    cal = load_packaged_calibration(serial)
+    raw_rate, raw_temp = _raw_run(serial, n=600)
+    comp_ref, rate_ref = _transcribed_program(serial, raw_rate, raw_temp, 100)
+    log = GyroLog(np.arange(len(raw_rate)) * 0.1, raw_rate * cal.rate_scale_factor, raw_temp * 0.05)
+    applied = apply_calibration(log, cal, bias_samples=100)
+    np.testing.assert_allclose(applied.comp_dps, comp_ref, atol=2e-5)
+    np.testing.assert_allclose(applied.corrected_dps, rate_ref, atol=5e-5)
+    # The correction matters: it is far larger than the tolerance.
+    assert np.abs(applied.corrected_dps - (log.rate_dps - applied.bias.static_bias_drift_dps)).max() > 0.01
+
+
+@pytest.fixture(scope='module')
+def c_reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The report's C program, compiled with gcc -O2."""
+    gcc = shutil.which('gcc')
+    assert gcc, 'gcc is needed to compile the report C program (.ci/run installs it)'
+    exe = tmp_path_factory.mktemp('c') / 'art_reference'
+    subprocess.run([gcc, '-O2', '-o', str(exe), str(C_SOURCE), '-lm'], check=True)
+    return exe
+
+
+def test_comp_rate_matches_the_compiled_c_program(serial: str, c_reference: Path, tmp_path: Path) -> None:
+    cal = load_packaged_calibration(serial)
+    bias_samples = 100
+    raw_rate, raw_temp = _raw_run(serial)
+    params = tmp_path / 'params.txt'
+    params.write_text(f'{cal.rate_scale_factor!r} {cal.polynomial.rows} {cal.polynomial.columns} '
+                      + ' '.join(repr(float(c)) for c in cal.polynomial.coefficients.ravel()) + f' {bias_samples}\n')
+    (tmp_path / 'in.bin').write_bytes(np.column_stack([raw_rate, raw_temp]).astype(np.int32).tobytes())
+    subprocess.run([str(c_reference), str(params), str(tmp_path / 'in.bin'), str(tmp_path / 'out.bin')],
+                   check=True, capture_output=True)
+    out = np.fromfile(tmp_path / 'out.bin', dtype=np.float32).reshape(-1, 2).astype(float)
+
+    log = GyroLog(np.arange(len(raw_rate)) * 0.1, raw_rate * cal.rate_scale_factor, raw_temp * 0.05)
+    applied = apply_calibration(log, cal, bias_samples=bias_samples)
+    np.testing.assert_allclose(applied.comp_dps[bias_samples:], out[:, 0], atol=2e-5)
+    np.testing.assert_allclose(applied.corrected_dps[bias_samples:], out[:, 1], atol=5e-5)
+
+    # The node's per-sample path gives the same numbers.
+    comp = Compensator(cal)
+    errors = []
+    for k in range(len(raw_rate)):
+        rate, temp = comp.scale(int(raw_rate[k]), int(raw_temp[k]))
+        errors.append(comp.error(log.t[k], rate, temp))
+    comp.bias = applied.bias
+    per_sample = [comp.correct(r, e) for r, e in zip(log.rate_dps, errors)]
+    np.testing.assert_allclose(per_sample, applied.corrected_dps, rtol=0, atol=1e-9)

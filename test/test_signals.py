@@ -1,0 +1,79 @@
+"""Causal signals: per sample and over a log they agree, and they measure what they claim."""
+
+import numpy as np
+import pytest
+
+from art_gyro_calibration.model import ArtPolynomial, ErrorModel
+from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalFilters, SignalTracker, compute_signals
+from art_gyro_calibration.terms import Term
+
+
+def _run(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(3)
+    rate = 40 * np.sign(np.sin(t / 30)) + rng.normal(0, 0.01, len(t))
+    temp = 20 + 8 * np.sin(t / 2000) + np.round(rng.normal(0, 1, len(t))) * 0.05
+    return rate, temp
+
+
+@pytest.mark.parametrize('jitter', [0.0, 0.01])
+def test_tracker_agrees_with_batch(jitter: float) -> None:
+    rng = np.random.default_rng(4)
+    t = np.arange(20000) * 0.1 + rng.uniform(0, jitter, 20000)
+    rate, temp = _run(t)
+    signals = compute_signals(t, rate, temp, filters=SignalFilters(60.0, 0.3))
+    tracker = SignalTracker(SignalFilters(60.0, 0.3))
+    got = {name: [] for name in DERIVED_SIGNALS}
+    for k in range(len(t)):
+        tracker.update(t[k], rate[k], temp[k])
+        for name in DERIVED_SIGNALS:
+            got[name].append(tracker.value(name))
+    for name in DERIVED_SIGNALS:
+        np.testing.assert_allclose(got[name], signals.get(name), rtol=1e-9, atol=1e-9, err_msg=name)
+
+
+def test_temperature_rate_of_a_ramp() -> None:
+    t = np.arange(0, 3600, 0.1)
+    temp = 15 + t / 60.0  # 1 degC per minute
+    signals = compute_signals(t, np.zeros_like(t), np.round(temp / 0.05) * 0.05)
+    settled = t > 5 * signals_tau()
+    np.testing.assert_allclose(signals.temperature_rate[settled], 1 / 60.0, rtol=0.02)
+    assert signals.temperature_rate[0] == 0.0  # nothing is known of the past at the first sample
+
+
+def signals_tau() -> float:
+    return SignalFilters().temperature_rate_tau_s
+
+
+def test_angle_and_time() -> None:
+    t = np.arange(0, 36.01, 0.01) + 100.0
+    signals = compute_signals(t, np.full_like(t, 10.0), np.full_like(t, 20.0))
+    assert signals.angle[-1] == pytest.approx(360.0)
+    assert signals.time[-1] == pytest.approx(36.0)
+    assert set(signals.rate_sign) == {1.0}
+
+
+def test_extra_columns_and_unknown_names() -> None:
+    t = np.arange(5.0)
+    signals = compute_signals(t, t, t, extras={'supply_v': t * 2})
+    assert signals.names()[-1] == 'supply_v'
+    np.testing.assert_array_equal(signals.get('supply_v'), t * 2)
+    with pytest.raises(KeyError, match="signal 'humidity' is neither derived"):
+        signals.get('humidity')
+    with pytest.raises(KeyError, match='not available per sample'):
+        SignalTracker().value('supply_v')
+
+
+def test_error_model_per_sample_equals_batch() -> None:
+    t = np.arange(3000) * 0.1
+    rate, temp = _run(t)
+    model = ErrorModel(ArtPolynomial([[1e-6, 2e-4], [3e-3, -0.01]]),
+                       (Term('temperature_rate', 'power', (4.0,), (1,)), Term('time', 'exp_decay', (0.03,), (), 120.0),
+                        Term('angle', 'harmonic', (0.002, 0.001)), Term('rate_sign', 'power', (0.001,), (1,))))
+    batch = model.error(compute_signals(t, rate, temp))
+    tracker = SignalTracker()
+    one = []
+    for k in range(len(t)):
+        tracker.update(t[k], rate[k], temp[k])
+        one.append(model.error_one(tracker))
+    np.testing.assert_allclose(one, batch, rtol=1e-10, atol=1e-12)
+    assert np.ptp(batch - model.polynomial.error(rate, temp)) > 0.01  # the terms do contribute
