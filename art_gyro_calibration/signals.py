@@ -10,9 +10,11 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.signal import lfilter, lfiltic
 
 # Signals derived from (t, rate, temperature); any other name is an extra log column.
 DERIVED_SIGNALS = ('temperature', 'temperature_rate', 'time', 'rate', 'rate_abs',
@@ -41,15 +43,35 @@ class SignalFilters:
 
 @dataclass(frozen=True)
 class Signals:
-    """Every signal of a log, one array each, aligned with its samples."""
+    """Every signal of a log, one array each, aligned with its samples.
+
+    The derived signals are computed on first use, so a model without extended
+    terms costs no filtering.
+    """
 
     t: NDArray[np.float64]
     rate: NDArray[np.float64]
     temperature: NDArray[np.float64]
-    temperature_rate: NDArray[np.float64]
-    rate_change: NDArray[np.float64]
-    angle: NDArray[np.float64]
     extras: Mapping[str, NDArray[np.float64]] = field(default_factory=dict)
+    filters: SignalFilters = field(default_factory=SignalFilters)
+
+    @cached_property
+    def temperature_rate(self) -> NDArray[np.float64]:
+        """Filtered temperature rate of change, degC/s."""
+        return _derivative(self.t, self.temperature, self.filters.temperature_rate_tau_s)
+
+    @cached_property
+    def rate_change(self) -> NDArray[np.float64]:
+        """Filtered rate of change of the measured rate, deg/s^2."""
+        return _derivative(self.t, self.rate, self.filters.rate_change_tau_s)
+
+    @cached_property
+    def angle(self) -> NDArray[np.float64]:
+        """Angle turned in degrees, trapezoidal integral of the measured rate."""
+        out = np.zeros(len(self.rate))
+        if len(self.rate) > 1:
+            out[1:] = np.cumsum(0.5 * (self.rate[1:] + self.rate[:-1]) * np.diff(self.t))
+        return out
 
     @property
     def time(self) -> NDArray[np.float64]:
@@ -94,7 +116,6 @@ def _derivative(t: NDArray[np.float64], x: NDArray[np.float64], tau_s: float) ->
     alpha = -np.expm1(-np.maximum(dt, 0.0) / tau_s)
     if n > 1 and np.ptp(dt) <= 1e-9 * max(abs(float(dt[0])), 1e-12):
         # Uniform sampling: a fixed-coefficient IIR filter, run in C by scipy.
-        from scipy.signal import lfilter, lfiltic
         a = float(alpha[0])
         zi = lfiltic([a], [1.0, a - 1.0], y=[x[0]], x=[x[0]])
         smooth = lfilter([a], [1.0, a - 1.0], x[1:], zi=zi)[0]
@@ -108,27 +129,13 @@ def _derivative(t: NDArray[np.float64], x: NDArray[np.float64], tau_s: float) ->
     return out
 
 
-def _angle(t: NDArray[np.float64], rate: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Angle turned in degrees, trapezoidal integral of the measured rate."""
-    out = np.zeros(len(rate))
-    if len(rate) > 1:
-        out[1:] = np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))
-    return out
-
-
 def compute_signals(t: ArrayLike, rate_dps: ArrayLike, temp_c: ArrayLike,
                     extras: Mapping[str, ArrayLike] | None = None,
                     filters: SignalFilters = SignalFilters()) -> Signals:
-    """Compute every signal of a log causally (each sample sees only the past)."""
-    tt = np.asarray(t, dtype=float)
-    rate = np.asarray(rate_dps, dtype=float)
-    temp = np.asarray(temp_c, dtype=float)
-    return Signals(
-        t=tt, rate=rate, temperature=temp,
-        temperature_rate=_derivative(tt, temp, filters.temperature_rate_tau_s),
-        rate_change=_derivative(tt, rate, filters.rate_change_tau_s),
-        angle=_angle(tt, rate),
-        extras={k: np.asarray(v, dtype=float) for k, v in (extras or {}).items()})
+    """Signals of a log, each computed causally (a sample sees only the past)."""
+    return Signals(t=np.asarray(t, dtype=float), rate=np.asarray(rate_dps, dtype=float),
+                   temperature=np.asarray(temp_c, dtype=float),
+                   extras={k: np.asarray(v, dtype=float) for k, v in (extras or {}).items()}, filters=filters)
 
 
 class _Derivative:
