@@ -1,0 +1,330 @@
+"""A simulated RD2100 on a real pseudo-terminal, with the errors of a calibrated gyro.
+
+The physics (what the gyro reads for a true rate and temperature) is in
+:class:`GyroSimulator`, pure and vectorised; :class:`FakeRd2100` puts its samples on a
+pty at a steady rate, can be unplugged and replugged, and can inject garbage.
+
+A reading is ``measured_from_true(polynomial, true_rate, T) + turn_on_bias + earth_rate
++ white noise`` in deg/s, quantised to counts with the calibration's rate scale factor;
+the temperature is ``round(T / temp_scale_factor)`` counts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import math
+import os
+import signal
+import sys
+import threading
+import time
+import tty
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
+from art_gyro_calibration.frame import INT16_MAX, INT16_MIN, check_protocol, make_encoder
+from art_gyro_calibration.model import measured_from_true
+
+# White noise of an RD2100 at its 10 Hz output, one sample's standard deviation.
+DEFAULT_NOISE_DPS_AT_10HZ = 0.005
+EARTH_RATE_DPS = 360.0 / 86164.0905   # one turn per sidereal day
+ART_LATITUDE_DEG = 42.28               # Ann Arbor, where ART calibrated the gyros
+DEFAULT_TURN_ON_BIAS_SIGMA_DPS = 0.02
+# Bytes a slow or absent reader may leave unsent before the fake drops them, as a
+# real gyro's UART would: about a second of binary frames at 1 kHz.
+MAX_PENDING_BYTES = 8192
+
+
+def default_noise_dps(rate_hz: float) -> float:
+    """Per-sample noise at ``rate_hz``: white noise of fixed density, so it grows as sqrt(rate)."""
+    return DEFAULT_NOISE_DPS_AT_10HZ * math.sqrt(rate_hz / 10.0)
+
+
+def earth_rate_dps(latitude_deg: float) -> float:
+    """What a level yaw gyro at rest reads of the Earth's rotation."""
+    return EARTH_RATE_DPS * math.sin(math.radians(latitude_deg))
+
+
+@dataclass(frozen=True)
+class RateProfile:
+    """True rate over time: piecewise-constant segments ``(duration_s, rate_dps)``, repeating."""
+
+    segments: tuple[tuple[float, float], ...]
+
+    def __post_init__(self) -> None:
+        if not self.segments:
+            raise ValueError('a rate profile needs at least one segment')
+        for duration, rate in self.segments:
+            if not (math.isfinite(duration) and duration > 0 and math.isfinite(rate)):
+                raise ValueError(f'rate profile segment {duration}:{rate} needs a positive duration '
+                                 'and a finite rate')
+
+    @classmethod
+    def parse(cls, text: str) -> RateProfile:
+        """``'rate_dps'`` (constant) or ``'duration_s:rate_dps,...'`` (repeating)."""
+        segments = []
+        try:
+            if ':' not in text:
+                return cls(((1.0, float(text)),))
+            for part in text.split(','):
+                duration, rate = part.split(':')
+                segments.append((float(duration), float(rate)))
+        except ValueError:
+            raise ValueError(f'rate profile {text!r}: expected a rate in deg/s or '
+                             '"duration_s:rate_dps,..." segments') from None
+        return cls(tuple(segments))
+
+    def rate_at(self, t: ArrayLike) -> NDArray[np.float64]:
+        """True rate in deg/s at times ``t`` (seconds since start)."""
+        durations = np.array([d for d, _ in self.segments])
+        rates = np.array([r for _, r in self.segments])
+        ends = np.cumsum(durations)
+        phase = np.mod(np.asarray(t, dtype=float), ends[-1])
+        return rates[np.minimum(np.searchsorted(ends, phase, side='right'), len(rates) - 1)]
+
+
+@dataclass(frozen=True)
+class TemperatureProfile:
+    """Temperature over time: ``start_c`` ramping linearly to ``end_c`` over ``ramp_s``, then held."""
+
+    start_c: float
+    end_c: float | None = None
+    ramp_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.end_c is not None and not (math.isfinite(self.ramp_s) and self.ramp_s > 0):
+            raise ValueError(f'a temperature ramp needs a positive duration, got {self.ramp_s}')
+
+    @classmethod
+    def parse_ramp(cls, text: str) -> TemperatureProfile:
+        """``'start_c:end_c:ramp_s'``."""
+        try:
+            start, end, ramp = (float(v) for v in text.split(':'))
+        except ValueError:
+            raise ValueError(f'temperature ramp {text!r}: expected "start_c:end_c:ramp_s"') from None
+        return cls(start, end, ramp)
+
+    def temperature_at(self, t: ArrayLike) -> NDArray[np.float64]:
+        """Temperature in degC at times ``t``."""
+        t = np.asarray(t, dtype=float)
+        if self.end_c is None:
+            return np.full(t.shape, self.start_c)
+        return self.start_c + (self.end_c - self.start_c) * np.clip(t / self.ramp_s, 0.0, 1.0)
+
+
+class GyroSimulator:
+    """The readings of one calibrated gyro, in counts, for a rate and temperature profile."""
+
+    def __init__(self, calibration: Calibration, profile: RateProfile, temperature: TemperatureProfile,
+                 noise_dps: float, seed: int | None = None, turn_on_bias_dps: float | None = None,
+                 latitude_deg: float = ART_LATITUDE_DEG) -> None:
+        if not (math.isfinite(noise_dps) and noise_dps >= 0):
+            raise ValueError(f'noise must be a non-negative number of deg/s, got {noise_dps}')
+        self.calibration = calibration
+        self.profile = profile
+        self.temperature = temperature
+        self.noise_dps = noise_dps
+        self._rng = np.random.default_rng(seed)
+        self.turn_on_bias_dps = (float(self._rng.normal(0.0, DEFAULT_TURN_ON_BIAS_SIGMA_DPS))
+                                 if turn_on_bias_dps is None else turn_on_bias_dps)
+        self.earth_rate_dps = earth_rate_dps(latitude_deg)
+
+    def reading_dps(self, true_rate_dps: ArrayLike, temp_c: ArrayLike) -> NDArray[np.float64]:
+        """What the gyro reads, noise-free, in deg/s."""
+        return (measured_from_true(self.calibration.polynomial, true_rate_dps, temp_c)
+                + self.turn_on_bias_dps + self.earth_rate_dps)
+
+    def counts(self, t: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Raw (rate, temperature) counts at times ``t``, with fresh noise."""
+        t = np.asarray(t, dtype=float)
+        temp = self.temperature.temperature_at(t)
+        reading = self.reading_dps(self.profile.rate_at(t), temp)
+        if self.noise_dps > 0:
+            reading = reading + self._rng.normal(0.0, self.noise_dps, t.shape)
+        raw_rate = np.clip(np.rint(reading / self.calibration.rate_scale_factor), INT16_MIN, INT16_MAX)
+        raw_temp = np.clip(np.rint(temp / self.calibration.temp_scale_factor), INT16_MIN, INT16_MAX)
+        return raw_rate.astype(np.int64), raw_temp.astype(np.int64)
+
+
+class FakeRd2100:
+    """A simulated RD2100 writing frames to a pseudo-terminal; use as a context manager."""
+
+    def __init__(self, serial_number: str, protocol: str = 'binary', rate_hz: float = 10.0,
+                 link: str | None = None, profile: RateProfile | str = '0',
+                 temperature: TemperatureProfile | float = 25.0, noise_dps: float | None = None,
+                 seed: int | None = None, turn_on_bias_dps: float | None = None) -> None:
+        if not (math.isfinite(rate_hz) and 0 < rate_hz <= 10000):
+            raise ValueError(f'rate_hz must be in (0, 10000], got {rate_hz}')
+        self._encode = make_encoder(check_protocol(protocol))
+        self.protocol = protocol
+        self.rate_hz = rate_hz
+        self.link = link
+        self.simulator = GyroSimulator(
+            load_packaged_calibration(serial_number),
+            profile if isinstance(profile, RateProfile) else RateProfile.parse(profile),
+            temperature if isinstance(temperature, TemperatureProfile) else TemperatureProfile(float(temperature)),
+            default_noise_dps(rate_hz) if noise_dps is None else noise_dps, seed, turn_on_bias_dps)
+        self.sent = 0        # frames written
+        self.dropped = 0     # bytes dropped because nobody read them
+        self.last_sample: tuple[int, int] | None = None
+        self._lock = threading.Lock()    # master fd and pending bytes: frames and injections never interleave
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._slave_name = ''
+        self._pending = b''
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._open_pty()
+
+    @property
+    def path(self) -> str:
+        """The port to open: the link if there is one, else the current pty slave."""
+        return self.link if self.link is not None else self._slave_name
+
+    def _open_pty(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)           # no byte translated (no CR/LF mapping, no echo, no signals)
+        os.set_blocking(master, False)
+        self._master, self._slave, self._slave_name = master, slave, os.ttyname(slave)
+        if self.link is not None:
+            # Re-point atomically so a reader never sees the link missing while plugged.
+            temporary = f'{self.link}.{os.getpid()}.tmp'
+            if os.path.lexists(temporary):
+                os.unlink(temporary)
+            os.symlink(self._slave_name, temporary)
+            os.replace(temporary, self.link)
+
+    def _close_pty(self) -> None:
+        if self.link is not None and os.path.islink(self.link):
+            os.unlink(self.link)
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                os.close(fd)
+        self._master = self._slave = None
+        self._pending = b''
+
+    def start(self) -> None:
+        """Start sending frames at ``rate_hz``."""
+        if self._thread is not None:
+            raise RuntimeError('FakeRd2100 already started')
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name='fake_rd2100', daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop sending and remove the pty and link."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        with self._lock:
+            self._close_pty()
+
+    def unplug(self) -> None:
+        """Take the device away: close the pty (readers get an I/O error) and remove the link."""
+        with self._lock:
+            self._close_pty()
+
+    def replug(self) -> None:
+        """Plug the device in again on a new pty; the link points to it."""
+        with self._lock:
+            if self._master is None:
+                self._open_pty()
+
+    def inject(self, data: bytes) -> None:
+        """Write raw bytes (garbage) between two frames."""
+        with self._lock:
+            self._write(data)
+
+    def _write(self, data: bytes) -> None:
+        """Write under the lock; what a slow reader leaves is kept, then dropped past a bound."""
+        if self._master is None:
+            return
+        out = self._pending + data
+        try:
+            written = os.write(self._master, out)
+        except BlockingIOError:
+            written = 0
+        except OSError as e:
+            if e.errno != errno.EIO:   # EIO: no reader has the slave open; the bytes are lost
+                raise
+            written = len(out)
+        self._pending = out[written:]
+        if len(self._pending) > MAX_PENDING_BYTES:
+            self.dropped += len(self._pending)
+            self._pending = b''
+
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        block = max(1, int(self.rate_hz * 0.1))   # simulate 0.1 s at a time: numpy, not per sample
+        start = time.monotonic()
+        index = 0
+        while not self._stop.is_set():
+            times = (index + np.arange(block)) * period
+            raw_rates, raw_temps = self.simulator.counts(times)
+            for raw_rate, raw_temp in zip(raw_rates.tolist(), raw_temps.tolist()):
+                # Absolute deadlines: sleep jitter does not accumulate into a rate error.
+                delay = start + index * period - time.monotonic()
+                if delay < -1.0:   # stalled for over a second: resume now rather than burst
+                    start -= delay
+                elif delay > 0 and self._stop.wait(delay):
+                    return
+                with self._lock:
+                    self._write(self._encode(raw_rate, raw_temp))
+                    self.last_sample = (raw_rate, raw_temp)
+                    self.sent += 1
+                index += 1
+
+    def __enter__(self) -> FakeRd2100:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog='fake_rd2100', description=__doc__.splitlines()[0])
+    p.add_argument('--serial', required=True, help='serial number of a packaged calibration, e.g. NAVC3545')
+    p.add_argument('--link', help='symlink to the current pty, e.g. /tmp/rd2100 (survives replugging)')
+    p.add_argument('--protocol', choices=('binary', 'ascii'), default='binary')
+    p.add_argument('--rate-hz', type=float, default=10.0, help='output rate (default 10)')
+    p.add_argument('--profile', default='0',
+                   help='true rate: deg/s, or repeating segments "duration_s:rate_dps,..." (default 0)')
+    temp = p.add_mutually_exclusive_group()
+    temp.add_argument('--temperature', type=float, default=25.0, help='constant degC (default 25)')
+    temp.add_argument('--temperature-ramp', help='"start_c:end_c:ramp_s", then held at end_c')
+    p.add_argument('--noise-dps', type=float, help='per-sample white noise (default 0.005 at 10 Hz, x sqrt(rate/10))')
+    p.add_argument('--turn-on-bias-dps', type=float, help='turn-on bias (default: drawn with the seed)')
+    p.add_argument('--seed', type=int, help='random seed')
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Console entry: run a fake gyro until SIGINT or SIGTERM; prints the port path."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:
+        temperature = (TemperatureProfile.parse_ramp(args.temperature_ramp) if args.temperature_ramp
+                       else TemperatureProfile(args.temperature))
+        fake = FakeRd2100(args.serial, args.protocol, args.rate_hz, args.link, RateProfile.parse(args.profile),
+                          temperature, args.noise_dps, args.seed, args.turn_on_bias_dps)
+    except (ValueError, OSError) as e:
+        parser.exit(2, f'fake_rd2100: {e}\n')
+    done = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: done.set())
+    with fake:
+        print(fake.path, flush=True)
+        while not done.wait(0.5):
+            pass
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
