@@ -1,0 +1,34 @@
+"""ament_python package art_gyro_calibration; also installable with pip."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'art_gyro_calibration'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(include=[PACKAGE, PACKAGE + '.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml'))),
+    ],
+    python_requires='>=3.10',
+    install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'pyserial', 'matplotlib'],
+    zip_safe=True,
+    maintainer='art_gyro_calibration developers',
+    maintainer_email='dev@art-gyro.local',
+    description='Calibrated yaw rate from a KVH E-Core RD2100 fibre optic gyro, after ART\'s calibration report',
+    license='Apache-2.0',
+    tests_require=['pytest', 'hypothesis'],
+    entry_points={
+        'console_scripts': [
+            'gyro_node = art_gyro_calibration.node:main',
+            'fake_rd2100 = art_gyro_calibration.fake_rd2100:main',
+            'calibrate = art_gyro_calibration.cli:main',
+            'imu_echo = art_gyro_calibration.monitor:main',
+        ],
+    },
+)
