@@ -1,4 +1,4 @@
-"""RD2100 frames on the wire: incremental parsers and encoders (pure: no I/O, no ROS).
+r"""RD2100 frames on the wire: incremental parsers and encoders (pure: no I/O, no ROS).
 
 No RD2100 manual is public. The binary protocol follows the best public description of
 the E-Core family's output (a public driver for the E-Core 2000):
@@ -12,7 +12,7 @@ The temperature is not documented: this package carries it as the signed 16-bit
 ``m[3]:m[4]`` in counts (x 0.05 degC). ``m[1]``, ``m[2]`` are status bits of unknown
 meaning: encoded as 0 and not exposed.
 
-The ASCII protocol is one line per sample, ``<raw_rate> <raw_temp>\\r\\n`` (signed integers,
+The ASCII protocol is one line per sample, ``<raw_rate> <raw_temp>\r\n`` (signed integers,
 counts), for loggers and front-ends that re-emit the gyro's data as text.
 
 Parsers take bytes in arbitrary chunks (a frame may straddle reads), resynchronise after
@@ -175,7 +175,7 @@ class BinaryFrameParser:
 
 
 class AsciiFrameParser:
-    """Incremental parser of ``<raw_rate> <raw_temp>\\r\\n`` lines (``\\n`` alone is accepted too)."""
+    r"""Incremental parser of ``<raw_rate> <raw_temp>\r\n`` lines (``\n`` alone is accepted too)."""
 
     # Nominal: a typical line such as b'-1234 500\r\n' (wire-time stamping needs a figure).
     frame_bytes = 11
