@@ -46,6 +46,29 @@ class DriverStats:
     port: str
 
 
+class WireStamper:
+    """Host stamps of frames from the time a read returned, corrected for time on the wire, never decreasing."""
+
+    __slots__ = ('byte_ns', 'frame_ns', 'last_ns')
+
+    def __init__(self, baud: int, frame_bytes: int) -> None:
+        self.byte_ns = BITS_PER_BYTE * 1_000_000_000 // baud
+        self.frame_ns = frame_bytes * self.byte_ns
+        self.last_ns = -1
+
+    def stamp(self, read_ns: int, chunk_bytes: int, end: int) -> int:
+        """Stamp of the frame ending at offset ``end`` of a chunk of ``chunk_bytes`` whose read returned at ``read_ns``.
+
+        The read returned when the chunk's last byte arrived; the frame's first byte left
+        the gyro the wire time of the frame and of every byte after it in the chunk earlier.
+        """
+        stamp = read_ns - (chunk_bytes - end) * self.byte_ns - self.frame_ns
+        if stamp < self.last_ns:   # a late read must not put a frame before the previous one
+            stamp = self.last_ns
+        self.last_ns = stamp
+        return stamp
+
+
 class Rd2100Driver:
     """Reads an RD2100 on ``port``, calling ``on_frame`` for every valid frame (on the reader thread)."""
 
@@ -66,9 +89,7 @@ class Rd2100Driver:
         self._on_link = on_link
         self._clock_ns = clock_ns
         self._reopen_period_s = float(reopen_period_s)
-        self._byte_ns = BITS_PER_BYTE * 1_000_000_000 // baud
-        self._frame_ns = self._parser.frame_bytes * self._byte_ns
-        self._last_stamp_ns = -1
+        self._stamper = WireStamper(baud, self._parser.frame_bytes)
         self._serial: serial.Serial | None = None
         self._identity: tuple[int, int] | None = None   # (st_dev, st_ino) of the open device
         self._connected = False
@@ -116,6 +137,10 @@ class Rd2100Driver:
                     self._stop.wait(self._reopen_period_s)
                     continue
                 self._read_once()
+        except Exception as e:
+            # A callback raised: the thread ends, so say why in the stats before the traceback.
+            self._last_error = f'reader thread stopped: {type(e).__name__}: {e}'
+            raise
         finally:
             self._close()
 
@@ -148,8 +173,8 @@ class Rd2100Driver:
     def _lost(self, reason: str) -> None:
         """Close and report a lost or missing port, once per loss (not on every retry)."""
         was_up = self._connected or not self._ever_connected and not self._last_error
-        self._close()
         self._last_error = reason
+        self._close()
         if was_up and self._on_link is not None:
             self._on_link(False, reason)
 
@@ -171,17 +196,10 @@ class Rd2100Driver:
             self._check_path()
             return
         frames = self._parser.feed(data)
-        if not frames:
-            return
         size = len(data)
+        stamp = self._stamper.stamp
         for sample, end in frames:
-            # The read returned when the chunk's last byte arrived; this frame's first byte
-            # left the gyro the wire time of itself and of every byte after it earlier.
-            stamp = now_ns - (size - end) * self._byte_ns - self._frame_ns
-            if stamp < self._last_stamp_ns:
-                stamp = self._last_stamp_ns
-            self._last_stamp_ns = stamp
-            self._on_frame(Frame(sample, stamp))
+            self._on_frame(Frame(sample, stamp(now_ns, size, end)))
 
     def _check_path(self) -> None:
         """A quiet port may be gone without a read error: its path vanished or now names another device."""

@@ -1,0 +1,207 @@
+"""Tests of the RD2100 driver against the fake gyro on a real pseudo-terminal."""
+
+import threading
+import time
+
+import pytest
+
+from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver, WireStamper
+from art_gyro_calibration.fake_rd2100 import FakeRd2100
+from art_gyro_calibration.frame import GARBAGE
+
+TIMEOUT_S = 10.0   # generous: the machine is shared; nothing asserts how fast, only that it happens
+
+
+def wait_for(predicate, timeout_s=TIMEOUT_S):
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+class Recorder:
+    """Frames and link events as the driver reports them (from its thread)."""
+
+    def __init__(self):
+        self.frames: list[Frame] = []
+        self.host_ns: list[int] = []
+        self.links: list[tuple[bool, str]] = []
+        self.lock = threading.Lock()
+
+    def on_frame(self, frame):
+        with self.lock:
+            self.frames.append(frame)
+            self.host_ns.append(time.time_ns())
+
+    def on_link(self, up, reason):
+        with self.lock:
+            self.links.append((up, reason))
+
+    def count(self):
+        with self.lock:
+            return len(self.frames)
+
+    def more_than(self, n):
+        return lambda: self.count() > n
+
+
+@pytest.fixture
+def recorder():
+    return Recorder()
+
+
+@pytest.fixture
+def make_driver(recorder):
+    drivers = []
+
+    def make(port, protocol='binary', baud=115200, reopen_period_s=0.05):
+        driver = Rd2100Driver(port, baud, protocol, recorder.on_frame, reopen_period_s=reopen_period_s,
+                              on_link=recorder.on_link)
+        drivers.append(driver)
+        driver.start()
+        return driver
+
+    yield make
+    for driver in drivers:
+        driver.stop()
+
+
+@pytest.mark.parametrize('protocol', ['binary', 'ascii'])
+def test_frames_arrive_with_the_values_sent(make_driver, recorder, protocol):
+    with FakeRd2100('NAVC3545', protocol=protocol, rate_hz=50, profile='30', temperature=31.5,
+                    noise_dps=0.0, turn_on_bias_dps=0.01) as fake:
+        expected = tuple(int(v[0]) for v in fake.simulator.counts([0.0]))
+        driver = make_driver(fake.path, protocol)
+        assert wait_for(recorder.more_than(20))
+        stats = driver.stats
+        assert stats.connected and stats.frames >= 20 and stats.rejected == 0 and stats.port == fake.path
+    assert expected == (round(fake.simulator.reading_dps(30.0, 31.5).item() / 0.00305), 630)
+    assert {(f.sample.raw_rate, f.sample.raw_temp) for f in recorder.frames} == {expected}
+    assert recorder.links[0][0] is True
+
+
+def test_stamps_are_non_decreasing_and_close_to_host_time(make_driver, recorder):
+    with FakeRd2100('NAVC4361', rate_hz=200, seed=1) as fake:
+        make_driver(fake.path)
+        assert wait_for(recorder.more_than(100))
+    with recorder.lock:
+        stamps, host = [f.stamp_ns for f in recorder.frames], recorder.host_ns[:len(recorder.frames)]
+    assert all(b >= a for a, b in zip(stamps, stamps[1:]))
+    # Before the callback saw it, by at most the read latency (generous on a loaded machine).
+    assert all(0 <= h - s < 1_000_000_000 for s, h in zip(stamps, host))
+
+
+def test_stamper_subtracts_wire_time_and_never_goes_back():
+    stamper = WireStamper(9600, 8)
+    byte_ns = 1_041_666
+    now = 10_000_000_000
+    # Three frames read in one 24-byte chunk: the first left the gyro 24 byte times before the read returned.
+    stamps = [stamper.stamp(now, 24, end) for end in (8, 16, 24)]
+    assert stamps == [now - 24 * byte_ns, now - 16 * byte_ns, now - 8 * byte_ns]
+    # A read that returns with an earlier clock (a late, delayed chunk) does not go back.
+    assert stamper.stamp(now - 5 * byte_ns, 8, 8) == now - 8 * byte_ns
+    assert stamper.stamp(now + 100 * byte_ns, 8, 8) == now + 92 * byte_ns
+
+
+def test_garbage_is_counted_and_frames_keep_flowing(make_driver, recorder):
+    with FakeRd2100('NAVC4058', rate_hz=100, seed=2) as fake:
+        driver = make_driver(fake.path)
+        assert wait_for(recorder.more_than(5))
+        for run, garbage in enumerate((b'\x00\x01\xfe\x7f', b'\xff\x10\x11'), start=1):
+            fake.inject(garbage)
+            n = recorder.count()
+            assert wait_for(lambda: driver.stats.rejected_by_reason[GARBAGE] == run)
+            assert wait_for(recorder.more_than(n + 5))
+        assert driver.stats.bytes_skipped == 7 and driver.stats.rejected == 2
+
+
+def test_port_missing_at_start_then_appearing(make_driver, recorder, tmp_path):
+    link = str(tmp_path / 'rd2100')
+    driver = make_driver(link)
+    assert wait_for(lambda: len(recorder.links) >= 1)
+    time.sleep(0.3)   # several retries: the loss is reported once, not per retry
+    assert recorder.links == [(False, recorder.links[0][1])] and link in recorder.links[0][1]
+    assert not driver.stats.connected and 'cannot open' in driver.stats.last_error
+    with FakeRd2100('NAVC4377', rate_hz=50, link=link, seed=3):
+        assert wait_for(recorder.more_than(5))
+    assert recorder.links[1][0] is True
+    assert driver.stats.reopens == 0   # the first open is not a reopen
+
+
+def test_unplug_and_replug_survived_several_times(make_driver, recorder, tmp_path):
+    link = str(tmp_path / 'rd2100')
+    with FakeRd2100('NAVC4253', rate_hz=100, link=link, seed=4) as fake:
+        driver = make_driver(link)
+        assert wait_for(recorder.more_than(5))
+        for cycle in range(1, 4):
+            fake.unplug()
+            assert wait_for(lambda: not driver.stats.connected)
+            n = recorder.count()
+            fake.replug()
+            assert wait_for(recorder.more_than(n + 5)), f'no frames after replug {cycle}'
+            assert driver.stats.reopens == cycle
+    ups = [up for up, _ in recorder.links]
+    assert ups[:7] == [True, False, True, False, True, False, True]
+
+
+def test_port_renamed_to_another_device_is_reopened(make_driver, recorder, tmp_path):
+    link = str(tmp_path / 'rd2100')
+    silent = FakeRd2100('NAVC3545', link=link)   # not started: the port is open but sends nothing
+    try:
+        driver = make_driver(link)
+        assert wait_for(lambda: driver.stats.connected)
+        with FakeRd2100('NAVC3545', rate_hz=50, link=link, seed=5):   # re-points the link
+            assert wait_for(recorder.more_than(5))
+        assert 'another device' in driver.stats.last_error and driver.stats.reopens >= 1
+    finally:
+        silent.stop()
+
+
+def test_stop_is_prompt_while_reading_and_while_retrying(recorder, tmp_path):
+    with FakeRd2100('NAVC3545', rate_hz=20, seed=6) as fake:
+        reading = Rd2100Driver(fake.path, 115200, 'binary', recorder.on_frame)
+        reading.start()
+        assert wait_for(recorder.more_than(2))
+        t0 = time.monotonic()
+        reading.stop()
+        assert time.monotonic() - t0 < 1.0
+        assert not reading.stats.connected
+    retrying = Rd2100Driver(str(tmp_path / 'absent'), 115200, 'binary', recorder.on_frame, reopen_period_s=30.0)
+    retrying.start()
+    time.sleep(0.1)
+    t0 = time.monotonic()
+    retrying.stop()
+    assert time.monotonic() - t0 < 1.0
+
+
+@pytest.mark.filterwarnings('ignore::pytest.PytestUnhandledThreadExceptionWarning')
+def test_callback_exception_stops_the_reader_and_says_why(recorder):
+    def broken(frame):
+        raise RuntimeError('boom')
+
+    with FakeRd2100('NAVC3545', rate_hz=50, seed=7) as fake:
+        driver = Rd2100Driver(fake.path, 115200, 'binary', broken)
+        driver.start()
+        assert wait_for(lambda: 'boom' in driver.stats.last_error)
+        driver.stop()
+    assert not driver.stats.connected
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'baud': 12345}, 'baud 12345 is not a standard rate'),
+    ({'protocol': 'nmea'}, "unknown protocol 'nmea'"),
+    ({'port': ''}, 'port must be a device path'),
+    ({'reopen_period_s': 0}, 'reopen_period_s must be a positive'),
+])
+def test_constructor_refuses_bad_arguments(kwargs, message):
+    args = {'port': '/dev/ttyUSB0', 'baud': 115200, 'protocol': 'binary'} | kwargs
+    with pytest.raises(ValueError, match=message):
+        Rd2100Driver(args['port'], args['baud'], args['protocol'], lambda f: None,
+                     reopen_period_s=kwargs.get('reopen_period_s', 0.5))
+
+
+def test_standard_bauds_are_accepted():
+    for baud in STANDARD_BAUDS:
+        Rd2100Driver('/dev/ttyUSB0', baud, 'ascii', lambda f: None)
