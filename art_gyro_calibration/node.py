@@ -37,8 +37,8 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from std_msgs.msg import Float64
@@ -128,6 +128,17 @@ def check_settings(values: dict[str, Any]) -> Settings:
     for name in ('static_bias_max_mean_dps', 'static_bias_max_std_dps', 'yaw_rate_stddev'):
         _positive(name, values[name])
     return Settings(**values)
+
+
+def _coerce(name: str, value: Any, default: Any) -> Any:
+    """``value`` as the type of ``default`` (an integer is a valid float), or a :class:`ParameterError`."""
+    kind = type(default)
+    if isinstance(value, kind) and (kind is bool or not isinstance(value, bool)):
+        return value
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    names = {bool: 'a boolean', int: 'an integer', float: 'a number', str: 'a string'}
+    raise ParameterError(f'parameter {name} must be {names[kind]}, got {value!r}')
 
 
 def params_files(argv: Sequence[str]) -> list[str]:
@@ -226,13 +237,14 @@ class GyroNode(Node):
 
     def _declare(self, name: str, default: Any, description: str) -> Any:
         # Declared from the overrides already (automatically_declare_parameters_from_overrides):
-        # declare again with the type and description; the override's value is kept.
+        # check the given value's type, then declare again with the description.
+        value = default
         if self.has_parameter(name):
+            value = self.get_parameter(name).value
             self.undeclare_parameter(name)
-        try:
-            return self.declare_parameter(name, default, ParameterDescriptor(description=description)).value
-        except (InvalidParameterTypeException, InvalidParameterValueException) as e:
-            raise ParameterError(f'parameter {name}: {e} (default {default!r})') from None
+            value = _coerce(name, value, default)
+        return self.declare_parameter(name, value, ParameterDescriptor(description=description),
+                                      ignore_override=True).value
 
     def _load_calibration(self, files: Sequence[str]) -> tuple[Calibration, str]:
         serial = self.settings.serial_number
@@ -447,7 +459,8 @@ def main(args: list[str] | None = None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ParameterError, CalibrationError) as e:
+    except (ParameterError, CalibrationError, _rclpy.RCLError) as e:
+        # RCLError: rcl refused the command line, such as a params file it cannot parse.
         print(f'{NODE_NAME}: error: {e}', file=sys.stderr)
         return 1
     finally:
