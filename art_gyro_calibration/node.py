@@ -413,15 +413,14 @@ class GyroNode(Node):
             'age_s': f'{time.monotonic() - self._bias_time:.0f}' if bias.samples else 'none',
             'last_refusal': self._bias_refusal}
         if state == 'collecting' and collection is not None:
-            return self._status('static bias', DiagnosticStatus.OK,
-                                 f'collecting ({collection.collector.count}/{self.settings.bias_samples})',
-                                 values)
+            progress = f'{collection.collector.count}/{self.settings.bias_samples}'
+            return self._status('static bias', DiagnosticStatus.OK, f'collecting ({progress})', values)
         if state == 'ok':
             return self._status('static bias', DiagnosticStatus.OK, bias.describe(), values)
         if state == 'refused':
-            return self._status('static bias', DiagnosticStatus.WARN,
-                                 f'refused ({self._bias_refusal}); '
-                                 + ('previous bias kept' if bias.samples else 'no bias applied'), values)
+            kept = 'previous bias kept' if bias.samples else 'no bias applied'
+            return self._status('static bias', DiagnosticStatus.WARN, f'refused ({self._bias_refusal}); {kept}',
+                                values)
         return self._status('static bias', DiagnosticStatus.WARN,
                             'none: call imu/static_bias with the gyro still', values)
 

@@ -6,7 +6,6 @@ Each node start-up costs seconds: the checks are grouped per node process.
 from __future__ import annotations
 
 import itertools
-import math
 import os
 import signal
 import subprocess
