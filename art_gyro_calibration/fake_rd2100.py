@@ -6,7 +6,8 @@ pty at a steady rate, can be unplugged and replugged, and can inject garbage.
 
 A reading is ``measured_from_true(polynomial, true_rate, T) + turn_on_bias + earth_rate
 + white noise`` in deg/s, quantised to counts with the calibration's rate scale factor;
-the temperature is ``round(T / temp_scale_factor)`` counts.
+the temperature is ``round(T / temp_scale_factor)`` counts. Like the gyro, readings
+saturate at the signed 16-bit count range (about +-100 deg/s at 0.00305 deg/s per count).
 """
 
 from __future__ import annotations
