@@ -30,7 +30,8 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile  # noqa: E402
 from art_gyro_calibration.log import read_log  # noqa: E402
-from art_gyro_calibration.node import UNMEASURED_VARIANCE  # noqa: E402
+from art_gyro_calibration.node import PARAMETERS, UNMEASURED_VARIANCE, check_settings, params_files  # noqa: E402
+from rclpy.parameter import parameter_dict_from_yaml_file  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 TIMEOUT_S = 30.0   # generous: the machine is shared
@@ -301,3 +302,18 @@ def test_node_refuses_bad_parameters(tmp_path: Path, args: Callable[[Path], list
     text = output.read_text()
     assert text.startswith('gyro_node: error: ') and message.format(repo=REPO) in text, text
     assert 'Traceback' not in text
+
+
+def test_example_params_file_sets_every_node_parameter_validly() -> None:
+    """config/gyro_node.params.yaml names exactly the node's parameters, with valid values."""
+    params = parameter_dict_from_yaml_file(str(REPO / 'config' / 'gyro_node.params.yaml'))
+    assert set(params) == set(PARAMETERS)
+    values = {name: rclpy.parameter.parameter_value_to_python(p.value) for name, p in params.items()}
+    assert check_settings(values).serial_number == 'NAVC3545'
+
+
+def test_params_files_are_found_among_the_ros_arguments_only() -> None:
+    """The --params-file paths of a command line, not an application argument of the same spelling."""
+    argv = ['gyro_node', '--params-file', 'app.yaml', '--ros-args', '-p', 'a:=1', '--params-file', 'x.yaml',
+            '--params-file', 'y.yaml', '--', '--params-file', 'z.yaml']
+    assert params_files(argv) == ['x.yaml', 'y.yaml']
