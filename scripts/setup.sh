@@ -27,7 +27,13 @@ echo "setup: installing into $VENV (first run takes a few minutes)" >&2
 [[ -x $VENV/bin/python ]] || "$PYTHON" -m venv "$VENV"
 # colcon crawling the repository must not take packages inside the venv for this project's.
 touch "$VENV/COLCON_IGNORE"
-"$VENV/bin/python" -m pip install --quiet "${REQUIREMENTS[@]}"
-"$VENV/bin/python" -m pip install --quiet --no-deps -e .
+# pip's output goes to a log, shown only if it fails (its index warnings would drown the rest).
+log=$VENV/pip.log
+if ! { "$VENV/bin/python" -m pip install "${REQUIREMENTS[@]}" \
+       && "$VENV/bin/python" -m pip install --no-deps -e .; } > "$log" 2>&1; then
+    grep -v 'is ignored: it is neither a file nor a directory' "$log" >&2 || true
+    echo "setup: pip install failed (full log: $log)" >&2
+    exit 1
+fi
 echo "$want" > "$VENV/.setup-done"
 echo "setup: done; console scripts in $VENV/bin (gyro_node, fake_rd2100, calibrate, imu_echo)" >&2
