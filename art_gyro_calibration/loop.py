@@ -1,0 +1,131 @@
+"""Close the loop on a rate-table log: fit, trace the residual, extend the model, repeat.
+
+:func:`close_loop` fits the ART polynomial, screens the residual against every signal
+(:mod:`art_gyro_calibration.trace`), adds the most significant effect as an extended term,
+refits everything jointly and screens again, until nothing significant remains. It
+returns the report's polynomial alone (``art``) and the extended calibration, both
+loadable by the node and by ``calibrate apply``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from art_gyro_calibration.calibration import TEMP_SCALE_FACTOR, Calibration
+from art_gyro_calibration.fit import Fit, TermSpec, fit_model
+from art_gyro_calibration.log import GyroLog, LogError
+from art_gyro_calibration.metrics import DEFAULT_SETTLE_S, Segments, noise_floor, steady_segments
+from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals
+from art_gyro_calibration.terms import Term
+from art_gyro_calibration.trace import (DEFAULT_BIN_S, DEFAULT_FOLDS, DEFAULT_MATERIALITY, DEFAULT_SHIFTS,
+                                        CandidateScore, Screen, TraceResult, held_out_rms,
+                                        trace_residual)
+
+DEFAULT_MAX_EFFECTS = 4
+DEFAULT_SERIAL = 'UNSPECIFIED'
+# Signals whose linear term may grow a square when the held-out error says so; the others
+# would duplicate the polynomial (rate_abs**2 = rate**2) or a constant (rate_sign**2).
+_SQUARABLE = ('temperature_rate', 'rate_change')
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One traced effect, as added to the model."""
+
+    term: Term
+    score: CandidateScore
+    held_out_rms_without_dps: float
+    held_out_rms_with_dps: float
+
+    @property
+    def signal(self) -> str:
+        """The signal the effect depends on."""
+        return self.term.signal
+
+
+@dataclass(frozen=True)
+class LoopResult:
+    """Everything :func:`close_loop` found; :mod:`art_gyro_calibration.report` serialises it."""
+
+    art: Calibration
+    extended: Calibration
+    effects: tuple[Effect, ...]
+    rounds: tuple[TraceResult, ...]
+    noise_floor_dps: float
+    held_out_rms_art_dps: float
+    held_out_rms_extended_dps: float
+    signals: Signals
+    error: NDArray[np.float64]
+    segments: Segments
+    extended_fit: Fit
+
+
+def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DEFAULT_SERIAL,
+               rate_scale_factor: float = 0.00305, temp_scale_factor: float = TEMP_SCALE_FACTOR,
+               filters: SignalFilters = SignalFilters(), settle_s: float = DEFAULT_SETTLE_S,
+               max_effects: int = DEFAULT_MAX_EFFECTS, folds: int = DEFAULT_FOLDS,
+               shifts: int = DEFAULT_SHIFTS, bin_s: float = DEFAULT_BIN_S,
+               materiality: float = DEFAULT_MATERIALITY, seed: int = 0) -> LoopResult:
+    """Fit -> trace -> extend -> repeat on a rate-table ``log`` (it needs ``ref_rate``).
+
+    ``rate_scale_factor`` and ``temp_scale_factor`` only go into the calibrations
+    returned (the log is already in deg/s and degC). The fit uses the steady rows of
+    ``settle_s`` after each change of table rate.
+    """
+    if log.ref_rate is None:
+        raise LogError('the log has no ref_rate column: fitting needs the rate table\'s true rate')
+    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters)
+    error = log.rate_dps - log.ref_rate
+    segments = steady_segments(log.t, log.ref_rate, settle_s)
+    index = segments.rows()
+    if index.size == 0:
+        raise LogError('the log has no steady segments of constant ref_rate to fit')
+    art_fit = fit_model(signals, error, rows, columns, (), index)
+    residual = np.zeros(len(error))
+    residual[index] = art_fit.residual
+    floor = noise_floor(residual, segments)
+    options = dict(folds=folds, shifts=shifts, bin_s=bin_s, materiality=materiality,
+                   seed=seed, noise_floor_dps=floor)
+    specs: list[TermSpec] = []
+    rounds: list[TraceResult] = []
+    scores: list[CandidateScore] = []
+    while len(specs) < max_effects:
+        found = trace_residual(signals, error, segments, rows, columns, specs, **options)
+        rounds.append(found)
+        best = found.best
+        if best is None:
+            break
+        specs.append(_maybe_square(best.spec, signals, error, segments, rows, columns, specs, folds, bin_s,
+                                   materiality * floor ** 2))
+        scores.append(best)
+    final = fit_model(signals, error, rows, columns, specs, index)
+    held_out_all = held_out_rms(signals, error, segments, rows, columns, specs, folds)
+    effects = []
+    for i, (term, score) in enumerate(zip(final.model.terms, scores)):
+        without = held_out_rms(signals, error, segments, rows, columns, specs[:i] + specs[i + 1:], folds)
+        effects.append(Effect(term, score, without, held_out_all))
+    low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
+    art = Calibration(serial_number, rate_scale_factor, art_fit.model.polynomial,
+                      (low, high if high > low else low + 1.0), temp_scale_factor, (), filters)
+    return LoopResult(
+        art=art, extended=replace(art, polynomial=final.model.polynomial, terms=final.model.terms),
+        effects=tuple(effects), rounds=tuple(rounds), noise_floor_dps=floor,
+        held_out_rms_art_dps=held_out_rms(signals, error, segments, rows, columns, (), folds),
+        held_out_rms_extended_dps=held_out_all, signals=signals, error=error, segments=segments,
+        extended_fit=final)
+
+
+def _maybe_square(spec: TermSpec, signals: Signals, error: NDArray[np.float64], segments: Segments,
+                  rows: int, columns: int, specs: list[TermSpec], folds: int, bin_s: float,
+                  material_dps2: float) -> TermSpec:
+    """``spec`` with powers [1, 2] if the square lowers the held-out error materially, else ``spec``."""
+    if spec.form != 'power' or spec.powers != (1,) or spec.signal not in _SQUARABLE + tuple(signals.extras):
+        return spec
+    squared = replace(spec, powers=(1, 2))
+    linear = Screen(signals, error, segments, rows, columns, specs + [spec], folds, bin_s)
+    both = Screen(signals, error, segments, rows, columns, specs + [squared], folds, bin_s)
+    gain = (linear.base_sse() - both.base_sse()) / linear.rows_total
+    return squared if gain > material_dps2 else spec

@@ -1,0 +1,101 @@
+"""Error metrics of a rate-table log: steady segments, noise floor, rms, systematic and heading errors.
+
+A steady segment is a run of constant table rate (``ref_rate``) less its first
+``settle_s`` seconds, where the table accelerates and the log's time stamps of the
+table and the gyro may disagree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+DEFAULT_SETTLE_S = 1.0
+
+
+@dataclass(frozen=True)
+class Segments:
+    """Steady segments of a log: row ranges ``[starts[i], stops[i])`` at table rate ``rate[i]``."""
+
+    starts: NDArray[np.int64]
+    stops: NDArray[np.int64]
+    rate: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    @property
+    def counts(self) -> NDArray[np.int64]:
+        """Rows per segment."""
+        return self.stops - self.starts
+
+    def rows(self) -> NDArray[np.int64]:
+        """Indices of all steady rows, in order."""
+        if not len(self):
+            return np.zeros(0, dtype=np.int64)
+        return np.concatenate([np.arange(a, b) for a, b in zip(self.starts, self.stops)])
+
+    def means(self, values: ArrayLike) -> NDArray[np.float64]:
+        """Mean of ``values`` (one per log row) over each segment."""
+        v = np.asarray(values, dtype=float)
+        csum = np.concatenate([[0.0], np.cumsum(v)])
+        return (csum[self.stops] - csum[self.starts]) / self.counts
+
+
+def steady_segments(t: ArrayLike, ref_rate: ArrayLike, settle_s: float = DEFAULT_SETTLE_S,
+                    min_rows: int = 3) -> Segments:
+    """Runs of constant ``ref_rate`` without their first ``settle_s`` seconds, of at least ``min_rows`` rows."""
+    tt = np.asarray(t, dtype=float)
+    ref = np.asarray(ref_rate, dtype=float)
+    change = np.flatnonzero(~np.isclose(ref[1:], ref[:-1], rtol=1e-9, atol=1e-9)) + 1
+    run_starts = np.concatenate([[0], change])
+    run_stops = np.concatenate([change, [len(ref)]])
+    starts = np.searchsorted(tt, tt[run_starts] + settle_s, side='left')
+    starts = np.maximum(starts, run_starts)
+    keep = run_stops - starts >= min_rows
+    return Segments(starts[keep].astype(np.int64), run_stops[keep].astype(np.int64), ref[run_starts[keep]])
+
+
+def noise_floor(residual: ArrayLike, segments: Segments) -> float:
+    """White-noise level (deg/s per sample) from first differences within segments: blind to slow effects."""
+    r = np.asarray(residual, dtype=float)
+    diffs = [np.diff(r[a:b]) for a, b in zip(segments.starts, segments.stops)]
+    d = np.concatenate(diffs) if diffs else np.zeros(0)
+    if d.size < 2:
+        raise ValueError('too few steady samples to estimate the noise floor')
+    return float(np.std(d) / np.sqrt(2.0))
+
+
+@dataclass(frozen=True)
+class ErrorMetrics:
+    """Errors of a corrected rate against the table (deg/s, deg)."""
+
+    rms_dps: float
+    systematic_rms_dps: float
+    heading_360_deg_max: float
+
+    def to_dict(self) -> dict[str, float]:
+        """Plain dict for JSON."""
+        return asdict(self)
+
+
+def heading_errors_360(error: ArrayLike, segments: Segments) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per turning segment: (table rate, heading error in degrees after a full turn at that rate)."""
+    mean = segments.means(error)
+    turning = segments.rate != 0.0
+    return segments.rate[turning], mean[turning] * 360.0 / np.abs(segments.rate[turning])
+
+
+def error_metrics(error: ArrayLike, segments: Segments) -> ErrorMetrics:
+    """rms over all steady rows, rms of the segment means, and the largest heading error after a full turn."""
+    e = np.asarray(error, dtype=float)
+    rows = segments.rows()
+    if rows.size == 0:
+        raise ValueError('the log has no steady segments to measure errors on')
+    _, heading = heading_errors_360(e, segments)
+    return ErrorMetrics(
+        rms_dps=float(np.sqrt(np.mean(e[rows] ** 2))),
+        systematic_rms_dps=float(np.sqrt(np.mean(segments.means(e) ** 2))),
+        heading_360_deg_max=float(np.max(np.abs(heading))) if heading.size else 0.0)

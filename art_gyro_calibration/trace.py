@@ -1,0 +1,322 @@
+"""Trace what a fitted model leaves: screen every signal of a log against the residual, held out.
+
+Each candidate signal (every derived signal and every extra column of the log) gets
+the term form that fits its physics (:func:`candidate_specs`). It is scored by how
+much it lowers the *held-out* mean squared error of the model: the steady rows are
+cut into ``folds`` contiguous blocks of time; for each block the base model plus the
+candidate is fitted on the other blocks and predicts this one. Chance is measured on
+the data itself: the same score with the candidate circularly shifted by ``shifts``
+large random offsets, which keeps the candidate's own slowness and the residual's
+(bias instability) but breaks their alignment; offsets where the shifted candidate
+still correlates with itself (a periodic temperature cycle shifted by a period, or by
+half of one, which flips its sign) are not drawn. A candidate is an effect only if
+its score beats every shifted score (chance below 1 / (shifts + 1)) and if it removes
+at least ``materiality`` of the white-noise variance estimated from the data: below
+that, an effect is not told apart from the gyro's own bias instability.
+
+Speed: the screen works on bin means (``bin_s`` of one steady segment per bin, weighted
+by the square root of their row count, so a bin mean's noise is that of one sample)
+and on per-block Gram matrices: the held-out error of every fold, every shift and every
+time constant then follows from small matrices without touching the rows again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from art_gyro_calibration.fit import Design, TermSpec, fit_model, solve_normal
+from art_gyro_calibration.metrics import Segments, noise_floor
+from art_gyro_calibration.signals import Signals
+
+DEFAULT_FOLDS = 6
+DEFAULT_SHIFTS = 39
+DEFAULT_BIN_S = 1.0
+DEFAULT_MATERIALITY = 0.03
+# A shift is a fair draw of chance only if the shifted candidate does not resemble the
+# candidate itself (or its negative): a periodic chamber cycle would otherwise shift onto itself.
+MAX_SELF_CORRELATION = 0.3
+TIME_CONSTANT_GRID_SIZE = 10
+MIN_TIME_CONSTANT_S = 30.0
+
+
+def candidate_specs(signals: Signals, rows: int, columns: int,
+                    exclude: Sequence[str] = ()) -> dict[str, list[TermSpec]]:
+    """Per candidate signal, the term shapes to try (several only for a warm-up's time constant).
+
+    temperature: the next power ``T**rows``; rate: the next power ``r**columns``;
+    time: ``exp(-t/tau)`` over a log grid of tau from 30 s to an eighth of the run (a warm-up
+    must decay within the run to be told apart from a drift); angle: once-per-turn harmonic;
+    everything else (temperature_rate, rate_abs, rate_sign, rate_change, extra columns): linear.
+    """
+    duration = float(signals.t[-1] - signals.t[0]) if len(signals) else 0.0
+    out: dict[str, list[TermSpec]] = {}
+    for name in signals.names():
+        if name in exclude:
+            continue
+        if name == 'temperature':
+            out[name] = [TermSpec(name, 'power', (rows,))]
+        elif name == 'rate':
+            out[name] = [TermSpec(name, 'power', (columns,))]
+        elif name == 'time':
+            taus = np.geomspace(MIN_TIME_CONSTANT_S, max(duration / 8, 2 * MIN_TIME_CONSTANT_S),
+                                TIME_CONSTANT_GRID_SIZE)
+            out[name] = [TermSpec(name, 'exp_decay', (), float(tau)) for tau in taus]
+        elif name == 'angle':
+            out[name] = [TermSpec(name, 'harmonic')]
+        else:
+            out[name] = [TermSpec(name, 'power', (1,))]
+    return out
+
+
+def _bins(segments: Segments, t: NDArray[np.float64], bin_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Starts (positions among the steady rows) and row counts of bins of ``bin_s`` within segments."""
+    if bin_s <= 0.0:
+        n = int(segments.counts.sum())
+        return np.arange(n), np.ones(n, dtype=np.int64)
+    starts, counts = [], []
+    position = 0
+    for a, b in zip(segments.starts, segments.stops):
+        edges = np.searchsorted(t[a:b], np.arange(t[a], t[b - 1] + bin_s, bin_s), side='left')
+        edges = np.unique(np.append(edges, b - a))
+        starts.append(position + edges[:-1])
+        counts.append(np.diff(edges))
+        position += b - a
+    return np.concatenate(starts), np.concatenate(counts)
+
+
+def _held_out(gram: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Held-out and training SSE per fold from per-block Grams ``(..., K, q, q)`` of ``[X, e]``."""
+    train = gram.sum(axis=-3, keepdims=True) - gram
+    a = train[..., :-1, :-1]
+    b = train[..., :-1, -1]
+    diag = np.einsum('...ii->...i', a)
+    ridge = 1e-12 * diag.mean(axis=-1)[..., None, None] * np.eye(a.shape[-1])
+    beta = np.linalg.solve(a + ridge, b[..., None])[..., 0]
+    held = (gram[..., -1, -1] - 2 * np.einsum('...i,...i->...', beta, gram[..., :-1, -1])
+            + np.einsum('...i,...ij,...j->...', beta, gram[..., :-1, :-1], beta))
+    trained = train[..., -1, -1] - np.einsum('...i,...i->...', beta, b)
+    return held, trained
+
+
+class Screen:
+    """Binned steady rows of a log, their base design and per-block Grams, ready to score candidates."""
+
+    def __init__(self, signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
+                 specs: Sequence[TermSpec] = (), folds: int = DEFAULT_FOLDS, bin_s: float = DEFAULT_BIN_S) -> None:
+        self.signals = signals
+        self.index = segments.rows()
+        self.starts, counts = _bins(segments, signals.t, bin_s)
+        if len(counts) < 4 * folds:
+            raise ValueError(f'{len(counts)} bins of steady data are too few for {folds} folds')
+        self.sqrt_counts = np.sqrt(counts)
+        self.rows_total = int(counts.sum())
+        design = Design(signals, rows, columns, specs, self.index)
+        self.width = design.width
+        self.xe = self._bin(np.column_stack([design.matrix, np.asarray(error, dtype=float)[self.index]]))
+        cumulative = np.cumsum(counts)
+        inner = np.searchsorted(cumulative, self.rows_total * np.arange(1, folds) / folds)
+        self.bounds = np.concatenate([[0], inner, [len(counts)]])
+        self.gram = np.stack([self.xe[a:b].T @ self.xe[a:b] for a, b in zip(self.bounds[:-1], self.bounds[1:])])
+        self._base_sse: float | None = None
+
+    def _bin(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Bin sums of steady-row ``values`` divided by sqrt(count): a mean weighted to unit noise."""
+        return np.add.reduceat(values, self.starts, axis=0) / self.sqrt_counts.reshape(-1, *([1] * (values.ndim - 1)))
+
+    def candidate_means(self, variants: Sequence[TermSpec]) -> NDArray[np.float64]:
+        """Bin means of the scaled candidate bases, shape (bins, variants, width)."""
+        cols = []
+        for spec in variants:
+            basis = spec.basis(self.signals)[self.index]
+            scale = np.max(np.abs(basis), axis=0)
+            scale[scale == 0.0] = 1.0
+            cols.append(self._bin(basis / scale) / self.sqrt_counts[:, None])
+        return np.stack(cols, axis=1)
+
+    def base_sse(self) -> float:
+        """Held-out SSE of the base model over all folds."""
+        if self._base_sse is None:
+            self._base_sse = float(_held_out(self.gram)[0].sum())
+        return self._base_sse
+
+    def scores(self, means: NDArray[np.float64], shifts: NDArray[np.int64]) -> NDArray[np.float64]:
+        """Held-out SSE with the candidate for each circular shift (0 = as logged).
+
+        With several variants (time constants), each fold picks the variant that fits its
+        training blocks best, so the choice itself is held out.
+        """
+        n, n_var, w = means.shape
+        p = self.width
+        n_ver = len(shifts) * n_var
+        q = p + w + 1
+        gram = np.zeros((n_ver, len(self.bounds) - 1, q, q))
+        for k, (a, b) in enumerate(zip(self.bounds[:-1], self.bounds[1:])):
+            # Shifted copies block by block: memory stays at one block's worth.
+            rolled = means[(np.arange(a, b)[:, None] - shifts[None, :]) % n]  # (rows, shifts, variants, w)
+            ck = (rolled * self.sqrt_counts[a:b, None, None, None]).reshape(b - a, n_ver, w)
+            cx = (ck.reshape(b - a, n_ver * w).T @ self.xe[a:b]).reshape(n_ver, w, p + 1)
+            gram[:, k, :p, :p] = self.gram[k, :p, :p]
+            gram[:, k, :p, -1] = gram[:, k, -1, :p] = self.gram[k, :p, -1]
+            gram[:, k, -1, -1] = self.gram[k, -1, -1]
+            gram[:, k, p:p + w, :p] = cx[:, :, :p]
+            gram[:, k, :p, p:p + w] = np.swapaxes(cx[:, :, :p], 1, 2)
+            gram[:, k, p:p + w, -1] = gram[:, k, -1, p:p + w] = cx[:, :, p]
+            gram[:, k, p:p + w, p:p + w] = np.einsum('njw,njv->jwv', ck, ck)
+        held, trained = _held_out(gram)
+        held = held.reshape(len(shifts), n_var, -1)
+        trained = trained.reshape(len(shifts), n_var, -1)
+        pick = np.argmin(trained, axis=1)[:, None, :]
+        return np.take_along_axis(held, pick, axis=1)[:, 0, :].sum(axis=-1)
+
+    def training_sse(self, spec: TermSpec) -> float:
+        """SSE of the base model plus ``spec`` fitted to all blocks (for choosing a time constant)."""
+        means = self.candidate_means([spec])[:, 0, :]
+        x = np.column_stack([self.xe[:, :-1], means * self.sqrt_counts[:, None], self.xe[:, -1]])
+        g = x.T @ x
+        beta = solve_normal(g[:-1, :-1], g[:-1, -1])
+        return float(g[-1, -1] - beta @ g[:-1, -1])
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """One candidate signal's held-out score against its chance level (per-sample deg^2/s^2)."""
+
+    signal: str
+    spec: TermSpec
+    improvement_dps2: float
+    null_mean_dps2: float
+    null_std_dps2: float
+    null_max_dps2: float
+    fraction_of_floor: float
+    significant: bool
+
+    @property
+    def z(self) -> float:
+        """Standard deviations above the shifted (chance) scores."""
+        return (self.improvement_dps2 - self.null_mean_dps2) / max(self.null_std_dps2, 1e-300)
+
+
+@dataclass(frozen=True)
+class TraceResult:
+    """What one screen found: every candidate's score, best first."""
+
+    noise_floor_dps: float
+    base_held_out_mse_dps2: float
+    candidates: tuple[CandidateScore, ...]
+
+    @property
+    def best(self) -> CandidateScore | None:
+        """The significant candidate that removes most error, or None: nothing found."""
+        found = [c for c in self.candidates if c.significant]
+        return found[0] if found else None
+
+
+def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
+                   specs: Sequence[TermSpec] = (), *, folds: int = DEFAULT_FOLDS, shifts: int = DEFAULT_SHIFTS,
+                   bin_s: float = DEFAULT_BIN_S, materiality: float = DEFAULT_MATERIALITY,
+                   seed: int = 0, noise_floor_dps: float | None = None) -> TraceResult:
+    """Screen every signal not yet modelled against what the model (polynomial + ``specs``) leaves.
+
+    ``error`` is ``rate_dps - ref_rate`` per log row; only the steady rows of ``segments``
+    are used. The noise floor is estimated from the base fit's residual unless given.
+    """
+    if noise_floor_dps is None:
+        base = fit_model(signals, error, rows, columns, specs, segments.rows())
+        residual = np.zeros(len(signals))
+        residual[base.index] = base.residual
+        noise_floor_dps = noise_floor(residual, segments)
+    screen = Screen(signals, error, segments, rows, columns, specs, folds, bin_s)
+    rng = np.random.default_rng(seed)
+    floor_var = noise_floor_dps ** 2
+    families = candidate_specs(signals, rows, columns, [s.signal for s in specs])
+    scores = [score for signal, variants in families.items()
+              if (score := _score(screen, signal, variants, shifts, rng, floor_var, materiality)) is not None]
+    # Several unmodelled effects inflate each other's chance level (a slow residual makes any
+    # slow candidate look useful). Score each material candidate again with the other
+    # material ones in the base, so that its chance level is measured on what they leave.
+    material = [c for c in scores if c.fraction_of_floor > materiality]
+    if len(material) > 1:
+        rescored = []
+        for c in material:
+            others = [o.spec for o in material if o is not c]
+            conditional = Screen(signals, error, segments, rows, columns, [*specs, *others], folds, bin_s)
+            rescored.append(_score(conditional, c.signal, families[c.signal], shifts, rng, floor_var, materiality))
+        scores = [c for c in scores if c not in material] + [c for c in rescored if c is not None]
+    scores.sort(key=lambda c: c.improvement_dps2, reverse=True)
+    return TraceResult(noise_floor_dps, screen.base_sse() / screen.rows_total, tuple(scores))
+
+
+def _score(screen: Screen, signal: str, variants: Sequence[TermSpec], shifts: int, rng: np.random.Generator,
+           floor_var: float, materiality: float) -> CandidateScore | None:
+    """Held-out improvement of one candidate over the screen's base, against its shifted copies."""
+    means = screen.candidate_means(variants)
+    if np.ptp(means, axis=0).max() == 0.0:
+        return None  # constant over the steady rows: nothing to tell apart from the polynomial's constant
+    offsets = np.concatenate([[0], _fair_shifts(means, shifts, rng)])
+    improvement = (screen.base_sse() - screen.scores(means, offsets)) / screen.rows_total
+    real, null = improvement[0], improvement[1:]
+    if null.size < min(shifts, 9):
+        null = np.array([np.inf])  # too few fair shifts: chance cannot be measured, so nothing is claimed
+    spec = variants[0] if len(variants) == 1 else _best_time_constant(screen, variants)
+    significant = bool(real > null.max() and real > materiality * floor_var)
+    return CandidateScore(signal, spec, float(real), float(null.mean()), float(null.std()),
+                          float(null.max()), float(real / floor_var), significant)
+
+
+def _fair_shifts(means: NDArray[np.float64], count: int, rng: np.random.Generator) -> NDArray[np.int64]:
+    """Up to ``count`` circular shifts (in bins, within the middle 80 %) that decorrelate the candidate from itself."""
+    n = means.shape[0]
+    x = means.reshape(n, -1)
+    x = x - x.mean(axis=0)
+    spectrum = np.fft.rfft(x, axis=0)
+    power = np.sum(x * x, axis=0)
+    power[power == 0.0] = 1.0
+    worst = np.zeros(n)
+    for i in range(x.shape[1]):
+        for j in range(x.shape[1]):
+            cross = np.fft.irfft(np.conj(spectrum[:, i]) * spectrum[:, j], n) / np.sqrt(power[i] * power[j])
+            worst = np.maximum(worst, np.abs(cross))
+    lags = np.arange(n // 10, n - n // 10)
+    fair = lags[worst[lags] <= MAX_SELF_CORRELATION]
+    return rng.choice(fair, size=min(count, fair.size), replace=False) if fair.size else fair
+
+
+def held_out_rms(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
+                 specs: Sequence[TermSpec] = (), folds: int = DEFAULT_FOLDS) -> float:
+    """Held-out RMS error (deg/s) of the model over every steady row, by the same contiguous folds."""
+    screen = Screen(signals, error, segments, rows, columns, specs, folds, bin_s=0.0)
+    return float(np.sqrt(screen.base_sse() / screen.rows_total))
+
+
+def _best_time_constant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
+    """The grid's best time constant on all the data, refined by golden-section search in log(tau)."""
+    sse = [screen.training_sse(v) for v in variants]
+    i = int(np.argmin(sse))
+    taus = [v.time_constant_s for v in variants]
+    lo, hi = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, len(taus) - 1)])
+    template = variants[i]
+
+    def cost(log_tau: float) -> float:
+        return screen.training_sse(TermSpec(template.signal, template.form, (), float(np.exp(log_tau))))
+
+    golden = (np.sqrt(5.0) - 1) / 2
+    a, b = lo + (1 - golden) * (hi - lo), lo + golden * (hi - lo)
+    fa, fb = cost(a), cost(b)
+    for _ in range(20):
+        if fa < fb:
+            hi, b, fb = b, a, fa
+            a = lo + (1 - golden) * (hi - lo)
+            fa = cost(a)
+        else:
+            lo, a, fa = a, b, fb
+            b = lo + golden * (hi - lo)
+            fb = cost(b)
+    best = float(np.exp(a if fa < fb else b))
+    if min(fa, fb) > sse[i]:
+        best = taus[i]
+    return TermSpec(template.signal, template.form, (), best)
+
