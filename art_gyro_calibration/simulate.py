@@ -9,7 +9,7 @@ quantisation. Switchable effects the ART model lacks:
 
 - ``shupe``: ``c * dT/dt`` (the causally filtered temperature rate, as the tracker computes it),
 - ``warmup``: ``a * exp(-time / tau)`` after power-on,
-- ``supply_voltage``: ``k * supply_v``, on an extra log column ``supply_v`` that is written
+- ``supply_voltage``: ``k * (supply_v - 24 V)``, on an extra log column ``supply_v`` that is written
   whether or not the effect is on (the tracer must find it without being told).
 
 The log holds what a lab would record (raw counts, table rate, supply voltage); the truth
@@ -39,14 +39,15 @@ ANN_ARBOR_LATITUDE_DEG = 42.3
 FULL_SCALE_DPS = 100.0
 # Table rates of one cycle (both signs of each); a cycle lasts about 27 minutes.
 TABLE_RATES_DPS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
-# Effect name -> (signal, form, default coefficient, default time constant (s)).
-EFFECTS: dict[str, tuple[str, str, float, float]] = {
+SUPPLY_NOMINAL_V = 24.0
+# Effect name -> (signal, form, default coefficient, time constant (s), signal's nominal value).
+EFFECTS: dict[str, tuple[str, str, float, float, float]] = {
     # 0.24 deg/s per degC/s: 0.004 deg/s (14 deg/h) while the chamber ramps at 1 degC/min.
-    'shupe': ('temperature_rate', 'power', 0.24, 0.0),
+    'shupe': ('temperature_rate', 'power', 0.24, 0.0, 0.0),
     # 0.02 deg/s decaying over 20 minutes after power-on.
-    'warmup': ('time', 'exp_decay', 0.02, 1200.0),
-    # 0.008 deg/s per volt on a supply wandering by about +-0.5 V.
-    'supply_voltage': ('supply_v', 'power', 0.008, 0.0),
+    'warmup': ('time', 'exp_decay', 0.02, 1200.0, 0.0),
+    # 0.008 deg/s per volt away from the nominal 24 V, on a supply wandering by about +-0.5 V.
+    'supply_voltage': ('supply_v', 'power', 0.008, 0.0, SUPPLY_NOMINAL_V),
 }
 
 
@@ -141,9 +142,9 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
     effects: dict[str, Any] = {}
     effect_error = np.zeros(n)
     for name in settings.effects:
-        signal, form, size, tau = EFFECTS[name]
+        signal, form, size, tau, nominal = EFFECTS[name]
         size = settings.effect_sizes.get(name, size)
-        x = signals.get(signal)
+        x = signals.get(signal) - nominal
         effect_error += size * (np.exp(-x / tau) if form == 'exp_decay' else x)
         effects[name] = {'signal': signal, 'form': form, 'coefficients': [size],
                          **({'powers': [1]} if form == 'power' else {'time_constant_s': tau})}
@@ -177,7 +178,7 @@ def _supply_voltage(t: NDArray[np.float64], rng: np.random.Generator) -> NDArray
     periods = rng.uniform(1200.0, 5400.0, 3)
     phases = rng.uniform(0.0, 2 * math.pi, 3)
     wander = sum(0.2 * np.sin(2 * math.pi * t / p + ph) for p, ph in zip(periods, phases))
-    return 24.0 + wander + rng.normal(0.0, 0.005, len(t))
+    return SUPPLY_NOMINAL_V + wander + rng.normal(0.0, 0.005, len(t))
 
 
 def truth_path(log_path: str | os.PathLike[str]) -> Path:

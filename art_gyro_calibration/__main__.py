@@ -1,0 +1,7 @@
+"""``python -m art_gyro_calibration``: the ``calibrate`` command."""
+
+import sys
+
+from art_gyro_calibration.cli import main
+
+sys.exit(main())

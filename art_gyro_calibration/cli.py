@@ -1,0 +1,189 @@
+"""``calibrate``: apply a calibration to a log, fit one to a rate-table log, simulate a run, record a gyro.
+
+- ``calibrate apply LOG.csv --calibration FILE --out OUT.csv [--bias-samples N]``
+- ``calibrate fit LOG.csv --rows R --columns C [--serial SN] --out CAL.yaml --report REPORT.json [--plots DIR]``
+- ``calibrate simulate --serial SN --hours H --out LOG.csv [--effect NAME ...]``
+- ``calibrate record --port P --out LOG.csv [--protocol binary] [--baud 9600] [--serial SN] [--duration S]``
+
+Errors in the input (a bad log, a bad calibration, a gyro that moved during the
+static bias) are reported on stderr with a non-zero exit status.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+from collections.abc import Sequence
+
+from art_gyro_calibration.calibration import (TEMP_SCALE_FACTOR, CalibrationError, find_calibration_file,
+                                              load_calibration, write_calibration)
+from art_gyro_calibration.compensation import apply_calibration
+from art_gyro_calibration.log import LogError, RawLogWriter, read_log, write_columns
+from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
+
+# Most RD2100s read 0.00305 deg/s per count (report, section 1).
+DEFAULT_RATE_SCALE_FACTOR = 0.00305
+
+
+def _apply(args: argparse.Namespace) -> int:
+    calibration = load_calibration(args.calibration)
+    log = read_log(args.log, calibration.rate_scale_factor, calibration.temp_scale_factor)
+    applied = apply_calibration(log, calibration, args.bias_samples)
+    write_columns(args.out, {'t': log.t, 'rate_dps': log.rate_dps, 'temp_c': log.temp_c,
+                             'comp_dps': applied.comp_dps, 'corrected_dps': applied.corrected_dps})
+    print(f'{args.out}: {len(log)} rows; {applied.bias.describe()}')
+    return 0
+
+
+def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
+    """Rate and temperature scale factors: given, else the packaged calibration of --serial, else the usual."""
+    if args.rate_scale_factor is not None:
+        return args.rate_scale_factor, TEMP_SCALE_FACTOR
+    if args.serial:
+        try:
+            packaged = load_calibration(find_calibration_file(args.serial), expected_serial=args.serial)
+            return packaged.rate_scale_factor, packaged.temp_scale_factor
+        except CalibrationError:
+            pass
+    print(f'calibrate fit: using the usual rate scale factor {DEFAULT_RATE_SCALE_FACTOR} deg/s per count',
+          file=sys.stderr)
+    return DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR
+
+
+def _fit(args: argparse.Namespace) -> int:
+    from art_gyro_calibration.loop import DEFAULT_SERIAL, close_loop
+    from art_gyro_calibration.report import build_report, write_report
+    rate_scale, temp_scale = _scale_factors(args)
+    log = read_log(args.log, rate_scale, temp_scale)
+    result = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
+                        rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
+                        settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed)
+    report = build_report(log, result, args.bias_samples, source=str(args.log))
+    found = ', '.join(e.signal for e in result.effects) or 'nothing'
+    write_calibration(args.out, result.extended,
+                      f'Fitted by calibrate fit from {args.log}: ART polynomial {args.rows} x {args.columns}, '
+                      f'effects beyond it: {found}.')
+    summary = write_report(args.report, report)
+    if args.plots:
+        from art_gyro_calibration.plots import plot_all
+        plot_all(log, result, args.bias_samples, args.plots)
+    print(summary.read_text(encoding='utf-8'), end='')
+    return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from art_gyro_calibration.calibration import load_packaged_calibration
+    from art_gyro_calibration.simulate import SimulationSettings, simulate_run, write_run
+    calibration = load_packaged_calibration(args.serial)
+    settings = SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=tuple(args.effect),
+                                  seed=args.seed)
+    run = simulate_run(calibration, settings)
+    side = write_run(args.out, run)
+    print(f'{args.out}: {len(run.columns["t"])} rows of {args.serial} '
+          f'(effects: {", ".join(args.effect) or "none"}); truth in {side}')
+    return 0
+
+
+def _record(args: argparse.Namespace) -> int:
+    from art_gyro_calibration.driver import Frame, Rd2100Driver
+    if args.serial:
+        load_calibration(find_calibration_file(args.serial), expected_serial=args.serial)
+    with open(args.out, 'w', encoding='utf-8') as stream:
+        writer = RawLogWriter(stream)
+        count = [0]
+
+        def on_frame(frame: Frame) -> None:
+            # Runs on the driver's reader thread, the only writer of the log.
+            writer.write(frame.stamp_ns * 1e-9, frame.sample.raw_rate, frame.sample.raw_temp)
+            count[0] += 1
+
+        driver = Rd2100Driver(args.port, args.baud, args.protocol, on_frame)
+        stop = threading.Event()
+        driver.start()
+        try:
+            stop.wait(args.duration if args.duration is not None else None)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            driver.stop()
+            stream.flush()
+        stats = driver.stats
+    print(f'{args.out}: {count[0]} frames from {args.port} ({stats.rejected} rejected, {stats.reopens} reopens)')
+    return 0 if count[0] else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``calibrate`` command line."""
+    from art_gyro_calibration.frame import PROTOCOLS
+    from art_gyro_calibration.metrics import DEFAULT_SETTLE_S
+    from art_gyro_calibration.simulate import EFFECTS
+    parser = argparse.ArgumentParser(prog='calibrate', description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest='command', required=True)
+
+    p = sub.add_parser('apply', help='static bias and compensation over a log')
+    p.add_argument('log', help='CSV log (t, raw_rate, raw_temp or rate_dps, temp_c, ...)')
+    p.add_argument('--calibration', required=True, help='calibration file (config/<SERIAL>.yaml form)')
+    p.add_argument('--out', required=True, help='CSV to write: t,rate_dps,temp_c,comp_dps,corrected_dps')
+    p.add_argument('--bias-samples', type=int, default=DEFAULT_SAMPLES,
+                   help='rows at rest at the start of the log for the static bias (default %(default)s)')
+    p.set_defaults(run=_apply)
+
+    p = sub.add_parser('fit', help='fit the ART polynomial to a rate-table log and trace what it leaves')
+    p.add_argument('log', help='CSV log with ref_rate (the table\'s true rate, deg/s)')
+    p.add_argument('--rows', type=_positive_int, required=True, help='powers of temperature')
+    p.add_argument('--columns', type=_positive_int, required=True, help='powers of rate')
+    p.add_argument('--serial', help='KVH serial number written into the calibration')
+    p.add_argument('--out', required=True, help='calibration file to write (CAL.yaml)')
+    p.add_argument('--report', required=True, help='REPORT.json to write (and REPORT.md beside it)')
+    p.add_argument('--plots', help='directory for the figures (PNG)')
+    p.add_argument('--bias-samples', type=int, default=DEFAULT_SAMPLES,
+                   help='rows at rest at the start of the log for the static bias (default %(default)s)')
+    p.add_argument('--rate-scale-factor', type=float,
+                   help='deg/s per count of raw_rate (default: the packaged calibration of --serial, else 0.00305)')
+    p.add_argument('--settle-s', type=float, default=DEFAULT_SETTLE_S,
+                   help='seconds skipped after each change of table rate (default %(default)s)')
+    p.add_argument('--max-effects', type=int, default=4, help='most effects to add (default %(default)s)')
+    p.add_argument('--seed', type=int, default=0, help='seed of the chance (shifted) scores')
+    p.set_defaults(run=_fit)
+
+    p = sub.add_parser('simulate', help='write a simulated rate-table and thermal-chamber run')
+    p.add_argument('--serial', required=True, help='gyro whose packaged calibration is the true error')
+    p.add_argument('--hours', type=float, required=True)
+    p.add_argument('--out', required=True, help='CSV log to write; the truth goes to LOG.truth.json')
+    p.add_argument('--effect', action='append', default=[], choices=sorted(EFFECTS),
+                   help='switch an effect on (repeat for several)')
+    p.add_argument('--rate-hz', type=float, default=10.0, help='samples per second (default %(default)s)')
+    p.add_argument('--seed', type=int, default=0)
+    p.set_defaults(run=_simulate)
+
+    p = sub.add_parser('record', help='record a gyro through the node\'s driver into a raw log')
+    p.add_argument('--port', required=True, help='serial port, e.g. /dev/ttyUSB0')
+    p.add_argument('--out', required=True, help='CSV log to write (t, raw_rate, raw_temp)')
+    p.add_argument('--protocol', choices=PROTOCOLS, default=PROTOCOLS[0])
+    p.add_argument('--baud', type=int, default=9600)
+    p.add_argument('--serial', help='check that a calibration of this gyro is packaged')
+    p.add_argument('--duration', type=float, help='seconds to record (default: until Ctrl-C)')
+    p.set_defaults(run=_record)
+    return parser
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be a whole number >= 1, got {text}')
+    return value
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``calibrate``; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:
+        print(f'calibrate {args.command}: error: {e}', file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,124 @@
+"""The report's figures, before and after calibration, as PNG (matplotlib, Agg backend).
+
+- ``error-vs-rate.png``: mean error of each steady segment against the table rate, one
+  colour per temperature band, for the uncalibrated, ART and extended models;
+- ``heading-360.png``: heading error after a full turn against the rate, one line per
+  temperature band;
+- ``residual-<signal>.png``: for each traced effect, what the model without it leaves,
+  against the effect's signal, with the fitted term.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402 (the backend must be chosen first)
+import numpy as np  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+
+from art_gyro_calibration.log import GyroLog  # noqa: E402
+from art_gyro_calibration.loop import LoopResult  # noqa: E402
+from art_gyro_calibration.metrics import heading_errors_360  # noqa: E402
+from art_gyro_calibration.model import ErrorModel  # noqa: E402
+from art_gyro_calibration.report import STAGES, stage_errors  # noqa: E402
+
+BAND_C = 10.0
+TITLES = {'uncalibrated': 'uncalibrated (scale factor, static bias)', 'art': 'ART polynomial',
+          'extended': 'ART + traced effects'}
+
+
+def _bands(result: LoopResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Temperature band (centre, degC) of each steady segment, and the distinct bands."""
+    band = np.round(result.segments.means(result.signals.temperature) / BAND_C) * BAND_C
+    return band, np.unique(band)
+
+
+def plot_all(log: GyroLog, result: LoopResult, bias_samples: int, out_dir: str | os.PathLike[str],
+             prefix: str = '') -> list[Path]:
+    """Write every figure into ``out_dir`` (names start with ``prefix``); returns their paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    errors = stage_errors(log, result, bias_samples)
+    paths = [_error_vs_rate(errors, result, out / f'{prefix}error-vs-rate.png'),
+             _heading_360(errors, result, out / f'{prefix}heading-360.png')]
+    for i, effect in enumerate(result.effects):
+        paths.append(_residual(result, i, out / f'{prefix}residual-{effect.signal}.png'))
+    return paths
+
+
+def _error_vs_rate(errors: dict[str, NDArray[np.float64]], result: LoopResult, path: Path) -> Path:
+    band, bands = _bands(result)
+    colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
+    fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5), sharey=True)
+    for ax, stage in zip(axes, STAGES):
+        means = result.segments.means(errors[stage])
+        for b, colour in zip(bands, colours):
+            sel = band == b
+            ax.plot(result.segments.rate[sel], means[sel], 'o', ms=3, color=colour, label=f'{b:.0f} degC')
+        ax.set_title(TITLES[stage])
+        ax.set_xlabel('table rate (deg/s)')
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel('mean error of a steady segment (deg/s)')
+    axes[-1].legend(title='temperature', fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _heading_360(errors: dict[str, NDArray[np.float64]], result: LoopResult, path: Path) -> Path:
+    band, bands = _bands(result)
+    turning = result.segments.rate != 0.0
+    colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
+    fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5), sharey=True)
+    for ax, stage in zip(axes, STAGES):
+        rate, heading = heading_errors_360(errors[stage], result.segments)
+        for b, colour in zip(bands, colours):
+            sel = band[turning] == b
+            if not sel.any():
+                continue
+            # One line per band: the mean over the segments at each rate.
+            rates = np.unique(rate[sel])
+            mean = [heading[sel][rate[sel] == r].mean() for r in rates]
+            ax.plot(rates, mean, '.-', color=colour, label=f'{b:.0f} degC')
+        ax.set_title(TITLES[stage])
+        ax.set_xlabel('table rate (deg/s)')
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel('heading error after a full turn (deg)')
+    axes[-1].legend(title='temperature', fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _residual(result: LoopResult, i: int, path: Path) -> Path:
+    """What the extended model less term ``i`` leaves, against the term's signal, binned."""
+    model = result.extended.model
+    effect = result.effects[i]
+    without = ErrorModel(model.polynomial, model.terms[:i] + model.terms[i + 1:])
+    rows = result.segments.rows()
+    x = result.signals.get(effect.signal)[rows]
+    partial = (result.error - without.error(result.signals))[rows]
+    order = np.argsort(x, kind='stable')
+    chunks = np.array_split(order, min(60, len(order)))
+    bx = np.array([x[c].mean() for c in chunks])
+    by = np.array([partial[c].mean() for c in chunks])
+    grid = np.linspace(x.min(), x.max(), 200)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.plot(bx, by, 'o', ms=4, label='residual of the model without this term (binned means)')
+    term = effect.term.evaluate(grid)
+    ax.plot(grid, term - term.mean() + by.mean(), '-', label=effect.term.describe())
+    ax.set_xlabel(effect.signal)
+    ax.set_ylabel('residual (deg/s)')
+    ax.set_title(f'traced effect: {effect.signal}')
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

@@ -1,0 +1,118 @@
+"""REPORT.json and its markdown summary: what ``calibrate fit`` found and how much it helps.
+
+Errors are measured the way the gyro is used: a static bias over the log's first
+``bias_samples`` rows (the gyro must rest there), then compensation of every row
+(:func:`compensation.apply_calibration`), compared with the table's rate on the
+steady rows. ``uncalibrated`` is the scale factor and static bias only, ``art`` the
+report's polynomial, ``extended`` the polynomial with the traced terms.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from art_gyro_calibration.compensation import apply_calibration
+from art_gyro_calibration.log import GyroLog, LogError
+from art_gyro_calibration.loop import LoopResult
+from art_gyro_calibration.metrics import error_metrics
+from art_gyro_calibration.static_bias import static_bias
+
+STAGES = ('uncalibrated', 'art', 'extended')
+
+
+def stage_errors(log: GyroLog, result: LoopResult, bias_samples: int) -> dict[str, NDArray[np.float64]]:
+    """Corrected rate minus table rate, per row, for each stage."""
+    if log.ref_rate is None:
+        raise LogError('the log has no ref_rate column: errors need the rate table\'s true rate')
+    n = bias_samples
+    if not 2 <= n <= len(log):
+        raise ValueError(f'bias_samples must be between 2 and the {len(log)} rows of the log, got {n}')
+    bias = static_bias(log.rate_dps[:n], np.zeros(n))
+    return {
+        'uncalibrated': log.rate_dps - bias.static_bias_drift_dps - log.ref_rate,
+        'art': apply_calibration(log, result.art, n).corrected_dps - log.ref_rate,
+        'extended': apply_calibration(log, result.extended, n).corrected_dps - log.ref_rate,
+    }
+
+
+def build_report(log: GyroLog, result: LoopResult, bias_samples: int, source: str = '') -> dict[str, Any]:
+    """The report as plain data (JSON-ready)."""
+    errors = stage_errors(log, result, bias_samples)
+    effects = []
+    for effect in result.effects:
+        term, score = effect.term, effect.score
+        entry: dict[str, Any] = {
+            'signal': term.signal,
+            'description': term.describe(),
+            'form': term.form,
+            'coefficients': list(term.coefficients),
+            'held_out_rms_without_dps': effect.held_out_rms_without_dps,
+            'held_out_rms_with_dps': effect.held_out_rms_with_dps,
+            'held_out_improvement_dps2': score.improvement_dps2,
+            'chance_max_improvement_dps2': score.null_max_dps2,
+            'fraction_of_noise_floor_variance': score.fraction_of_floor,
+        }
+        if term.form == 'power':
+            entry['powers'] = list(term.powers)
+        if term.form == 'exp_decay':
+            entry['time_constant_s'] = term.time_constant_s
+        effects.append(entry)
+    return {
+        'source': source,
+        'serial_number': result.extended.serial_number,
+        'rows': len(log),
+        'steady_rows': int(result.segments.counts.sum()),
+        'steady_segments': len(result.segments),
+        'bias_samples': bias_samples,
+        'polynomial': {'rows': result.art.polynomial.rows, 'columns': result.art.polynomial.columns,
+                       'art_coefficients': result.art.polynomial.coefficients.tolist(),
+                       'extended_coefficients': result.extended.polynomial.coefficients.tolist()},
+        'noise_floor_dps': result.noise_floor_dps,
+        'held_out_rms_dps': {'art': result.held_out_rms_art_dps, 'extended': result.held_out_rms_extended_dps},
+        'effects': effects,
+        'errors': {stage: error_metrics(errors[stage], result.segments).to_dict() for stage in STAGES},
+        'screens': [[{'signal': c.signal, 'held_out_improvement_dps2': c.improvement_dps2,
+                      'chance_max_improvement_dps2': c.null_max_dps2,
+                      'fraction_of_noise_floor_variance': c.fraction_of_floor,
+                      'significant': c.significant} for c in found.candidates]
+                    for found in result.rounds],
+    }
+
+
+def markdown_summary(report: dict[str, Any]) -> str:
+    """A short summary for people."""
+    lines = [f'# Calibration of {report["serial_number"]}', '',
+             f'Log: {report["source"] or "(unnamed)"}, {report["rows"]} rows, {report["steady_rows"]} steady rows '
+             f'in {report["steady_segments"]} segments; polynomial {report["polynomial"]["rows"]} x '
+             f'{report["polynomial"]["columns"]}; white-noise floor {report["noise_floor_dps"]:.5f} deg/s.', '',
+             '| model | rms (deg/s) | systematic rms (deg/s) | max heading error after 360 deg (deg) |',
+             '|---|---|---|---|']
+    for stage in STAGES:
+        e = report['errors'][stage]
+        lines.append(f'| {stage} | {e["rms_dps"]:.5f} | {e["systematic_rms_dps"]:.5f} | '
+                     f'{e["heading_360_deg_max"]:.4f} |')
+    held = report['held_out_rms_dps']
+    lines += ['', f'Held-out rms: ART {held["art"]:.5f} deg/s, extended {held["extended"]:.5f} deg/s.', '']
+    if not report['effects']:
+        lines.append('Effects beyond the ART polynomial: nothing found.')
+    else:
+        lines += ['Effects beyond the ART polynomial (held-out rms without -> with the term):', '']
+        for e in report['effects']:
+            lines.append(f'- **{e["signal"]}**: {e["description"]}; {e["held_out_rms_without_dps"]:.5f} -> '
+                         f'{e["held_out_rms_with_dps"]:.5f} deg/s')
+    return '\n'.join(lines) + '\n'
+
+
+def write_report(path: str | os.PathLike[str], report: dict[str, Any]) -> Path:
+    """Write REPORT.json and the markdown summary beside it (same name, ``.md``); returns the summary's path."""
+    p = Path(path)
+    p.write_text(json.dumps(report, indent=2) + '\n', encoding='utf-8')
+    summary = p.with_suffix('.md')
+    summary.write_text(markdown_summary(report), encoding='utf-8')
+    return summary
