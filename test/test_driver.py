@@ -154,7 +154,9 @@ def test_port_renamed_to_another_device_is_reopened(make_driver, recorder, tmp_p
         assert wait_for(lambda: driver.stats.connected)
         with FakeRd2100('NAVC3545', rate_hz=50, link=link, seed=5):   # re-points the link
             assert wait_for(recorder.more_than(5))
-        assert 'another device' in driver.stats.last_error and driver.stats.reopens >= 1
+            assert driver.stats.reopens == 1
+        assert [up for up, _ in recorder.links[:3]] == [True, False, True]
+        assert 'now names another device' in recorder.links[1][1]
     finally:
         silent.stop()
 

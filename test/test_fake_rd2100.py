@@ -189,17 +189,17 @@ def test_unplug_makes_an_open_reader_fail():
 
 
 def test_paces_1000_hz_by_deadlines():
+    t0 = time.monotonic()
     with FakeRd2100('NAVC3545', rate_hz=1000) as fake:
         with serial.Serial(fake.path, 921600, timeout=0.1) as port:
-            t0, sent0 = time.monotonic(), fake.sent
             data = b''
-            while time.monotonic() - t0 < 1.0:
+            while time.monotonic() - t0 < 1.5:
                 data += port.read(4096)
-            elapsed, sent = time.monotonic() - t0, fake.sent - sent0
+            sent, elapsed = fake.sent, time.monotonic() - t0
     frames = len(make_parser('binary').feed(data))
-    # Deadlines cannot run ahead of the clock; the lower bound is loose for a loaded machine.
-    assert 0.5 * 1000 * elapsed < sent <= 1000 * elapsed + 2
-    assert frames >= sent - 200   # what was sent was read (less what was in flight at the end)
+    # Deadlines from the start never run ahead of the clock; the lower bound is loose for a loaded machine.
+    assert 0.5 * 1000 * elapsed < sent <= 1000 * elapsed + 1
+    assert frames >= 0.5 * 1000 * elapsed
 
 
 def run_main(*args):
