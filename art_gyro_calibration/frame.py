@@ -118,7 +118,20 @@ def _int16(value: int) -> int:
     return value - 0x10000 if value & 0x8000 else value
 
 
-class BinaryFrameParser:
+class _ChunkParser:
+    """What both parsers share: the bytes held between chunks and the statistics."""
+
+    def __init__(self, reasons: tuple[str, ...]) -> None:
+        self.stats = ParserStats(rejected_by_reason=dict.fromkeys(reasons, 0))
+        self._buffer = b''
+
+    def _join(self, data: bytes) -> tuple[bytes, int]:
+        """The held bytes followed by ``data``, and how many were held (offsets in ``data`` start there)."""
+        held = len(self._buffer)
+        return (self._buffer + data if held else bytes(data)), held
+
+
+class BinaryFrameParser(_ChunkParser):
     """Incremental parser of 8-byte binary frames.
 
     Every well-framed window (a top-bit byte then seven clear ones) is a candidate; two
@@ -129,8 +142,7 @@ class BinaryFrameParser:
     frame_bytes = BINARY_FRAME_BYTES
 
     def __init__(self) -> None:
-        self.stats = ParserStats(rejected_by_reason={BAD_CHECKSUM: 0, GARBAGE: 0})
-        self._buffer = b''
+        super().__init__((BAD_CHECKSUM, GARBAGE))
         self._in_garbage = False
 
     def reset(self) -> None:
@@ -149,8 +161,7 @@ class BinaryFrameParser:
 
     def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
         """Parse a chunk; each valid frame with the offset just past its last byte within ``data``."""
-        held = len(self._buffer)
-        buf = self._buffer + data if held else bytes(data)
+        buf, held = self._join(data)
         out: list[tuple[RawSample, int]] = []
         stats = self.stats
         pos = 0
@@ -174,15 +185,14 @@ class BinaryFrameParser:
         return out
 
 
-class AsciiFrameParser:
+class AsciiFrameParser(_ChunkParser):
     r"""Incremental parser of ``<raw_rate> <raw_temp>\r\n`` lines (``\n`` alone is accepted too)."""
 
     # Nominal: a typical line such as b'-1234 500\r\n' (wire-time stamping needs a figure).
     frame_bytes = 11
 
     def __init__(self) -> None:
-        self.stats = ParserStats(rejected_by_reason={MALFORMED: 0, OUT_OF_RANGE: 0, LINE_TOO_LONG: 0})
-        self._buffer = b''
+        super().__init__((MALFORMED, OUT_OF_RANGE, LINE_TOO_LONG))
         self._discarding = False   # inside the rest of an overlong line
 
     def reset(self) -> None:
@@ -193,8 +203,7 @@ class AsciiFrameParser:
 
     def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
         """Parse a chunk; each valid line with the offset just past its newline within ``data``."""
-        held = len(self._buffer)
-        buf = self._buffer + data if held else bytes(data)
+        buf, held = self._join(data)
         out: list[tuple[RawSample, int]] = []
         stats = self.stats
         reasons = stats.rejected_by_reason
