@@ -243,7 +243,8 @@ class GyroNode(Node):
             value = self.get_parameter(name).value
             self.undeclare_parameter(name)
             value = _coerce(name, value, default)
-        return self.declare_parameter(name, value, ParameterDescriptor(description=description),
+        # Read-only: the node reads them once at startup, so a later change is refused, not ignored.
+        return self.declare_parameter(name, value, ParameterDescriptor(description=description, read_only=True),
                                       ignore_override=True).value
 
     def _load_calibration(self, files: Sequence[str]) -> tuple[Calibration, str]:
@@ -464,8 +465,10 @@ def main(args: list[str] | None = None) -> int:
         return 1
     finally:
         if node is not None:
-            node.close()
-            node.destroy_node()
+            try:
+                node.close()
+            finally:
+                node.destroy_node()
         rclpy.try_shutdown()
     return 0
 

@@ -144,12 +144,12 @@ class Listener:
             return s if s is not None and condition(s) else None
         return wait_until(check, what, proc, output)
 
-    def static_bias(self, proc: subprocess.Popen[bytes], output: Path) -> Trigger.Response:
-        """Call ``imu/static_bias`` and wait for its reply."""
+    def static_bias(self, proc: subprocess.Popen[bytes], output: Path, calls: int = 1) -> Any:
+        """Call ``imu/static_bias`` (``calls`` times at once) and wait for the replies."""
         wait_until(lambda: self.client.service_is_ready(), 'the static bias service', proc, output)
-        future = self.client.call_async(Trigger.Request())
-        wait_until(future.done, 'the static bias reply', proc, output)
-        return future.result()
+        futures = [self.client.call_async(Trigger.Request()) for _ in range(calls)]
+        wait_until(lambda: all(f.done() for f in futures), 'the static bias reply', proc, output)
+        return futures[0].result() if calls == 1 else [f.result() for f in futures]
 
     def close(self) -> None:
         """Stop spinning and shut the context down."""
@@ -218,9 +218,13 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
             # Still again: a new static bias, its values in the reply.
             fake.simulator.profile = RateProfile.parse('0')
             wait_until(lambda: fake.last_sample and abs(fake.last_sample[0]) < 100, 'the fake still')
-            response = listener.static_bias(proc, output)
-            assert response.success and 'StaticBiasDrift=' in response.message, response.message
-            assert 'over 20 samples' in response.message
+            # A second call while the first collects joins it; frames are published meanwhile.
+            before = listener.count()
+            first, second = listener.static_bias(proc, output, calls=2)
+            assert listener.count() - before >= 20
+            assert first.success and 'StaticBiasDrift=' in first.message, first.message
+            assert 'over 20 samples' in first.message
+            assert (second.success, second.message) == (first.success, first.message)
 
             # Garbage between frames is counted, and frames flow on.
             fake.inject(b'not a frame \x01\x02\x03')
