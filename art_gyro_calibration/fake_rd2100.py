@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
-from art_gyro_calibration.frame import INT16_MAX, INT16_MIN, check_protocol, make_encoder
+from art_gyro_calibration.frame import INT16_MAX, INT16_MIN, make_encoder
 from art_gyro_calibration.model import measured_from_true
 
 # White noise of an RD2100 at its 10 Hz output, one sample's standard deviation.
@@ -161,7 +161,9 @@ class FakeRd2100:
                  seed: int | None = None, turn_on_bias_dps: float | None = None) -> None:
         if not (math.isfinite(rate_hz) and 0 < rate_hz <= 10000):
             raise ValueError(f'rate_hz must be in (0, 10000], got {rate_hz}')
-        self._encode = make_encoder(check_protocol(protocol))
+        if link is not None and os.path.lexists(link) and not os.path.islink(link):
+            raise ValueError(f'link {link} exists and is not a symlink: refusing to replace it')
+        self._encode = make_encoder(protocol)
         self.protocol = protocol
         self.rate_hz = rate_hz
         self.link = link

@@ -104,7 +104,12 @@ def test_earth_rate():
     assert earth_rate_dps(0.0) == pytest.approx(0.0, abs=1e-15)
 
 
-def test_constructor_refusals():
+def test_constructor_refusals(tmp_path):
+    precious = tmp_path / 'precious'
+    precious.write_text('keep')
+    with pytest.raises(ValueError, match='not a symlink'):
+        FakeRd2100('NAVC3545', link=str(precious))
+    assert precious.read_text() == 'keep'
     with pytest.raises(ValueError, match='unknown protocol'):
         FakeRd2100('NAVC3545', protocol='nmea')
     with pytest.raises(ValueError, match='rate_hz'):
