@@ -269,6 +269,13 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
             bias = listener.status('static bias')
             assert bias['state'] == 'none' and bias['level'] == b'\x01'
             assert 'calibration loaded: NAVC4058 from parameters' in output.read_text()
+            # The demo's monitor prints the rate in deg/s and exits after --count messages.
+            echo = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--count', '3'],
+                                  env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+            lines = echo.stdout.splitlines()
+            assert echo.returncode == 0 and len(lines) == 3, echo.stdout + echo.stderr
+            assert all(' imu_link: yaw rate ' in line and 'deg/s' in line and '60.00 degC' in line
+                       for line in lines[1:]), lines
         finally:
             try:
                 stop_node(proc, signal.SIGTERM, output)
