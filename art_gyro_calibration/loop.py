@@ -21,10 +21,13 @@ from art_gyro_calibration.metrics import DEFAULT_SETTLE_S, Segments, noise_floor
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.trace import (DEFAULT_BIN_S, DEFAULT_FOLDS, DEFAULT_MATERIALITY, DEFAULT_SHIFTS,
-                                        CandidateScore, Screen, TraceResult, held_out_rms,
+                                        Binned, CandidateScore, Screen, TraceResult,
+                                        held_out_rms,
                                         trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
+# Signals computed from the measured rate alone.
+RATE_SIGNALS = ('rate', 'rate_abs', 'rate_sign', 'rate_change', 'angle')
 DEFAULT_SERIAL = 'UNSPECIFIED'
 # Signals whose linear term may grow a square when the held-out error says so; the others
 # would duplicate the polynomial (rate_abs**2 = rate**2) or a constant (rate_sign**2).
@@ -87,8 +90,13 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     residual = np.zeros(len(error))
     residual[index] = art_fit.residual
     floor = noise_floor(residual, segments)
-    options = dict(folds=folds, shifts=shifts, bin_s=bin_s, materiality=materiality,
-                   seed=seed, noise_floor_dps=floor)
+    # A still gyro (one reference rate throughout) reads nothing but its error: a signal derived
+    # from its rate would explain the error with itself, so none is a candidate.
+    still = bool(np.ptp(log.ref_rate) == 0.0)
+    binned = Binned(signals, error, segments, rows, columns, folds, bin_s)
+    every_row = Binned(signals, error, segments, rows, columns, folds, bin_s=0.0)
+    options = dict(folds=folds, shifts=shifts, bin_s=bin_s, materiality=materiality, seed=seed,
+                   noise_floor_dps=floor, exclude=RATE_SIGNALS if still else (), binned=binned)
     specs: list[TermSpec] = []
     rounds: list[TraceResult] = []
     scores: list[CandidateScore] = []
@@ -98,14 +106,16 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         best = found.best
         if best is None:
             break
-        specs.append(_maybe_square(best.spec, signals, error, segments, rows, columns, specs, folds, bin_s,
-                                   materiality * floor ** 2))
+        specs.append(best.spec)
         scores.append(best)
+    # A square is judged once every effect is in the model, so it cannot stand in for one not yet found.
+    specs = [_maybe_square(spec, binned, specs[:i] + specs[i + 1:], materiality * floor ** 2)
+             for i, spec in enumerate(specs)]
     final = fit_model(signals, error, rows, columns, specs, index)
-    held_out_all = held_out_rms(signals, error, segments, rows, columns, specs, folds)
+    held_out_all = held_out_rms(every_row, specs)
     effects = []
     for i, (term, score) in enumerate(zip(final.model.terms, scores)):
-        without = held_out_rms(signals, error, segments, rows, columns, specs[:i] + specs[i + 1:], folds)
+        without = held_out_rms(every_row, specs[:i] + specs[i + 1:])
         effects.append(Effect(term, score, without, held_out_all))
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
     art = Calibration(serial_number, rate_scale_factor, art_fit.model.polynomial,
@@ -113,19 +123,17 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     return LoopResult(
         art=art, extended=replace(art, polynomial=final.model.polynomial, terms=final.model.terms),
         effects=tuple(effects), rounds=tuple(rounds), noise_floor_dps=floor,
-        held_out_rms_art_dps=held_out_rms(signals, error, segments, rows, columns, (), folds),
+        held_out_rms_art_dps=held_out_rms(every_row),
         held_out_rms_extended_dps=held_out_all, signals=signals, error=error, segments=segments,
         extended_fit=final)
 
 
-def _maybe_square(spec: TermSpec, signals: Signals, error: NDArray[np.float64], segments: Segments,
-                  rows: int, columns: int, specs: list[TermSpec], folds: int, bin_s: float,
-                  material_dps2: float) -> TermSpec:
+def _maybe_square(spec: TermSpec, binned: Binned, specs: list[TermSpec], material_dps2: float) -> TermSpec:
     """``spec`` with powers [1, 2] if the square lowers the held-out error materially, else ``spec``."""
-    if spec.form != 'power' or spec.powers != (1,) or spec.signal not in _SQUARABLE + tuple(signals.extras):
+    if spec.form != 'power' or spec.powers != (1,) or spec.signal not in _SQUARABLE + tuple(binned.signals.extras):
         return spec
     squared = replace(spec, powers=(1, 2))
-    linear = Screen(signals, error, segments, rows, columns, specs + [spec], folds, bin_s)
-    both = Screen(signals, error, segments, rows, columns, specs + [squared], folds, bin_s)
+    linear = Screen(binned, specs + [spec])
+    both = Screen(binned, specs + [squared])
     gain = (linear.base_sse() - both.base_sse()) / linear.rows_total
     return squared if gain > material_dps2 else spec

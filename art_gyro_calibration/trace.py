@@ -3,8 +3,8 @@
 Each candidate signal (every derived signal and every extra column of the log) gets
 the term form that fits its physics (:func:`candidate_specs`). It is scored by how
 much it lowers the *held-out* mean squared error of the model: the steady rows are
-cut into ``folds`` contiguous blocks of time; for each block the base model plus the
-candidate is fitted on the other blocks and predicts this one. Chance is measured on
+cut into blocks of time (15 minutes), dealt in turn to ``folds`` folds; for each fold
+the base model plus the candidate is fitted on the other folds and predicts this one. Chance is measured on
 the data itself: the same score with the candidate circularly shifted by ``shifts``
 large random offsets, which keeps the candidate's own slowness and the residual's
 (bias instability) but breaks their alignment; offsets where the shifted candidate
@@ -35,11 +35,15 @@ from art_gyro_calibration.signals import Signals
 DEFAULT_FOLDS = 6
 DEFAULT_SHIFTS = 39
 DEFAULT_BIN_S = 1.0
+# Held-out blocks of time: several times the bias instability's correlation time.
+DEFAULT_BLOCK_S = 900.0
 DEFAULT_MATERIALITY = 0.03
 # A shift is a fair draw of chance only if the shifted candidate does not resemble the
 # candidate itself (or its negative): a periodic chamber cycle would otherwise shift onto itself.
 MAX_SELF_CORRELATION = 0.3
-TIME_CONSTANT_GRID_SIZE = 10
+TIME_CONSTANT_GRID_SIZE = 6
+# Self-correlation of a candidate is judged on at most this many block means (cheap FFTs).
+SELF_CORRELATION_POINTS = 4096
 MIN_TIME_CONSTANT_S = 30.0
 
 
@@ -102,11 +106,16 @@ def _held_out(gram: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[n
     return held, trained
 
 
-class Screen:
-    """Binned steady rows of a log, their base design and per-block Grams, ready to score candidates."""
+class Binned:
+    """Steady rows of a log in bins, with the polynomial's columns and the error binned once.
+
+    Folds: the bins are grouped into blocks of ``block_s`` of time, dealt to the
+    ``folds`` in turn, so every fold holds whole blocks of time from the whole run (a
+    warm-up in the first hour or a temperature extreme is then in several folds).
+    """
 
     def __init__(self, signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
-                 specs: Sequence[TermSpec] = (), folds: int = DEFAULT_FOLDS, bin_s: float = DEFAULT_BIN_S) -> None:
+                 folds: int = DEFAULT_FOLDS, bin_s: float = DEFAULT_BIN_S, block_s: float = DEFAULT_BLOCK_S) -> None:
         self.signals = signals
         self.index = segments.rows()
         self.starts, counts = _bins(segments, signals.t, bin_s)
@@ -114,28 +123,49 @@ class Screen:
             raise ValueError(f'{len(counts)} bins of steady data are too few for {folds} folds')
         self.sqrt_counts = np.sqrt(counts)
         self.rows_total = int(counts.sum())
-        design = Design(signals, rows, columns, specs, self.index)
-        self.width = design.width
-        self.xe = self._bin(np.column_stack([design.matrix, np.asarray(error, dtype=float)[self.index]]))
-        cumulative = np.cumsum(counts)
-        inner = np.searchsorted(cumulative, self.rows_total * np.arange(1, folds) / folds)
-        self.bounds = np.concatenate([[0], inner, [len(counts)]])
-        self.gram = np.stack([self.xe[a:b].T @ self.xe[a:b] for a, b in zip(self.bounds[:-1], self.bounds[1:])])
-        self._base_sse: float | None = None
+        poly = Design(signals, rows, columns, (), self.index).matrix
+        self.base = self._bin(np.column_stack([poly, np.asarray(error, dtype=float)[self.index]]))
+        t_bin = signals.t[self.index[self.starts]]
+        duration = float(t_bin[-1] - t_bin[0])
+        block = np.floor((t_bin - t_bin[0]) / min(block_s, max(duration / (2 * folds), 1e-9))).astype(np.int64)
+        fold = block % folds
+        self.folds = [np.flatnonzero(fold == k) for k in range(folds)]
+        self._means: dict[TermSpec, NDArray[np.float64]] = {}
 
     def _bin(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
         """Bin sums of steady-row ``values`` divided by sqrt(count): a mean weighted to unit noise."""
         return np.add.reduceat(values, self.starts, axis=0) / self.sqrt_counts.reshape(-1, *([1] * (values.ndim - 1)))
 
     def candidate_means(self, variants: Sequence[TermSpec]) -> NDArray[np.float64]:
-        """Bin means of the scaled candidate bases, shape (bins, variants, width)."""
+        """Bin means of the scaled candidate bases, shape (bins, variants, width); each computed once."""
         cols = []
         for spec in variants:
-            basis = spec.basis(self.signals)[self.index]
-            scale = np.max(np.abs(basis), axis=0)
-            scale[scale == 0.0] = 1.0
-            cols.append(self._bin(basis / scale) / self.sqrt_counts[:, None])
+            if spec not in self._means:
+                basis = spec.basis(self.signals)[self.index]
+                scale = np.max(np.abs(basis), axis=0)
+                scale[scale == 0.0] = 1.0
+                self._means[spec] = self._bin(basis / scale) / self.sqrt_counts[:, None]
+            cols.append(self._means[spec])
         return np.stack(cols, axis=1)
+
+
+class Screen:
+    """The base model (polynomial + ``specs``) on binned rows, with per-fold Grams, ready to score candidates."""
+
+    def __init__(self, binned: Binned, specs: Sequence[TermSpec] = ()) -> None:
+        self.binned = binned
+        self.sqrt_counts = binned.sqrt_counts
+        self.rows_total = binned.rows_total
+        parts = [binned.base[:, :-1]]
+        parts += [binned.candidate_means([spec])[:, 0, :] * self.sqrt_counts[:, None] for spec in specs]
+        self.xe = np.column_stack([*parts, binned.base[:, -1]])
+        self.width = self.xe.shape[1] - 1
+        self.gram = np.stack([self.xe[k].T @ self.xe[k] for k in binned.folds])
+        self._base_sse: float | None = None
+
+    def candidate_means(self, variants: Sequence[TermSpec]) -> NDArray[np.float64]:
+        """Bin means of the scaled candidate bases, shape (bins, variants, width)."""
+        return self.binned.candidate_means(variants)
 
     def base_sse(self) -> float:
         """Held-out SSE of the base model over all folds."""
@@ -153,12 +183,12 @@ class Screen:
         p = self.width
         n_ver = len(shifts) * n_var
         q = p + w + 1
-        gram = np.zeros((n_ver, len(self.bounds) - 1, q, q))
-        for k, (a, b) in enumerate(zip(self.bounds[:-1], self.bounds[1:])):
-            # Shifted copies block by block: memory stays at one block's worth.
-            rolled = means[(np.arange(a, b)[:, None] - shifts[None, :]) % n]  # (rows, shifts, variants, w)
-            ck = (rolled * self.sqrt_counts[a:b, None, None, None]).reshape(b - a, n_ver, w)
-            cx = (ck.reshape(b - a, n_ver * w).T @ self.xe[a:b]).reshape(n_ver, w, p + 1)
+        gram = np.zeros((n_ver, len(self.binned.folds), q, q))
+        for k, rows in enumerate(self.binned.folds):
+            # Shifted copies fold by fold: memory stays at one fold's worth.
+            rolled = means[(rows[:, None] - shifts[None, :]) % n]  # (rows, shifts, variants, w)
+            ck = (rolled * self.sqrt_counts[rows, None, None, None]).reshape(len(rows), n_ver, w)
+            cx = (ck.reshape(len(rows), n_ver * w).T @ self.xe[rows]).reshape(n_ver, w, p + 1)
             gram[:, k, :p, :p] = self.gram[k, :p, :p]
             gram[:, k, :p, -1] = gram[:, k, -1, :p] = self.gram[k, :p, -1]
             gram[:, k, -1, -1] = self.gram[k, -1, -1]
@@ -218,21 +248,25 @@ class TraceResult:
 def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
                    specs: Sequence[TermSpec] = (), *, folds: int = DEFAULT_FOLDS, shifts: int = DEFAULT_SHIFTS,
                    bin_s: float = DEFAULT_BIN_S, materiality: float = DEFAULT_MATERIALITY,
-                   seed: int = 0, noise_floor_dps: float | None = None) -> TraceResult:
-    """Screen every signal not yet modelled against what the model (polynomial + ``specs``) leaves.
+                   seed: int = 0, noise_floor_dps: float | None = None,
+                   exclude: Sequence[str] = (), binned: Binned | None = None) -> TraceResult:
+    """Screen every signal not yet modelled (nor in ``exclude``) against what the model (polynomial + ``specs``) leaves.
 
     ``error`` is ``rate_dps - ref_rate`` per log row; only the steady rows of ``segments``
-    are used. The noise floor is estimated from the base fit's residual unless given.
+    are used. The noise floor is estimated from the base fit's residual unless given;
+    ``binned`` (the same log, rows and columns) saves binning it again in a loop.
     """
     if noise_floor_dps is None:
         base = fit_model(signals, error, rows, columns, specs, segments.rows())
         residual = np.zeros(len(signals))
         residual[base.index] = base.residual
         noise_floor_dps = noise_floor(residual, segments)
-    screen = Screen(signals, error, segments, rows, columns, specs, folds, bin_s)
+    if binned is None:
+        binned = Binned(signals, error, segments, rows, columns, folds, bin_s)
+    screen = Screen(binned, specs)
     rng = np.random.default_rng(seed)
     floor_var = noise_floor_dps ** 2
-    families = candidate_specs(signals, rows, columns, [s.signal for s in specs])
+    families = candidate_specs(signals, rows, columns, [*exclude, *(s.signal for s in specs)])
     scores = [score for signal, variants in families.items()
               if (score := _score(screen, signal, variants, shifts, rng, floor_var, materiality)) is not None]
     # Several unmodelled effects inflate each other's chance level (a slow residual makes any
@@ -243,7 +277,7 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
         rescored = []
         for c in material:
             others = [o.spec for o in material if o is not c]
-            conditional = Screen(signals, error, segments, rows, columns, [*specs, *others], folds, bin_s)
+            conditional = Screen(binned, [*specs, *others])
             rescored.append(_score(conditional, c.signal, families[c.signal], shifts, rng, floor_var, materiality))
         scores = [c for c in scores if c not in material] + [c for c in rescored if c is not None]
     scores.sort(key=lambda c: c.improvement_dps2, reverse=True)
@@ -268,27 +302,34 @@ def _score(screen: Screen, signal: str, variants: Sequence[TermSpec], shifts: in
 
 
 def _fair_shifts(means: NDArray[np.float64], count: int, rng: np.random.Generator) -> NDArray[np.int64]:
-    """Up to ``count`` circular shifts (in bins, within the middle 80 %) that decorrelate the candidate from itself."""
-    n = means.shape[0]
-    x = means.reshape(n, -1)
+    """Up to ``count`` circular shifts (in bins, within the middle 80 %) that decorrelate the candidate from itself.
+
+    The circular self-correlation of each variant (and across its columns) is computed
+    by FFT on block means of the bins, which is ample for the slow shapes that matter.
+    """
+    n, n_var, w = means.shape
+    step = max(1, -(-n // SELF_CORRELATION_POINTS))
+    m = n // step
+    x = means[:m * step].reshape(m, step, n_var, w).mean(axis=1)
     x = x - x.mean(axis=0)
     spectrum = np.fft.rfft(x, axis=0)
     power = np.sum(x * x, axis=0)
     power[power == 0.0] = 1.0
-    worst = np.zeros(n)
-    for i in range(x.shape[1]):
-        for j in range(x.shape[1]):
-            cross = np.fft.irfft(np.conj(spectrum[:, i]) * spectrum[:, j], n) / np.sqrt(power[i] * power[j])
-            worst = np.maximum(worst, np.abs(cross))
-    lags = np.arange(n // 10, n - n // 10)
+    worst = np.zeros(m)
+    for v in range(n_var):
+        for i in range(w):
+            for j in range(w):
+                cross = np.fft.irfft(np.conj(spectrum[:, v, i]) * spectrum[:, v, j], m)
+                worst = np.maximum(worst, np.abs(cross) / np.sqrt(power[v, i] * power[v, j]))
+    lags = np.arange(m // 10, m - m // 10)
     fair = lags[worst[lags] <= MAX_SELF_CORRELATION]
-    return rng.choice(fair, size=min(count, fair.size), replace=False) if fair.size else fair
+    chosen = rng.choice(fair, size=min(count, fair.size), replace=False) if fair.size else fair
+    return chosen * step
 
 
-def held_out_rms(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
-                 specs: Sequence[TermSpec] = (), folds: int = DEFAULT_FOLDS) -> float:
-    """Held-out RMS error (deg/s) of the model over every steady row, by the same contiguous folds."""
-    screen = Screen(signals, error, segments, rows, columns, specs, folds, bin_s=0.0)
+def held_out_rms(rows: Binned, specs: Sequence[TermSpec] = ()) -> float:
+    """Held-out RMS error (deg/s) of the polynomial + ``specs``; ``rows`` binned with ``bin_s=0``: every steady row."""
+    screen = Screen(rows, specs)
     return float(np.sqrt(screen.base_sse() / screen.rows_total))
 
 
@@ -319,4 +360,3 @@ def _best_time_constant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpe
     if min(fa, fb) > sse[i]:
         best = taus[i]
     return TermSpec(template.signal, template.form, (), best)
-

@@ -1,0 +1,43 @@
+"""Benchmark: fit + trace (the whole loop) on a 24 h, 10 Hz simulated run (864,000 rows).
+
+Reports wall time of the loop and the process's peak resident memory. Run:
+``python bench/bench_fit_trace.py [--hours 24] [--rate-hz 10]``. A benchmark, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import time
+
+from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.loop import close_loop
+from art_gyro_calibration.simulate import EFFECTS, SimulationSettings, simulate_run
+
+
+def main() -> None:
+    """Simulate, then time close_loop."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--hours', type=float, default=24.0)
+    parser.add_argument('--rate-hz', type=float, default=10.0)
+    parser.add_argument('--serial', default='NAVC3545')
+    parser.add_argument('--no-effects', action='store_true')
+    args = parser.parse_args()
+    cal = load_packaged_calibration(args.serial)
+    effects = () if args.no_effects else tuple(EFFECTS)
+    run = simulate_run(cal, SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=effects))
+    c = run.columns
+    log = GyroLog(c['t'], c['raw_rate'] * cal.rate_scale_factor, c['raw_temp'] * cal.temp_scale_factor,
+                  c['ref_rate'], {'supply_v': c['supply_v']})
+    start = time.perf_counter()
+    result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, serial_number=args.serial)
+    elapsed = time.perf_counter() - start
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f'rows {len(log)}, effects simulated: {", ".join(effects) or "none"}')
+    print(f'effects found: {", ".join(e.term.describe() for e in result.effects) or "nothing"}')
+    print(f'fit + trace: {elapsed:.2f} s, peak RSS {peak_mib:.0f} MiB (whole process, simulation included)')
+
+
+if __name__ == '__main__':
+    main()
