@@ -38,7 +38,7 @@ class Compensator:
         return raw_rate * self._rate_scale, raw_temp * self._temp_scale
 
     def error(self, t: float, rate_dps: float, temp_c: float) -> float:
-        """Advance the signals to this sample and return its modelled error (comp)."""
+        """Advance the signals to this sample and return comp, its modelled error."""
         self._tracker.update(t, rate_dps, temp_c)
         return self._model.error_one(self._tracker)
 
