@@ -30,7 +30,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import IO, Any, Callable
+from typing import Any
 
 import rclpy
 import yaml
@@ -44,8 +44,8 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from art_gyro_calibration.calibration import (Calibration, CalibrationError, load_packaged_calibration,
-                                              from_parameters)
+from art_gyro_calibration.calibration import (Calibration, CalibrationError, find_calibration_file,
+                                              from_parameters, load_calibration)
 from art_gyro_calibration.compensation import Compensator
 from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver
 from art_gyro_calibration.frame import PROTOCOLS
@@ -186,7 +186,7 @@ class _Collection:
 class GyroNode(Node):
     """Owns the serial driver; compensates and publishes every frame."""
 
-    def __init__(self, argv: Sequence[str] = (), driver_factory: Callable[..., Rd2100Driver] = Rd2100Driver) -> None:
+    def __init__(self, argv: Sequence[str] = ()) -> None:
         super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True)
         self.settings = check_settings({name: self._declare(name, default, description)
                                         for name, (default, description) in PARAMETERS.items()})
@@ -201,7 +201,6 @@ class GyroNode(Node):
         self._published = 0
         self._last_temp_c = math.nan
         self._rate_window = (time.monotonic(), 0)
-        self._log_stream: IO[str] | None = None
         self._log: RawLogWriter | None = None
         if self.settings.log_path:
             self._open_log(self.settings.log_path)
@@ -229,8 +228,8 @@ class GyroNode(Node):
         self.get_logger().info(
             f'calibration loaded: {self.calibration.serial_number} from {self.calibration_source}; '
             f'reading {self.settings.port} at {self.settings.baud} baud ({self.settings.protocol})')
-        self._driver = driver_factory(self.settings.port, self.settings.baud, self.settings.protocol,
-                                      self._on_frame, on_link=self._on_link)
+        self._driver = Rd2100Driver(self.settings.port, self.settings.baud, self.settings.protocol,
+                                    self._on_frame, on_link=self._on_link)
         self._driver.start()
 
     # --- startup -------------------------------------------------------------------------
@@ -255,7 +254,8 @@ class GyroNode(Node):
                                      'NAVC3545) of the packaged calibration to load, unless a calibration '
                                      'file comes in by --params-file')
             try:
-                return load_packaged_calibration(serial), f'packaged config/{serial}.yaml'
+                path = find_calibration_file(serial)
+                return load_calibration(path, expected_serial=serial), str(path)
             except CalibrationError as e:
                 raise ParameterError(f'parameter serial_number: {e}') from None
         where = 'parameters (' + (', '.join(files) or 'command line') + ')'
@@ -272,10 +272,10 @@ class GyroNode(Node):
             stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')
             path = path / f'{self.calibration.serial_number}_{stamp}.csv'
         try:
-            self._log_stream = open(path, 'x', encoding='utf-8')
+            stream = open(path, 'x', encoding='utf-8')
         except OSError as e:
             raise ParameterError(f'parameter log_path: cannot create {path}: {e.strerror}') from None
-        self._log = RawLogWriter(self._log_stream)
+        self._log = RawLogWriter(stream)
         self.get_logger().info(f'logging raw frames to {path}')
 
     # --- per frame (driver reader thread) ------------------------------------------------
