@@ -1,0 +1,69 @@
+"""The scaled least-squares fit recovers the report's polynomial (up to its constant)."""
+
+import numpy as np
+import pytest
+
+from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration.fit import Scaling, TermSpec, fit_model, polynomial_basis, polynomial_from_scaled
+from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.metrics import steady_segments
+from art_gyro_calibration.model import ArtPolynomial
+from art_gyro_calibration.signals import compute_signals
+from art_gyro_calibration.simulate import SimulationSettings, simulate_run
+
+
+def simulated(serial, hours=3.0, rate_hz=2.0, seed=11, effects=()):
+    cal = load_packaged_calibration(serial)
+    c = simulate_run(cal, SimulationSettings(hours=hours, rate_hz=rate_hz, seed=seed, effects=effects)).columns
+    log = GyroLog(c['t'], c['raw_rate'] * cal.rate_scale_factor, c['raw_temp'] * cal.temp_scale_factor,
+                  c['ref_rate'], {'supply_v': c['supply_v']})
+    return cal, log
+
+
+def test_scaled_basis_maps_back_exactly():
+    rng = np.random.default_rng(2)
+    coef = rng.standard_normal((3, 4)) * np.array([[1e-9, 1e-7, 1e-5, 1e-3]]).T[:3] * 10
+    poly = ArtPolynomial(coef)
+    temp = rng.uniform(10, 50, 500)
+    rate = rng.uniform(-100, 100, 500)
+    scaling = Scaling.of(temp, rate)
+    basis = polynomial_basis(rate, temp, 3, 4, scaling)
+    beta = np.linalg.lstsq(basis, poly.error(rate, temp), rcond=None)[0]
+    back = polynomial_from_scaled(beta, 3, 4, scaling)
+    np.testing.assert_allclose(back.coefficients, coef, rtol=1e-6, atol=1e-18)
+
+
+@pytest.mark.parametrize('serial', ['NAVC3545', 'NAVC4058'])
+def test_fit_recovers_the_report_polynomial_up_to_the_constant(serial):
+    cal, log = simulated(serial)
+    signals = compute_signals(log.t, log.rate_dps, log.temp_c)
+    seg = steady_segments(log.t, log.ref_rate)
+    fit = fit_model(signals, log.rate_dps - log.ref_rate, cal.polynomial.rows, cal.polynomial.columns,
+                    index=seg.rows())
+    got, want = fit.model.polynomial.coefficients, cal.polynomial.coefficients
+    # Every coefficient but the constant (T^0 r^0, last row and column): that one absorbs the
+    # run's turn-on bias and the Earth's rate, which the static bias removes in use.
+    mask = np.ones_like(want, dtype=bool)
+    mask[-1, -1] = False
+    scale = np.abs(want[mask]).max(axis=None)
+    # Compare the surfaces over the calibrated range, up to a constant.
+    temp, rate = np.meshgrid(np.linspace(10, 50, 9), np.linspace(-100, 100, 21))
+    diff = fit.model.polynomial.error(rate, temp) - cal.polynomial.error(rate, temp)
+    assert np.ptp(diff) < 2e-3, f'recovered surface differs by {np.ptp(diff)} deg/s'
+    # Coefficients with a material effect over the range are recovered to a few per cent.
+    for j in range(want.shape[0]):
+        for i in range(want.shape[1]):
+            if not mask[j, i]:
+                continue
+            reach = abs(want[j, i]) * 50.0 ** (want.shape[0] - 1 - j) * 100.0 ** (want.shape[1] - 1 - i)
+            if reach > 0.02:
+                assert got[j, i] == pytest.approx(want[j, i], rel=0.05), (j, i)
+    assert scale > 0
+
+
+def test_too_few_samples_is_an_error():
+    cal, log = simulated('NAVC4058', hours=0.01, rate_hz=1.0)
+    signals = compute_signals(log.t, log.rate_dps, log.temp_c)
+    with pytest.raises(ValueError, match='cannot determine'):
+        fit_model(signals, log.rate_dps - log.ref_rate, 3, 2, [TermSpec('time', 'exp_decay', (), 10.0)],
+                  index=np.arange(5))

@@ -1,0 +1,39 @@
+"""Steady segments, the noise floor and the error metrics."""
+
+import numpy as np
+import pytest
+
+from art_gyro_calibration.metrics import error_metrics, heading_errors_360, noise_floor, steady_segments
+
+
+def test_segments_skip_the_settling_time():
+    t = np.arange(40) * 0.5
+    ref = np.r_[np.zeros(10), np.full(20, 10.0), np.zeros(10)]
+    seg = steady_segments(t, ref, settle_s=1.0)
+    assert list(seg.starts) == [2, 12, 32]
+    assert list(seg.stops) == [10, 30, 40]
+    assert list(seg.rate) == [0.0, 10.0, 0.0]
+
+
+def test_metrics_of_a_known_error():
+    t = np.arange(300) * 1.0
+    ref = np.r_[np.zeros(100), np.full(100, 36.0), np.full(100, -1.0)]
+    error = np.r_[np.zeros(100), np.full(100, 0.01), np.full(100, -0.002)]
+    seg = steady_segments(t, ref, settle_s=0.0)
+    m = error_metrics(error, seg)
+    assert m.rms_dps == pytest.approx(np.sqrt((100 * 0.01 ** 2 + 100 * 0.002 ** 2) / 300))
+    assert m.systematic_rms_dps == pytest.approx(np.sqrt((0.01 ** 2 + 0.002 ** 2) / 3))
+    rate, heading = heading_errors_360(error, seg)
+    assert list(rate) == [36.0, -1.0]
+    # 0.01 deg/s for the 10 s of a turn at 36 deg/s; 0.002 deg/s for 360 s at 1 deg/s.
+    assert heading == pytest.approx([0.1, -0.72])
+    assert m.heading_360_deg_max == pytest.approx(0.72)
+
+
+def test_noise_floor_ignores_slow_effects():
+    rng = np.random.default_rng(0)
+    t = np.arange(20000) * 0.1
+    ref = np.repeat([0.0, 5.0, -5.0, 0.0], 5000)
+    residual = 0.004 * rng.standard_normal(t.size) + 0.05 * np.sin(t / 300.0)
+    seg = steady_segments(t, ref)
+    assert noise_floor(residual, seg) == pytest.approx(0.004, rel=0.05)
