@@ -67,7 +67,7 @@ def _fit(args: argparse.Namespace) -> int:
     summary = write_report(args.report, report)
     if args.plots:
         from art_gyro_calibration.plots import plot_all
-        plot_all(log, result, args.bias_samples, args.plots)
+        plot_all(log, result, args.bias_samples, args.plots, args.plot_prefix)
     print(summary.read_text(encoding='utf-8'), end='')
     return 0
 
@@ -137,6 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', required=True, help='calibration file to write (CAL.yaml)')
     p.add_argument('--report', required=True, help='REPORT.json to write (and REPORT.md beside it)')
     p.add_argument('--plots', help='directory for the figures (PNG)')
+    p.add_argument('--plot-prefix', default='', help='start of the figures\' file names (e.g. sim-)')
     p.add_argument('--bias-samples', type=int, default=DEFAULT_SAMPLES,
                    help='rows at rest at the start of the log for the static bias (default %(default)s)')
     p.add_argument('--rate-scale-factor', type=float,

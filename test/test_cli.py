@@ -1,0 +1,90 @@
+"""``calibrate`` end to end on a small simulated log: simulate, fit, apply, and the node's per-sample path."""
+
+import json
+
+import numpy as np
+import pytest
+
+from art_gyro_calibration.calibration import load_calibration
+from art_gyro_calibration.cli import main
+from art_gyro_calibration.compensation import Compensator, apply_calibration
+from art_gyro_calibration.log import read_log
+
+
+@pytest.fixture(scope='module')
+def fitted(tmp_path_factory):
+    d = tmp_path_factory.mktemp('cli')
+    log = d / 'LOG.csv'
+    assert main(['simulate', '--serial', 'NAVC4058', '--hours', '6', '--rate-hz', '2', '--seed', '4',
+                 '--effect', 'shupe', '--out', str(log)]) == 0
+    assert main(['fit', str(log), '--rows', '3', '--columns', '2', '--serial', 'NAVC4058',
+                 '--out', str(d / 'CAL.yaml'), '--report', str(d / 'REPORT.json'), '--plots', str(d / 'plots')]) == 0
+    return d
+
+
+def test_fit_writes_calibration_report_and_plots(fitted):
+    cal = load_calibration(fitted / 'CAL.yaml', expected_serial='NAVC4058')
+    assert [t.signal for t in cal.terms] == ['temperature_rate']
+    report = json.loads((fitted / 'REPORT.json').read_text())
+    assert [e['signal'] for e in report['effects']] == ['temperature_rate']
+    for stage in ('uncalibrated', 'art', 'extended'):
+        assert set(report['errors'][stage]) == {'rms_dps', 'systematic_rms_dps', 'heading_360_deg_max'}
+    errors = report['errors']
+    assert errors['extended']['systematic_rms_dps'] < errors['art']['systematic_rms_dps'] \
+        < errors['uncalibrated']['systematic_rms_dps']
+    assert report['noise_floor_dps'] > 0
+    assert (fitted / 'REPORT.md').read_text().startswith('# Calibration of NAVC4058')
+    pngs = sorted(p.name for p in (fitted / 'plots').glob('*.png'))
+    assert pngs == ['error-vs-rate.png', 'heading-360.png', 'residual-temperature_rate.png']
+    assert all((fitted / 'plots' / p).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' for p in pngs)
+
+
+def test_apply_writes_the_compensated_log(fitted):
+    out = fitted / 'OUT.csv'
+    assert main(['apply', str(fitted / 'LOG.csv'), '--calibration', str(fitted / 'CAL.yaml'),
+                 '--out', str(out), '--bias-samples', '50']) == 0
+    header = out.read_text().splitlines()[0]
+    assert header == 't,rate_dps,temp_c,comp_dps,corrected_dps'
+    data = np.loadtxt(out, delimiter=',', skiprows=1)
+    cal = load_calibration(fitted / 'CAL.yaml')
+    log = read_log(fitted / 'LOG.csv', cal.rate_scale_factor, cal.temp_scale_factor)
+    np.testing.assert_allclose(data[:, 4], apply_calibration(log, cal, 50).corrected_dps, atol=1e-8)
+
+
+def test_node_path_matches_apply(fitted):
+    """The CAL.yaml the fit wrote, applied sample by sample as the node does, equals apply over the log."""
+    cal = load_calibration(fitted / 'CAL.yaml')
+    log = read_log(fitted / 'LOG.csv', cal.rate_scale_factor, cal.temp_scale_factor)
+    n = 100
+    batch = apply_calibration(log, cal, n)
+    comp = Compensator(cal)
+    errors = [comp.error(t, r, T) for t, r, T in zip(log.t.tolist(), log.rate_dps.tolist(), log.temp_c.tolist())]
+    comp.bias = batch.bias  # the same static bias over the first n samples
+    corrected = np.array([comp.correct(r, e) for r, e in zip(log.rate_dps.tolist(), errors)])
+    np.testing.assert_allclose(errors, batch.comp_dps, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(corrected, batch.corrected_dps, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize('args, message', [
+    (['apply', 'missing.csv', '--calibration', 'CAL.yaml', '--out', 'o.csv'], 'cannot read'),
+    (['apply', 'LOG.csv', '--calibration', 'missing.yaml', '--out', 'o.csv'], 'cannot read'),
+    (['apply', 'LOG.csv', '--calibration', 'CAL.yaml', '--out', 'o.csv', '--bias-samples', '1'], 'bias_samples'),
+    (['apply', 'moving.csv', '--calibration', 'CAL.yaml', '--out', 'o.csv'], 'turning'),
+    (['fit', 'noref.csv', '--rows', '3', '--columns', '2', '--out', 'c.yaml', '--report', 'r.json'], 'ref_rate'),
+    (['apply', 'bad.csv', '--calibration', 'CAL.yaml', '--out', 'o.csv'], 'bad.csv'),
+])
+def test_bad_inputs_are_clear_errors(fitted, monkeypatch, capsys, args, message):
+    monkeypatch.chdir(fitted)
+    (fitted / 'moving.csv').write_text('t,rate_dps,temp_c\n' + ''.join(f'{i},{5.0},{20}\n' for i in range(200)))
+    (fitted / 'noref.csv').write_text('t,rate_dps,temp_c\n' + ''.join(f'{i},0.01,{20 + i / 100}\n' for i in range(200)))
+    (fitted / 'bad.csv').write_text('t,rate_dps,temp_c\n0,0.1,20\n1,abc,20\n')
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert f'calibrate {args[0]}: error:' in err and message in err
+
+
+def test_module_entry_point_and_usage_errors(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(['fit', 'LOG.csv', '--rows', '0', '--columns', '2', '--out', 'c', '--report', 'r'])
+    assert exc.value.code == 2
+    assert '--rows' in capsys.readouterr().err
