@@ -53,7 +53,7 @@ def plot_all(log: GyroLog, result: LoopResult, bias_samples: int, out_dir: str |
 def _error_vs_rate(errors: dict[str, NDArray[np.float64]], result: LoopResult, path: Path) -> Path:
     band, bands = _bands(result)
     colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
-    fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5), sharey=True)
+    fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5))
     for ax, stage in zip(axes, STAGES):
         means = result.segments.means(errors[stage])
         for b, colour in zip(bands, colours):
@@ -74,7 +74,7 @@ def _heading_360(errors: dict[str, NDArray[np.float64]], result: LoopResult, pat
     band, bands = _bands(result)
     turning = result.segments.rate != 0.0
     colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
-    fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5), sharey=True)
+    fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5))
     for ax, stage in zip(axes, STAGES):
         rate, heading = heading_errors_360(errors[stage], result.segments)
         for b, colour in zip(bands, colours):
