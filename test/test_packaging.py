@@ -69,6 +69,14 @@ def test_installed_package_finds_its_calibrations_through_ament(install: Path, t
     assert Path(share) == install / 'share' / PACKAGE
 
 
+@pytest.mark.parametrize('exe', ['fake_rd2100', 'calibrate', 'imu_echo'])
+def test_installed_console_scripts_run(install: Path, tmp_path: Path, exe: str) -> None:
+    """Each installed console script reaches its entry point (its --help)."""
+    result = subprocess.run([str(install / 'lib' / PACKAGE / exe), '--help'], cwd=tmp_path,
+                            env=installed_env(install, 0), capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert result.returncode == 0 and result.stdout.startswith(f'usage: {exe}'), result.stdout + result.stderr
+
+
 def test_installed_gyro_node_publishes_with_a_params_file_calibration(install: Path, tmp_path: Path,
                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """The installed executable, given a packaged calibration file by --params-file, publishes."""
