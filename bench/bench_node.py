@@ -1,0 +1,340 @@
+"""Benchmark: gyro_node as shipped, fed on a pty, seen by a subscriber in another process.
+
+Three processes: this one writes binary RD2100 frames to the pty master (each frame in one
+``os.write``, its time taken just before the write: the frame's last byte is in the pty
+within the write's duration after it, so latencies are over-estimated by that much at most,
+and a writer pre-empted after its write cannot make a latency look shorter); ``gyro_node``
+(unchanged, ``python -m art_gyro_calibration.node``) reads the slave; a subscriber (this
+script with ``--subscriber``, its own process so it shares no GIL with the writer) stamps
+each ``imu/data_raw`` message on arrival with the same CLOCK_MONOTONIC.
+
+Each frame carries its sequence number: ``raw_rate = (seq mod 4096 - 2048) * 8`` counts at a
+constant 25 degC (rates within +-50 deg/s, 8 counts = 0.024 deg/s apart). The packaged
+calibration has no history-dependent terms and the startup static bias is off, so the
+published rate is a fixed, monotonic function of ``raw_rate``: the subscriber's rates decode
+back to ``seq mod 4096`` by a table lookup, and the order of arrival (one publisher) gives
+the sequence. Latency is arrival minus write of the same frame; a frame is lost if its
+sequence number never arrives.
+
+Phases: a 10 Hz warm-up until the subscriber hears the node, 10 Hz for --slow-seconds, then
+1 kHz for --minutes. The node's CPU share (utime + stime from /proc/<pid>/stat) and resident
+memory (VmRSS, every second) are taken over the 1 kHz phase. The node is told a baud of
+115200 (--baud): a pty ignores it, but the node's wire-time stamp correction uses it, and the
+node's default of 9600 baud could not carry 1 kHz of 8-byte frames (8 kB/s) on a real wire.
+
+Usage: python bench/bench_node.py [--minutes 10] [--slow-seconds 120] [--serial NAVC3545]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import select
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import tty
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+PERIOD = 4096           # sequence numbers repeat after this many frames (4 s at 1 kHz)
+STEP_COUNTS = 8         # raw_rate counts between successive sequence numbers
+RAW_TEMP = 500          # 25 degC at 0.05 degC per count
+BITS_PER_BYTE = 10
+READY_TIMEOUT_S = 60.0
+DRAIN_S = 3.0           # after the last write, time for the last messages to arrive
+
+
+def raw_rates() -> np.ndarray:
+    """``raw_rate`` of each ``seq mod PERIOD``."""
+    return (np.arange(PERIOD) - PERIOD // 2) * STEP_COUNTS
+
+
+# --- subscriber process ----------------------------------------------------------------
+
+def run_subscriber(out: str) -> int:
+    """Record (arrival ns, rate, stamp) of every Imu message and the node's last link status; 'stop' on stdin ends."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu
+
+    rclpy.init()
+    node = rclpy.create_node('bench_subscriber')
+    arrival: list[int] = []
+    rate: list[float] = []
+    stamp: list[int] = []
+    link: dict[str, str] = {}
+    ready = threading.Event()
+
+    def on_imu(msg: Imu) -> None:
+        arrival.append(time.monotonic_ns())
+        rate.append(msg.angular_velocity.z)
+        stamp.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        if not ready.is_set():
+            ready.set()
+            print('ready', flush=True)
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for s in msg.status:
+            if s.name.endswith(': link'):
+                link.clear()
+                link.update({kv.key: kv.value for kv in s.values}, message=s.message)
+
+    reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    node.create_subscription(Imu, 'imu/data_raw', on_imu, reliable)
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    sys.stdin.readline()   # 'stop' or EOF
+    executor.shutdown()
+    thread.join(5.0)
+    usage = os.times()
+    np.savez(out, arrival=np.array(arrival, dtype=np.int64), rate=np.array(rate),
+             stamp=np.array(stamp, dtype=np.int64))
+    Path(out + '.json').write_text(json.dumps({'link': link, 'cpu_s': usage.user + usage.system}))
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+# --- writer and probes ---------------------------------------------------------------
+
+def child_env(domain: int) -> dict[str, str]:
+    """Environment of the node and subscriber: own domain, loopback discovery."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1')
+    env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)   # the child's own bootstrap sets its library path
+    return env
+
+
+def cpu_ticks(pid: int) -> int:
+    """CPU time (utime + stime) of a process, in clock ticks."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return int(fields[11]) + int(fields[12])   # fields 14 and 15 of proc(5), counted after the comm
+
+
+def rss_kb(pid: int) -> int:
+    """Resident memory of a process in kB."""
+    for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+        if line.startswith('VmRSS:'):
+            return int(line.split()[1])
+    raise RuntimeError(f'no VmRSS for {pid}')
+
+
+class Writer:
+    """Writes frame ``seq`` at its deadline and records when each write returned."""
+
+    def __init__(self, master: int, capacity: int) -> None:
+        from art_gyro_calibration.frame import encode_binary
+        self.master = master
+        self.frames = [encode_binary(int(r), RAW_TEMP) for r in raw_rates()]
+        self.mono_ns = np.zeros(capacity, dtype=np.int64)
+        self.real_ns = np.zeros(capacity, dtype=np.int64)
+        self.write_ns = np.zeros(capacity, dtype=np.int64)   # how long each write took
+        self.seq = 0
+        self.late = 0    # writes more than a period after their deadline (the writer fell behind)
+
+    def run(self, rate_hz: float, count: int | None = None, until: threading.Event | None = None) -> tuple[int, int]:
+        """Write ``count`` frames (or until ``until`` is set) at ``rate_hz``; the [first, end) sequence written."""
+        period_ns = int(1e9 / rate_hz)
+        first = self.seq
+        start = time.monotonic_ns()
+        i = 0
+        while (count is None or i < count) and not (until is not None and until.is_set()):
+            delay = start + i * period_ns - time.monotonic_ns()
+            if delay > 0:
+                time.sleep(delay * 1e-9)
+            elif -delay > period_ns:
+                self.late += 1
+            seq = self.seq
+            self.real_ns[seq] = time.time_ns()
+            self.mono_ns[seq] = before = time.monotonic_ns()
+            os.write(self.master, self.frames[seq % PERIOD])
+            self.write_ns[seq] = time.monotonic_ns() - before
+            self.seq += 1
+            i += 1
+        return first, self.seq
+
+
+class Probe:
+    """Samples the node's resident memory and the load average every second, on a thread."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self.samples: list[tuple[float, int, float]] = []   # (monotonic s, VmRSS kB, 1-min load)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(1.0):
+            load = float(Path('/proc/loadavg').read_text().split()[0])
+            self.samples.append((time.monotonic(), rss_kb(self.pid), load))
+
+    def stop(self) -> None:
+        """Stop sampling."""
+        self._stop.set()
+        self._thread.join()
+
+
+def decode(serial: str, rate_rad_s: np.ndarray, arrival_ns: np.ndarray,
+           written_ns: np.ndarray) -> tuple[np.ndarray, float]:
+    """Sequence number of each received message, and the worst decoding residual in counts."""
+    from art_gyro_calibration.calibration import load_packaged_calibration
+    cal = load_packaged_calibration(serial)
+    assert not cal.terms, 'the decoding needs a calibration without history-dependent terms'
+    rate = raw_rates() * cal.rate_scale_factor
+    table = rate - cal.polynomial.error(rate, RAW_TEMP * cal.temp_scale_factor)   # what the node publishes
+    assert np.all(np.diff(table) > 0)
+    got = np.degrees(rate_rad_s)
+    index = np.clip(np.searchsorted(table, got), 1, PERIOD - 1)
+    index -= (got - table[index - 1]) < (table[index] - got)
+    residual = float(np.abs(got - table[index]).max() / cal.rate_scale_factor) if len(got) else 0.0
+    # The first message: the latest frame of its residue written before it arrived.
+    candidates = np.flatnonzero((np.arange(len(written_ns)) % PERIOD == index[0])
+                                & (written_ns > 0) & (written_ns <= arrival_ns[0]))
+    seq = np.empty(len(index), dtype=np.int64)
+    seq[0] = candidates[-1]
+    steps = np.mod(np.diff(index), PERIOD)
+    steps[steps == 0] = PERIOD   # one publisher, in order: equal residues are a whole period apart
+    seq[1:] = seq[0] + np.cumsum(steps)
+    return seq, residual
+
+
+def latency_row(label: str, rate_hz: float, seq: np.ndarray, arrival: np.ndarray, stamp: np.ndarray,
+                writer: Writer, first: int, end: int, frame_ns: int) -> str:
+    """Markdown row: latency percentiles, loss and stamp offset of the frames [first, end)."""
+    inside = (seq >= first) & (seq < end)
+    s = seq[inside]
+    latency_ms = (arrival[inside] - writer.mono_ns[s]) * 1e-6
+    stamp_ms = (stamp[inside] - (writer.real_ns[s] - frame_ns)) * 1e-6
+    lost = (end - first) - len(np.unique(s))
+    p50, p99, p999 = np.percentile(latency_ms, [50, 99, 99.9])
+    write_p99 = np.percentile(writer.write_ns[first:end], 99) * 1e-6
+    return (f'| {label} | {rate_hz:g} Hz | {end - first:,} | {lost} | {p50:.3f} | {p99:.3f} | {p999:.3f} | '
+            f'{latency_ms.max():.2f} | {write_p99:.3f} | {np.median(stamp_ms):.3f} |')
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the node, the writer and the subscriber through the phases; print the tables."""
+    domain = 1 + os.getpid() % 200
+    slow_frames = int(args.slow_seconds * 10)
+    fast_frames = int(args.minutes * 60 * 1000)
+    capacity = slow_frames + fast_frames + int(READY_TIMEOUT_S * 10) + 1000
+    master, slave = os.openpty()
+    tty.setraw(slave)   # no byte translated
+    port = os.ttyname(slave)
+    writer = Writer(master, capacity)
+    frame_ns = 8 * BITS_PER_BYTE * 1_000_000_000 // args.baud
+    with tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / 'node.log'
+        out = str(Path(tmp) / 'received')
+        with open(log, 'wb') as node_out:
+            node = subprocess.Popen(
+                [sys.executable, '-m', 'art_gyro_calibration.node', '--ros-args', '-p', f'serial_number:={args.serial}',
+                 '-p', f'port:={port}', '-p', f'baud:={args.baud}', '-p', 'static_bias_on_startup:=false'],
+                env=child_env(domain), cwd=REPO, stdout=node_out, stderr=subprocess.STDOUT)
+        sub = subprocess.Popen([sys.executable, __file__, '--subscriber', out], env=child_env(domain), cwd=REPO,
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        try:
+            # Warm-up at 10 Hz until the subscriber hears the node (discovery, imports).
+            heard = threading.Event()
+            warm = threading.Thread(target=writer.run, args=(10.0, None, heard))
+            warm.start()
+            ready, _, _ = select.select([sub.stdout], [], [], READY_TIMEOUT_S)
+            heard.set()
+            warm.join()
+            if not ready or sub.stdout.readline().strip() != 'ready':
+                raise RuntimeError(f'the subscriber heard nothing within {READY_TIMEOUT_S} s:\n{log.read_text()}')
+            writer.run(10.0, 20)   # settle
+            print(f'# node pid {node.pid}, port {port}, domain {domain}; 10 Hz for {args.slow_seconds} s',
+                  file=sys.stderr)
+            slow = writer.run(10.0, slow_frames)
+            print(f'# 1 kHz for {args.minutes} min', file=sys.stderr)
+            probe = Probe(node.pid)
+            ticks0, t0 = cpu_ticks(node.pid), time.monotonic()
+            fast = writer.run(1000.0, fast_frames)
+            ticks1, t1 = cpu_ticks(node.pid), time.monotonic()
+            probe.stop()
+            time.sleep(DRAIN_S)
+            writer.run(10.0, 20)   # trailing frames so that a loss at the very end would show
+            time.sleep(DRAIN_S)
+            sub.stdin.write('stop\n')
+            sub.stdin.flush()
+            if sub.wait(60) != 0:
+                raise RuntimeError('the subscriber failed')
+        finally:
+            node.send_signal(signal.SIGINT)
+            try:
+                node_code = node.wait(30)
+            except subprocess.TimeoutExpired:
+                node.kill()
+                node_code = node.wait()
+            if sub.poll() is None:
+                sub.kill()
+            os.close(master)
+            os.close(slave)
+        received = np.load(out + '.npz')
+        extra = json.loads(Path(out + '.json').read_text())
+
+    seq, residual = decode(args.serial, received['rate'], received['arrival'], writer.mono_ns[:writer.seq])
+    arrival, stamp = received['arrival'], received['stamp']
+    latency = arrival - writer.mono_ns[seq]
+    if residual > STEP_COUNTS / 4 or latency.min() < 0 or latency.max() > 2e9:
+        print(f'warning: decoding doubtful (residual {residual:.2f} counts, latency '
+              f'{latency.min() * 1e-6:.2f}..{latency.max() * 1e-6:.2f} ms)', file=sys.stderr)
+
+    print(f'\nMachine: {platform.node()}, {os.cpu_count()} cores, {platform.processor() or platform.machine()}, '
+          f'Python {platform.python_version()}, RMW {os.environ.get("RMW_IMPLEMENTATION", "default (Fast DDS)")}; '
+          f'node exit code {node_code}; writer fell behind {writer.late} times; decode residual {residual:.2f} counts')
+    print('\n| phase | rate | frames written | frames lost | latency p50 ms | p99 ms | p99.9 ms | max ms | '
+          'write p99 ms | stamp - (write - wire time) median ms |')
+    print('|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|')
+    print(latency_row('10 Hz', 10, seq, arrival, stamp, writer, *slow, frame_ns))
+    print(latency_row(f'1 kHz, {args.minutes:g} min', 1000, seq, arrival, stamp, writer, *fast, frame_ns))
+    samples = np.array(probe.samples)
+    minutes = (samples[:, 0] - samples[0, 0]) / 60.0
+    rss = samples[:, 1]
+    half = minutes >= minutes[-1] / 2
+    slope = np.polyfit(minutes, rss, 1)[0] if len(rss) > 1 else 0.0
+    slope_late = np.polyfit(minutes[half], rss[half], 1)[0] if half.sum() > 1 else 0.0
+    cpu = (ticks1 - ticks0) / os.sysconf('SC_CLK_TCK') / (t1 - t0)
+    print('\n| node at 1 kHz | value |')
+    print('|---|---:|')
+    print(f'| CPU share of one core (utime + stime) | {cpu * 100:.1f} % |')
+    print(f'| VmRSS start / end / max | {rss[0] / 1024:.1f} / {rss[-1] / 1024:.1f} / {rss.max() / 1024:.1f} MiB |')
+    print(f'| VmRSS slope, whole phase / second half | {slope:+.1f} / {slope_late:+.1f} kB/min |')
+    print(f'| load average (1 min) during the phase, min / mean / max | {samples[:, 2].min():.2f} / '
+          f'{samples[:, 2].mean():.2f} / {samples[:, 2].max():.2f} |')
+    link = extra['link']
+    print(f'| node counters at the end (/diagnostics) | frames {link.get("frames")}, rejected '
+          f'{link.get("rejected")}, published {link.get("published")}, of {writer.seq} written |')
+    print(f'| subscriber process CPU (whole run) | {extra["cpu_s"]:.1f} s |')
+    return 0
+
+
+def main() -> int:
+    """Parse the command line; run the benchmark or, internally, the subscriber."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--minutes', type=float, default=10.0, help='duration of the 1 kHz phase (default 10)')
+    parser.add_argument('--slow-seconds', type=float, default=120.0, help='duration of the 10 Hz phase (default 120)')
+    parser.add_argument('--serial', default='NAVC3545', help='packaged calibration the node loads')
+    parser.add_argument('--baud', type=int, default=115200, help='baud the node is told (default 115200)')
+    parser.add_argument('--subscriber', metavar='OUT', help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    return run_subscriber(args.subscriber) if args.subscriber else run(args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
