@@ -37,7 +37,10 @@ def _apply(args: argparse.Namespace) -> int:
 
 
 def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
-    """Rate and temperature scale factors: given, else the packaged calibration of --serial, else the usual."""
+    """Rate and temperature scale factors: given, else the packaged calibration of --serial, else the usual.
+
+    They turn a raw log's counts into deg/s and go into the calibration file, where the node needs them.
+    """
     if args.rate_scale_factor is not None:
         return args.rate_scale_factor, TEMP_SCALE_FACTOR
     if args.serial:
@@ -46,8 +49,10 @@ def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
             return packaged.rate_scale_factor, packaged.temp_scale_factor
         except CalibrationError:
             pass
-    print(f'calibrate fit: using the usual rate scale factor {DEFAULT_RATE_SCALE_FACTOR} deg/s per count',
-          file=sys.stderr)
+    with open(args.log, encoding='utf-8') as f:
+        if 'raw_rate' in [name.strip() for name in f.readline().split(',')]:
+            print(f'calibrate fit: using the usual rate scale factor {DEFAULT_RATE_SCALE_FACTOR} deg/s per count',
+                  file=sys.stderr)
     return DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR
 
 
@@ -109,8 +114,12 @@ def _record(args: argparse.Namespace) -> int:
             driver.stop()
             stream.flush()
         stats = driver.stats
+    if not count[0]:
+        print(f'calibrate record: error: no frames from {args.port} '
+              f'({stats.last_error or "nothing received"})', file=sys.stderr)
+        return 1
     print(f'{args.out}: {count[0]} frames from {args.port} ({stats.rejected} rejected, {stats.reopens} reopens)')
-    return 0 if count[0] else 1
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:

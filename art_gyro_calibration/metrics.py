@@ -89,7 +89,7 @@ def heading_errors_360(error: ArrayLike, segments: Segments) -> tuple[NDArray[np
 
 
 def error_metrics(error: ArrayLike, segments: Segments) -> ErrorMetrics:
-    """rms over all steady rows, rms of the segment means, and the largest heading error after a full turn."""
+    """RMS over all steady rows, RMS of the segment means, and the largest heading error after a full turn."""
     e = np.asarray(error, dtype=float)
     rows = segments.rows()
     if rows.size == 0:

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import matplotlib
@@ -50,19 +51,15 @@ def plot_all(log: GyroLog, result: LoopResult, bias_samples: int, out_dir: str |
     return paths
 
 
-def _error_vs_rate(errors: dict[str, NDArray[np.float64]], result: LoopResult, path: Path) -> Path:
-    band, bands = _bands(result)
-    colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
+def _per_stage(path: Path, ylabel: str, draw: Callable[[plt.Axes, str], None]) -> Path:
+    """One panel per stage (uncalibrated, ART, extended), each drawn by ``draw(ax, stage)``."""
     fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5))
     for ax, stage in zip(axes, STAGES):
-        means = result.segments.means(errors[stage])
-        for b, colour in zip(bands, colours):
-            sel = band == b
-            ax.plot(result.segments.rate[sel], means[sel], 'o', ms=3, color=colour, label=f'{b:.0f} degC')
+        draw(ax, stage)
         ax.set_title(TITLES[stage])
         ax.set_xlabel('table rate (deg/s)')
         ax.grid(True, alpha=0.3)
-    axes[0].set_ylabel('mean error of a steady segment (deg/s)')
+    axes[0].set_ylabel(ylabel)
     axes[-1].legend(title='temperature', fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
@@ -70,12 +67,25 @@ def _error_vs_rate(errors: dict[str, NDArray[np.float64]], result: LoopResult, p
     return path
 
 
+def _error_vs_rate(errors: dict[str, NDArray[np.float64]], result: LoopResult, path: Path) -> Path:
+    band, bands = _bands(result)
+    colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
+
+    def draw(ax: plt.Axes, stage: str) -> None:
+        means = result.segments.means(errors[stage])
+        for b, colour in zip(bands, colours):
+            sel = band == b
+            ax.plot(result.segments.rate[sel], means[sel], 'o', ms=3, color=colour, label=f'{b:.0f} degC')
+
+    return _per_stage(path, 'mean error of a steady segment (deg/s)', draw)
+
+
 def _heading_360(errors: dict[str, NDArray[np.float64]], result: LoopResult, path: Path) -> Path:
     band, bands = _bands(result)
     turning = result.segments.rate != 0.0
     colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
-    fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5))
-    for ax, stage in zip(axes, STAGES):
+
+    def draw(ax: plt.Axes, stage: str) -> None:
         rate, heading = heading_errors_360(errors[stage], result.segments)
         for b, colour in zip(bands, colours):
             sel = band[turning] == b
@@ -85,15 +95,8 @@ def _heading_360(errors: dict[str, NDArray[np.float64]], result: LoopResult, pat
             rates = np.unique(rate[sel])
             mean = [heading[sel][rate[sel] == r].mean() for r in rates]
             ax.plot(rates, mean, '.-', color=colour, label=f'{b:.0f} degC')
-        ax.set_title(TITLES[stage])
-        ax.set_xlabel('table rate (deg/s)')
-        ax.grid(True, alpha=0.3)
-    axes[0].set_ylabel('heading error after a full turn (deg)')
-    axes[-1].legend(title='temperature', fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+
+    return _per_stage(path, 'heading error after a full turn (deg)', draw)
 
 
 def _residual(result: LoopResult, i: int, path: Path) -> Path:

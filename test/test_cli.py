@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from art_gyro_calibration.calibration import load_calibration
+from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration
 from art_gyro_calibration.cli import main
 from art_gyro_calibration.compensation import Compensator, apply_calibration
 from art_gyro_calibration.log import read_log
@@ -88,3 +88,25 @@ def test_module_entry_point_and_usage_errors(capsys):
         main(['fit', 'LOG.csv', '--rows', '0', '--columns', '2', '--out', 'c', '--report', 'r'])
     assert exc.value.code == 2
     assert '--rows' in capsys.readouterr().err
+
+
+def test_record_writes_the_raw_log_through_the_driver(tmp_path, capsys):
+    """``calibrate record`` reads a fake RD2100 on a pty through the node's driver."""
+    from art_gyro_calibration.fake_rd2100 import FakeRd2100
+    out = tmp_path / 'REC.csv'
+    with FakeRd2100('NAVC3545', rate_hz=100, profile='30', temperature=31.5, seed=5) as fake:
+        assert main(['record', '--port', fake.path, '--out', str(out), '--baud', '115200',
+                     '--serial', 'NAVC3545', '--duration', '1.5']) == 0
+    assert 'frames from' in capsys.readouterr().out
+    cal = load_packaged_calibration('NAVC3545')
+    log = read_log(out, cal.rate_scale_factor, cal.temp_scale_factor)
+    assert len(log) > 20
+    assert np.all(np.diff(log.t) >= 0)
+    assert np.median(log.rate_dps) == pytest.approx(30.0, abs=1.0)
+    assert np.median(log.temp_c) == pytest.approx(31.5, abs=0.1)
+
+
+def test_record_without_a_gyro_fails(tmp_path, capsys):
+    assert main(['record', '--port', str(tmp_path / 'nothing'), '--out', str(tmp_path / 'r.csv'),
+                 '--duration', '0.3']) == 1
+    assert 'calibrate record: error: no frames from' in capsys.readouterr().err
