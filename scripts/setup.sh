@@ -16,8 +16,9 @@ REQUIREMENTS=(
     colcon-core colcon-ros
 )
 
-# What this installation depends on: the requirements, the package's metadata, the interpreter.
-want=$( { printf '%s\n' "${REQUIREMENTS[@]}"; cat setup.py setup.cfg package.xml; "$PYTHON" --version; } \
+# What this installation depends on: the requirements, the package's metadata, the interpreter,
+# and where the repository is (a venv cannot move: its editable install points here).
+want=$( { printf '%s\n' "${REQUIREMENTS[@]}"; cat setup.py setup.cfg package.xml; "$PYTHON" --version; pwd; } \
         | sha256sum | cut -d' ' -f1 )
 if [[ -x $VENV/bin/python && -f $VENV/.setup-done && "$(cat "$VENV/.setup-done")" == "$want" ]]; then
     exit 0
