@@ -274,14 +274,26 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
     # material ones in the base, so that its chance level is measured on what they leave.
     material = [c for c in scores if c.fraction_of_floor > materiality]
     if len(material) > 1:
-        rescored = []
-        for c in material:
-            others = [o.spec for o in material if o is not c]
-            conditional = Screen(binned, [*specs, *others])
-            rescored.append(_score(conditional, c.signal, families[c.signal], shifts, rng, floor_var, materiality))
-        scores = [c for c in scores if c not in material] + [c for c in rescored if c is not None]
+        scores = _rescore(scores, material, material, binned, specs, families, shifts, rng, floor_var, materiality)
+    # Still nothing beats chance although something matters: the unmodelled rest may hide in
+    # candidates whose own score the others spoil; condition on every other candidate.
+    if not any(c.significant for c in scores):
+        material = [c for c in scores if c.fraction_of_floor > materiality]
+        scores = _rescore(scores, material, scores, binned, specs, families, shifts, rng, floor_var, materiality)
     scores.sort(key=lambda c: c.improvement_dps2, reverse=True)
     return TraceResult(noise_floor_dps, screen.base_sse() / screen.rows_total, tuple(scores))
+
+
+def _rescore(scores: list[CandidateScore], material: list[CandidateScore], given: list[CandidateScore],
+             binned: Binned, specs: Sequence[TermSpec], families: dict[str, list[TermSpec]], shifts: int,
+             rng: np.random.Generator, floor_var: float, materiality: float) -> list[CandidateScore]:
+    """Scores with each ``material`` candidate scored again with the other ``given`` ones in the base."""
+    rescored = []
+    for c in material:
+        others = [o.spec for o in given if o.signal != c.signal]
+        conditional = Screen(binned, [*specs, *others])
+        rescored.append(_score(conditional, c.signal, families[c.signal], shifts, rng, floor_var, materiality))
+    return [c for c in scores if c not in material] + [c for c in rescored if c is not None]
 
 
 def _score(screen: Screen, signal: str, variants: Sequence[TermSpec], shifts: int, rng: np.random.Generator,
