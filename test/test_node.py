@@ -89,7 +89,9 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
 
             # Garbage between frames is counted, and frames flow on.
             fake.inject(b'not a frame \x01\x02\x03')
-            listener.wait_status('link', lambda s: int(s['rejected_garbage']) >= 1, 'garbage counted', proc, output)
+            link = listener.wait_status('link', lambda s: int(s['rejected_garbage']) >= 1, 'garbage counted',
+                                        proc, output)
+            assert 2.0 < float(link['frame_rate_hz']) < 20.0 and link['level'] == b'\x00'   # 10 Hz, generously
             listener.wait_imu(5, proc, output)
 
             # Unplug and replug: the node reopens the port and publishes again.
