@@ -64,14 +64,16 @@ def test_the_loop_on_the_real_record(record_slice, tmp_path):
             assert len(r.errors[stage]) == np.count_nonzero(r.held) > 2.9 * HOUR
             # White noise at 1 s of a MEMS gyro resampled to 1 Hz: about 0.1 deg/s.
             assert 0.05 < r.allan[stage].adev[0] < 0.2
-    figures = {'record': 'record.png', 'allan': ['allan.png']}
+    figures = {'record': 'record.png', 'allan': ['allan.png'],
+               'temperature': measured.plot_temperature(results, tmp_path / 'temperature.png').name}
     for r in results:
         figures[r.axis] = [measured.plot_axis(r, tmp_path / f'{r.axis}.png').name]
     measured.plot_allan(results, tmp_path / 'allan.png')
     text = measured.markdown(record_slice, still, ('acc_z down',), [results], figures)
     assert '| last 3 h | ART polynomial (temperature powers) |' in text
     assert f'{y.summaries["art"].block_rms_dps:.4f}' in text
-    assert all((tmp_path / f).stat().st_size > 10_000 for f in ('x.png', 'y.png', 'z.png', 'allan.png'))
+    written = ('x.png', 'y.png', 'z.png', 'allan.png', 'temperature.png')
+    assert all((tmp_path / f).stat().st_size > 10_000 for f in written)
 
 
 def test_fetch_says_why_it_cannot(tmp_path, monkeypatch):
@@ -109,6 +111,7 @@ def test_block_means_stay_within_runs():
     assert np.all(vm[:6] == 1.0) and np.all(vm[6:] == 3.0)
     summary = measured.summarize(log.t, values - 2.0)
     assert summary.block_rms_dps == pytest.approx(1.0)
+    assert summary.block_std_dps == pytest.approx(1.0)
     assert summary.mean_dps == pytest.approx(0.0)
     assert math.isclose(summary.rms_dps, 1.0)
 
