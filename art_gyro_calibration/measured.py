@@ -239,6 +239,14 @@ def _pyplot():
     return plt
 
 
+def _save(fig: Any, path: Path) -> Path:
+    """Write a figure as PNG and free it."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    _pyplot().close(fig)
+    return path
+
+
 def plot_record(record: StaticRecord, still: NDArray[np.bool_], path: Path) -> Path:
     """The record: 10-minute means of the three gyro axes, temperature and gravity, still runs shaded."""
     plt = _pyplot()
@@ -264,10 +272,7 @@ def plot_record(record: StaticRecord, still: NDArray[np.bool_], path: Path) -> P
     for ax in axes:
         ax.grid(True, alpha=0.3)
     axes[0].set_title('CATS tag lying still (green: still runs used), three orientations in turn')
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_temperature(fold: Sequence[AxisResult], path: Path) -> Path:
@@ -291,10 +296,7 @@ def plot_temperature(fold: Sequence[AxisResult], path: Path) -> Path:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
     axes[0][0].set_ylabel('rate of the still gyro, 10-min means (deg/s)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_axis(result: AxisResult, path: Path) -> Path:
@@ -332,10 +334,7 @@ def plot_axis(result: AxisResult, path: Path) -> Path:
     for ax in axes:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7, loc='best')
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_allan(results: Sequence[AxisResult], path: Path) -> Path:
@@ -356,10 +355,7 @@ def plot_allan(results: Sequence[AxisResult], path: Path) -> Path:
         ax.grid(True, which='both', alpha=0.3)
     axes[0][0].set_ylabel('Allan deviation of the held-out error (deg/s)')
     axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def effect_lines(result: AxisResult) -> list[str]:
