@@ -96,8 +96,23 @@ def polynomial_from_scaled(beta: ArrayLike, rows: int, columns: int, scaling: Sc
     return ArtPolynomial(raw[::-1, ::-1])
 
 
+def centred(basis: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Offsets, scales and the columns ``(basis - offset) / scale`` within [-1, 1].
+
+    A term's signal may sit far from zero (a 24 V supply, an air pressure in Pa); centring
+    keeps its column from nearly repeating the polynomial's constant.
+    """
+    offset = 0.5 * (basis.max(axis=0) + basis.min(axis=0))
+    scale = 0.5 * (basis.max(axis=0) - basis.min(axis=0))
+    scale[scale == 0.0] = 1.0
+    return offset, scale, (basis - offset) / scale
+
+
 class Design:
-    """Scaled design matrix of the polynomial and the terms ``specs`` over the rows ``index``."""
+    """Scaled design matrix of the polynomial and the terms ``specs`` over the rows ``index``.
+
+    Polynomial columns are scaled monomials; term columns are centred and scaled (:func:`centred`).
+    """
 
     def __init__(self, signals: Signals, rows: int, columns: int, specs: Sequence[TermSpec] = (),
                  index: NDArray[np.int64] | None = None) -> None:
@@ -107,14 +122,14 @@ class Design:
         self.rows, self.columns, self.specs = rows, columns, tuple(specs)
         self.scaling = Scaling.of(signals.temperature[idx], signals.rate[idx])
         parts = [polynomial_basis(signals.rate[idx], signals.temperature[idx], rows, columns, self.scaling)]
-        scales = [np.ones(rows * columns)]
+        offsets, scales = [np.zeros(rows * columns)], [np.ones(rows * columns)]
         for spec in self.specs:
-            basis = spec.basis(signals)[idx]
-            scale = np.max(np.abs(basis), axis=0)
-            scale[scale == 0.0] = 1.0
-            parts.append(basis / scale)
+            offset, scale, basis = centred(spec.basis(signals)[idx])
+            parts.append(basis)
+            offsets.append(offset)
             scales.append(scale)
         self.matrix = np.hstack(parts)
+        self.column_offset = np.concatenate(offsets)
         self.column_scale = np.concatenate(scales)
 
     @property
@@ -125,6 +140,8 @@ class Design:
     def model(self, beta: ArrayLike) -> ErrorModel:
         """The error model of scaled coefficients ``beta``."""
         coef = np.asarray(beta, dtype=float) / self.column_scale
+        # Term columns were centred: the polynomial's constant (column 0, u**0 v**0) takes their means back.
+        coef[0] -= coef @ self.column_offset
         p = self.rows * self.columns
         polynomial = polynomial_from_scaled(coef[:p], self.rows, self.columns, self.scaling)
         terms = []

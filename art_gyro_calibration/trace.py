@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from art_gyro_calibration.fit import Design, TermSpec, fit_model, solve_normal
+from art_gyro_calibration.fit import Design, TermSpec, centred, fit_model, solve_normal
 from art_gyro_calibration.metrics import Segments, noise_floor
 from art_gyro_calibration.signals import Signals
 
@@ -141,10 +141,8 @@ class Binned:
         cols = []
         for spec in variants:
             if spec not in self._means:
-                basis = spec.basis(self.signals)[self.index]
-                scale = np.max(np.abs(basis), axis=0)
-                scale[scale == 0.0] = 1.0
-                self._means[spec] = self._bin(basis / scale) / self.sqrt_counts[:, None]
+                _, _, basis = centred(spec.basis(self.signals)[self.index])
+                self._means[spec] = self._bin(basis) / self.sqrt_counts[:, None]
             cols.append(self._means[spec])
         return np.stack(cols, axis=1)
 
@@ -203,10 +201,14 @@ class Screen:
         return np.take_along_axis(held, pick, axis=1)[:, 0, :].sum(axis=-1)
 
     def training_sse(self, spec: TermSpec) -> float:
-        """SSE of the base model plus ``spec`` fitted to all blocks (for choosing a time constant)."""
-        means = self.candidate_means([spec])[:, 0, :]
-        x = np.column_stack([self.xe[:, :-1], means * self.sqrt_counts[:, None], self.xe[:, -1]])
-        g = x.T @ x
+        """SSE of the base model plus ``spec`` fitted to all folds (for choosing a time constant)."""
+        c = self.candidate_means([spec])[:, 0, :] * self.sqrt_counts[:, None]
+        base = self.gram.sum(axis=0)
+        cx = c.T @ self.xe
+        p = self.width
+        g = np.block([[base[:p, :p], cx[:, :p].T, base[:p, p:]],
+                      [cx[:, :p], c.T @ c, cx[:, p:]],
+                      [base[p:, :p], cx[:, p:].T, base[p:, p:]]])
         beta = solve_normal(g[:-1, :-1], g[:-1, -1])
         return float(g[-1, -1] - beta @ g[:-1, -1])
 

@@ -1,12 +1,14 @@
 """Benchmark: fit + trace (the whole loop) on a 24 h, 10 Hz simulated run (864,000 rows).
 
-Reports wall time of the loop and the process's peak resident memory. Run:
+Reports wall and CPU time of the loop (the machine's load average beside them, as other
+work on a shared machine slows the wall clock) and the process's peak resident memory. Run:
 ``python bench/bench_fit_trace.py [--hours 24] [--rate-hz 10]``. A benchmark, not a test.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import time
 
@@ -30,13 +32,14 @@ def main() -> None:
     c = run.columns
     log = GyroLog(c['t'], c['raw_rate'] * cal.rate_scale_factor, c['raw_temp'] * cal.temp_scale_factor,
                   c['ref_rate'], {'supply_v': c['supply_v']})
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, serial_number=args.serial)
-    elapsed = time.perf_counter() - start
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f'rows {len(log)}, effects simulated: {", ".join(effects) or "none"}')
     print(f'effects found: {", ".join(e.term.describe() for e in result.effects) or "nothing"}')
-    print(f'fit + trace: {elapsed:.2f} s, peak RSS {peak_mib:.0f} MiB (whole process, simulation included)')
+    print(f'fit + trace: {elapsed:.2f} s wall, {cpu:.2f} s CPU (all threads), load average {os.getloadavg()[0]:.1f}; '
+          f'peak RSS {peak_mib:.0f} MiB (whole process, simulation included)')
 
 
 if __name__ == '__main__':

@@ -67,3 +67,20 @@ def test_too_few_samples_is_an_error():
     with pytest.raises(ValueError, match='cannot determine'):
         fit_model(signals, log.rate_dps - log.ref_rate, 3, 2, [TermSpec('time', 'exp_decay', (), 10.0)],
                   index=np.arange(5))
+
+
+def test_a_term_on_a_signal_far_from_zero_is_recovered():
+    """A pressure-like extra column (1e5 +- 50) fits as well as the same column near zero: centring keeps it posed."""
+    cal, log = simulated('NAVC3545', hours=2.0)
+    wiggle = 50 * np.sin(log.t / 100.0) + np.random.default_rng(3).normal(0, 1, len(log))
+    error = log.rate_dps - log.ref_rate + 2e-5 * wiggle
+    seg = steady_segments(log.t, log.ref_rate)
+    found = []
+    for offset in (0.0, 1e5):
+        signals = compute_signals(log.t, log.rate_dps, log.temp_c, {'pressure': offset + wiggle})
+        fit = fit_model(signals, error, 3, 4, [TermSpec('pressure', 'power', (1,))], seg.rows())
+        found.append(fit.model.terms[0].coefficients[0])
+        # The model predicts the error itself (constant included), not just its shape.
+        np.testing.assert_allclose(fit.model.error(signals)[fit.index] + fit.residual, error[fit.index], atol=1e-9)
+    assert found[1] == pytest.approx(found[0], rel=1e-6)
+    assert found[1] == pytest.approx(2e-5, rel=0.1)
