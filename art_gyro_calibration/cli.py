@@ -63,7 +63,8 @@ def _fit(args: argparse.Namespace) -> int:
     log = read_log(args.log, rate_scale, temp_scale)
     result = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
                         rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
-                        settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed)
+                        settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
+                        exclude=args.exclude)
     report = build_report(log, result, args.bias_samples, source=str(args.log))
     found = ', '.join(e.signal for e in result.effects) or 'nothing'
     write_calibration(args.out, result.extended,
@@ -155,6 +156,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='seconds skipped after each change of table rate (default %(default)s)')
     p.add_argument('--max-effects', type=int, default=4, help='most effects to add (default %(default)s)')
     p.add_argument('--seed', type=int, default=0, help='seed of the chance (shifted) scores')
+    p.add_argument('--exclude', action='append', default=[], metavar='SIGNAL',
+                   help='never use this signal or log column as an effect (e.g. one the node will not have); repeat')
     p.set_defaults(run=_fit)
 
     p = sub.add_parser('simulate', help='write a simulated rate-table and thermal-chamber run')

@@ -9,6 +9,7 @@ loadable by the node and by ``calibrate apply``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -71,15 +72,21 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
                filters: SignalFilters = SignalFilters(), settle_s: float = DEFAULT_SETTLE_S,
                max_effects: int = DEFAULT_MAX_EFFECTS, folds: int = DEFAULT_FOLDS,
                shifts: int = DEFAULT_SHIFTS, bin_s: float = DEFAULT_BIN_S,
-               materiality: float = DEFAULT_MATERIALITY, seed: int = 0) -> LoopResult:
+               materiality: float = DEFAULT_MATERIALITY, seed: int = 0,
+               exclude: Sequence[str] = ()) -> LoopResult:
     """Fit -> trace -> extend -> repeat on a rate-table ``log`` (it needs ``ref_rate``).
 
     ``rate_scale_factor`` and ``temp_scale_factor`` only go into the calibrations
     returned (the log is already in deg/s and degC). The fit uses the steady rows of
-    ``settle_s`` after each change of table rate.
+    ``settle_s`` after each change of table rate. Signals in ``exclude`` are never
+    candidates (e.g. a log column the node will not have at run time).
     """
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: fitting needs the rate table\'s true rate')
+    for name, values in log.extras.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise LogError(f'column {name} is not a finite number at row {bad[0] + 1}')
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters)
     error = log.rate_dps - log.ref_rate
     segments = steady_segments(log.t, log.ref_rate, settle_s)
@@ -96,7 +103,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     binned = Binned(signals, error, segments, rows, columns, folds, bin_s)
     every_row = Binned(signals, error, segments, rows, columns, folds, bin_s=0.0)
     options = dict(folds=folds, shifts=shifts, bin_s=bin_s, materiality=materiality, seed=seed,
-                   noise_floor_dps=floor, exclude=RATE_SIGNALS if still else (), binned=binned)
+                   noise_floor_dps=floor, exclude=[*exclude, *(RATE_SIGNALS if still else ())], binned=binned)
     specs: list[TermSpec] = []
     rounds: list[TraceResult] = []
     scores: list[CandidateScore] = []

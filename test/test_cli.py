@@ -1,6 +1,10 @@
 """``calibrate`` end to end on a small simulated log: simulate, fit, apply, and the node's per-sample path."""
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +13,8 @@ from art_gyro_calibration.calibration import load_calibration, load_packaged_cal
 from art_gyro_calibration.cli import main
 from art_gyro_calibration.compensation import Compensator, apply_calibration
 from art_gyro_calibration.log import read_log
+
+REPO = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope='module')
@@ -72,18 +78,39 @@ def test_node_path_matches_apply(fitted):
     (['apply', 'moving.csv', '--calibration', 'CAL.yaml', '--out', 'o.csv'], 'turning'),
     (['fit', 'noref.csv', '--rows', '3', '--columns', '2', '--out', 'c.yaml', '--report', 'r.json'], 'ref_rate'),
     (['apply', 'bad.csv', '--calibration', 'CAL.yaml', '--out', 'o.csv'], 'bad.csv'),
+    (['fit', 'nanextra.csv', '--rows', '3', '--columns', '2', '--out', 'c.yaml', '--report', 'r.json'],
+     'column supply_v is not a finite number at row 3'),
 ])
 def test_bad_inputs_are_clear_errors(fitted, monkeypatch, capsys, args, message):
     monkeypatch.chdir(fitted)
     (fitted / 'moving.csv').write_text('t,rate_dps,temp_c\n' + ''.join(f'{i},{5.0},{20}\n' for i in range(200)))
     (fitted / 'noref.csv').write_text('t,rate_dps,temp_c\n' + ''.join(f'{i},0.01,{20 + i / 100}\n' for i in range(200)))
     (fitted / 'bad.csv').write_text('t,rate_dps,temp_c\n0,0.1,20\n1,abc,20\n')
+    (fitted / 'nanextra.csv').write_text('t,rate_dps,temp_c,ref_rate,supply_v\n'
+                                         + ''.join(f'{i},0.01,20,0,{"nan" if i == 2 else 24}\n' for i in range(200)))
     assert main(args) == 1
     err = capsys.readouterr().err
     assert f'calibrate {args[0]}: error:' in err and message in err
 
 
-def test_module_entry_point_and_usage_errors(capsys):
+def test_excluded_signal_is_not_used(fitted):
+    d = fitted
+    assert main(['fit', str(d / 'LOG.csv'), '--rows', '3', '--columns', '2', '--serial', 'NAVC4058',
+                 '--exclude', 'temperature_rate', '--max-effects', '1',
+                 '--out', str(d / 'X.yaml'), '--report', str(d / 'X.json')]) == 0
+    report = json.loads((d / 'X.json').read_text())
+    assert all(c['signal'] != 'temperature_rate' for screen in report['screens'] for c in screen)
+
+
+def test_python_dash_m_is_calibrate():
+    env = {k: v for k, v in os.environ.items() if k != '_ROS_WHEELS_BOOTSTRAP_COMPLETE'}
+    env['PYTHONPATH'] = os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')])
+    done = subprocess.run([sys.executable, '-m', 'art_gyro_calibration', 'apply', '--help'],
+                          capture_output=True, text=True, env=env, timeout=60)
+    assert done.returncode == 0 and done.stdout.startswith('usage: calibrate apply')
+
+
+def test_usage_errors(capsys):
     with pytest.raises(SystemExit) as exc:
         main(['fit', 'LOG.csv', '--rows', '0', '--columns', '2', '--out', 'c', '--report', 'r'])
     assert exc.value.code == 2
