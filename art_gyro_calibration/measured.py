@@ -359,15 +359,18 @@ def plot_allan(results: Sequence[AxisResult], path: Path) -> Path:
 
 
 def effect_lines(result: AxisResult) -> list[str]:
-    """One line per traced effect: the term, its size over the training days and what it did held out."""
-    lines = []
-    train = ~result.held
-    for effect in result.loop.effects:
-        term = effect.term
-        size = float(np.std(term.evaluate(result.signals.get(term.signal))[train]))
-        lines.append(f'{term.describe()}; size (rms of its correction over the training days) {size:.4f} deg/s; '
-                     f'cross-validated rms on the training days {effect.held_out_rms_without_dps:.5f} -> '
-                     f'{effect.held_out_rms_with_dps:.5f} deg/s')
+    """The traced terms, what each did in the loop's own cross-validation, and the size of the whole extension.
+
+    A term's own correction can be large and yet change little: when its signal follows
+    temperature, the refitted polynomial takes much of it back. The size given is the
+    net change of the modelled error, extended against ART, over the training days.
+    """
+    lines = [f'{e.term.describe()} (cross-validated rms on the training days {e.held_out_rms_without_dps:.5f} -> '
+             f'{e.held_out_rms_with_dps:.5f} deg/s)' for e in result.loop.effects]
+    if lines:
+        change = (result.comp('extended') - result.comp('art'))[~result.held]
+        lines.append(f'together they change the modelled error by {np.std(change):.4f} deg/s rms over the '
+                     'training days')
     return lines
 
 
