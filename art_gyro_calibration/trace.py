@@ -2,21 +2,25 @@
 
 Each candidate signal (every derived signal and every extra column of the log) gets
 the term form that fits its physics (:func:`candidate_specs`). It is scored by how
-much it lowers the *held-out* mean squared error of the model: the steady rows are
-cut into blocks of time (15 minutes), dealt in turn to ``folds`` folds; for each fold
-the base model plus the candidate is fitted on the other folds and predicts this one. Chance is measured on
-the data itself: the same score with the candidate circularly shifted by ``shifts``
-large random offsets, which keeps the candidate's own slowness and the residual's
-(bias instability) but breaks their alignment; offsets where the shifted candidate
-still correlates with itself (a periodic temperature cycle shifted by a period, or by
-half of one, which flips its sign) are not drawn. A candidate is an effect only if
-its score beats every shifted score (chance below 1 / (shifts + 1)) and if it removes
-at least ``materiality`` of the white-noise variance estimated from the data: below
-that, an effect is not told apart from the gyro's own bias instability.
+much it lowers the *held-out* mean squared error of the model: the steady rows are cut
+into blocks of time (15 minutes), dealt in turn to ``folds`` folds; for each fold the
+base model plus the candidate is fitted on the other folds and predicts this one.
+
+Chance is measured on the data itself: the same score with the candidate circularly
+shifted by ``shifts`` large random offsets, which keeps the candidate's own slowness and
+the residual's (bias instability) but breaks their alignment; offsets where the shifted
+candidate still correlates with itself (a periodic temperature cycle shifted by a
+period, or by half of one, which flips its sign) are not drawn. A candidate is an
+effect only if its score beats every shifted score (chance below 1 / (shifts + 1)) and
+if it removes at least ``materiality`` of the white-noise variance estimated from the
+data: below that, an effect is not told apart from the gyro's own bias instability.
+Several unmodelled effects inflate each other's chance level, so material candidates
+are scored again with the other material ones (and, if still nothing beats chance,
+with every other candidate) in the base.
 
 Speed: the screen works on bin means (``bin_s`` of one steady segment per bin, weighted
 by the square root of their row count, so a bin mean's noise is that of one sample)
-and on per-block Gram matrices: the held-out error of every fold, every shift and every
+and on per-fold Gram matrices: the held-out error of every fold, every shift and every
 time constant then follows from small matrices without touching the rows again.
 """
 
@@ -93,7 +97,7 @@ def _bins(segments: Segments, t: NDArray[np.float64], bin_s: float) -> tuple[NDA
 
 
 def _held_out(gram: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Held-out and training SSE per fold from per-block Grams ``(..., K, q, q)`` of ``[X, e]``."""
+    """Held-out and training SSE per fold from per-fold Grams ``(..., K, q, q)`` of ``[X, e]``."""
     train = gram.sum(axis=-3, keepdims=True) - gram
     a = train[..., :-1, :-1]
     b = train[..., :-1, -1]
@@ -225,11 +229,6 @@ class CandidateScore:
     null_max_dps2: float
     fraction_of_floor: float
     significant: bool
-
-    @property
-    def z(self) -> float:
-        """Standard deviations above the shifted (chance) scores."""
-        return (self.improvement_dps2 - self.null_mean_dps2) / max(self.null_std_dps2, 1e-300)
 
 
 @dataclass(frozen=True)
