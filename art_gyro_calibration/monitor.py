@@ -1,4 +1,7 @@
-"""``imu_echo``: print the compensated yaw rate the node publishes, in deg/s (a demo monitor)."""
+"""``imu_echo``: print the compensated yaw rate the node publishes, in deg/s; or ask for a static bias.
+
+For a machine with the package's venv but without the ``ros2`` command line tools.
+"""
 
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
 
 
 class ImuEcho(Node):
@@ -41,24 +45,54 @@ class ImuEcho(Node):
             self.done = True
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Console entry: print until Ctrl-C, or until ``--count`` messages."""
-    args = rclpy.utilities.remove_ros_args(sys.argv if argv is None else ['imu_echo', *argv])
-    parser = argparse.ArgumentParser(prog='imu_echo', description=__doc__.splitlines()[0])
-    parser.add_argument('--every', type=int, default=1, help='print every N-th message (default 1)')
-    parser.add_argument('--count', type=int, default=0, help='exit after N messages (default: never)')
-    options = parser.parse_args(args[1:])
-    rclpy.init(args=sys.argv if argv is None else ['imu_echo', *argv])
-    node = ImuEcho(max(1, options.every), max(0, options.count))
+def call_static_bias(timeout_s: float) -> int:
+    """Call ``imu/static_bias``, print the reply; 0 on success, 1 if refused or unanswered."""
+    node = Node('imu_static_bias')
+    try:
+        client = node.create_client(Trigger, 'imu/static_bias')
+        if not client.wait_for_service(timeout_sec=timeout_s):
+            print(f'no service {node.resolve_service_name("imu/static_bias")} within {timeout_s} s', file=sys.stderr)
+            return 1
+        future = client.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(node, future, timeout_sec=timeout_s)
+        if not future.done():
+            print(f'no reply within {timeout_s} s', file=sys.stderr)
+            return 1
+        reply = future.result()
+        print(reply.message, file=sys.stdout if reply.success else sys.stderr)
+        return 0 if reply.success else 1
+    finally:
+        node.destroy_node()
+
+
+def echo(every: int, count: int) -> int:
+    """Print rates until Ctrl-C, or until ``count`` messages."""
+    node = ImuEcho(max(1, every), max(0, count))
     try:
         while rclpy.ok() and not node.done:
             rclpy.spin_once(node, timeout_sec=0.5)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
     finally:
         node.destroy_node()
-        rclpy.try_shutdown()
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Console entry: print the rate (default) or call the static bias service (``--static-bias``)."""
+    full = sys.argv if argv is None else ['imu_echo', *argv]
+    parser = argparse.ArgumentParser(prog='imu_echo', description=__doc__.splitlines()[0])
+    parser.add_argument('--every', type=int, default=1, help='print every N-th message (default 1)')
+    parser.add_argument('--count', type=int, default=0, help='exit after N messages (default: never)')
+    parser.add_argument('--static-bias', action='store_true',
+                        help='instead: call imu/static_bias (keep the gyro still), print the reply and exit')
+    parser.add_argument('--timeout', type=float, default=60.0, help='--static-bias: seconds to wait (default 60)')
+    options = parser.parse_args(rclpy.utilities.remove_ros_args(full)[1:])
+    rclpy.init(args=full)
+    try:
+        return call_static_bias(options.timeout) if options.static_bias else echo(options.every, options.count)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        rclpy.try_shutdown()
 
 
 if __name__ == '__main__':

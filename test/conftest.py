@@ -1,4 +1,4 @@
-"""Shared fixtures: the five gyros of the ART report."""
+"""Shared fixtures: the five gyros of the ART report; loopback-only DDS discovery."""
 
 import pytest
 
@@ -9,3 +9,9 @@ SERIALS = ('NAVC3545', 'NAVC4361', 'NAVC4058', 'NAVC4377', 'NAVC4253')
 def serial(request: pytest.FixtureRequest) -> str:
     """Each gyro's KVH serial number in turn."""
     return request.param
+
+
+@pytest.fixture
+def loopback(monkeypatch: pytest.MonkeyPatch) -> None:
+    """DDS discovery on loopback only, for this process's listener too."""
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')

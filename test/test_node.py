@@ -114,16 +114,17 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
 
 
 def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) -> None:
-    """ASCII protocol, calibration by --params-file, raw log, hot gyro WARN, no startup bias, SIGTERM."""
+    """ASCII protocol, calibration by --params-file, raw log, cold gyro WARN, no startup bias, SIGTERM."""
     domain = domain_id()
     output = tmp_path / 'node.log'
     logs = tmp_path / 'logs'
     logs.mkdir()
-    with FakeRd2100('NAVC4058', protocol='ascii', profile='0', temperature=60.0, seed=4) as fake:
+    with FakeRd2100('NAVC4058', protocol='ascii', profile='0', temperature=5.0, seed=4) as fake:
         listener = Listener(domain)
         proc = start_node(domain, output, '--params-file', str(REPO / 'config' / 'NAVC4058.yaml'),
                           '-p', f'port:={fake.path}', '-p', 'protocol:=ascii', '-p', 'static_bias_on_startup:=false',
-                          '-p', f'log_path:={logs}', '-p', 'yaw_rate_stddev:=0.002', '-p', 'baud:=115200')
+                          '-p', f'log_path:={logs}', '-p', 'yaw_rate_stddev:=0.002', '-p', 'baud:=115200',
+                          '-p', 'bias_samples:=10')
         try:
             messages = listener.wait_imu(10, proc, output)
             assert messages[-1].header.frame_id == 'imu_link'
@@ -139,8 +140,14 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
                                   env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
             lines = echo.stdout.splitlines()
             assert echo.returncode == 0 and len(lines) == 3, echo.stdout + echo.stderr
-            assert all(' imu_link: yaw rate ' in line and 'deg/s' in line and '60.00 degC' in line
+            assert all(' imu_link: yaw rate ' in line and 'deg/s' in line and ' 5.00 degC' in line
                        for line in lines[1:]), lines
+            # Its --static-bias calls the service: the first static bias of this node.
+            call = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--static-bias'],
+                                  env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+            assert call.returncode == 0 and call.stdout.startswith('StaticBiasDrift='), call.stdout + call.stderr
+            assert 'over 10 samples' in call.stdout
+            listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
         finally:
             try:
                 stop_node(proc, signal.SIGTERM, output)
@@ -151,7 +158,7 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
     assert len(files) == 1
     log = read_log(files[0], rate_scale_factor=0.00283, temp_scale_factor=0.05)
     assert len(log) >= 10
-    assert np.all(log.temp_c == pytest.approx(60.0))
+    assert np.all(log.temp_c == pytest.approx(5.0))
     assert abs(log.t[-1] - time.time()) < 30.0
 
 

@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip('colcon_core')
 pytest.importorskip('rclpy')
 
-from test_node import Listener, domain_id, node_env, stop_node, TIMEOUT_S  # noqa: E402
+from rosproc import TIMEOUT_S, Listener, domain_id, node_env, stop_node  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
 
