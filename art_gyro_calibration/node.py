@@ -200,6 +200,10 @@ class GyroNode(Node):
         self._bias_time = 0.0
         self._published = 0
         self._last_temp_c = math.nan
+        self._temp_range = self.calibration.temperature_range_c
+        # Frames outside the calibrated range: the latest temperature alone would hide a glitch.
+        self._outside_range = 0
+        self._outside_range_reported = 0   # as of the last diagnostics
         self._rate_window = (time.monotonic(), 0)
         self._log: RawLogWriter | None = None
         if self.settings.log_path:
@@ -309,6 +313,9 @@ class GyroNode(Node):
         self._temperature.data = temp_c
         self._temp_pub.publish(self._temperature)
         self._last_temp_c = temp_c
+        low, high = self._temp_range
+        if not low <= temp_c <= high:
+            self._outside_range += 1
         self._published += 1
 
     def _on_link(self, connected: bool, message: str) -> None:
@@ -427,13 +434,20 @@ class GyroNode(Node):
 
     def _temperature_status(self) -> DiagnosticStatus:
         temp = self._last_temp_c
-        low, high = self.calibration.temperature_range_c
-        values = {'temperature_c': f'{temp:.2f}', 'calibrated_min_c': low, 'calibrated_max_c': high}
+        low, high = self._temp_range
+        outside = self._outside_range
+        recent, self._outside_range_reported = outside - self._outside_range_reported, outside
+        values = {'temperature_c': f'{temp:.2f}', 'calibrated_min_c': low, 'calibrated_max_c': high,
+                  'frames_outside_range': outside}
         if math.isnan(temp):
             return self._status('temperature', DiagnosticStatus.STALE, 'no frame yet', values)
         if not low <= temp <= high:
             return self._status('temperature', DiagnosticStatus.WARN,
                                 f'{temp:.2f} degC is outside the calibrated range {low}..{high} degC', values)
+        if recent:
+            return self._status('temperature', DiagnosticStatus.WARN,
+                                f'{temp:.2f} degC; {recent} frames since the last report were outside the '
+                                f'calibrated range {low}..{high} degC', values)
         return self._status('temperature', DiagnosticStatus.OK, f'{temp:.2f} degC', values)
 
     # --- shutdown ------------------------------------------------------------------------

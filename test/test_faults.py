@@ -1,0 +1,328 @@
+"""Fault injection: gyro_node as a process against what real serial links and operators do.
+
+Every frame the fake gyro sends carries its sequence number in its temperature counts
+(10.00 degC + 0.05 degC x (seq mod 800), inside the calibrated 10..50 degC), so the
+listener's ``imu/temperature`` messages tell which frames arrived: a frame lost shows as a
+step other than one. Each test groups several faults per node process (start-up costs
+seconds) and checks, after each, the counters and /diagnostics and that the frames after
+recovery arrive without loss.
+"""
+
+from __future__ import annotations
+
+import random
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from rosproc import Listener, domain_id, start_node, stop_node, wait_until  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
+from art_gyro_calibration.frame import encode_binary, make_parser  # noqa: E402
+
+RATE_HZ = 50.0
+TEMP_BASE = 200        # counts: 10 degC, the bottom of NAVC3545's calibrated range
+PERIOD = 800           # sequence numbers repeat after this many frames (16 s at 50 Hz)
+TEMP_SCALE = 0.05      # degC per count (packaged calibrations)
+OK, WARN, ERROR = b'\x00', b'\x01', b'\x02'
+
+
+class SequenceCounts:
+    """Stands in for the fake's simulator: frame ``i`` carries ``i mod PERIOD`` in its temperature counts."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = rate_hz
+        # Changes apply within the fake's 0.1 s block of samples.
+        self.raw_rate = 0                    # counts; non-zero turns the "gyro"
+        self.raw_temp: int | None = None     # counts; a fixed temperature instead of the sequence
+
+    def counts(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Raw (rate, temperature) counts of the frames sent at times ``t``."""
+        index = np.rint(np.asarray(t) * self.rate_hz).astype(np.int64)
+        temp = TEMP_BASE + index % PERIOD if self.raw_temp is None else np.full(index.shape, self.raw_temp)
+        return np.full(index.shape, self.raw_rate), temp
+
+
+def sequence_gyro(link: Path) -> FakeRd2100:
+    """A fake RD2100 on a pty behind ``link`` sending sequence-coded frames at RATE_HZ (not started)."""
+    fake = FakeRd2100('NAVC3545', link=str(link), rate_hz=RATE_HZ)
+    fake.simulator = SequenceCounts(RATE_HZ)
+    return fake
+
+
+def counts(temperatures: list[float]) -> np.ndarray:
+    """Raw temperature counts of received temperatures."""
+    return np.rint(np.asarray(temperatures) / TEMP_SCALE).astype(np.int64)
+
+
+def residues(temperatures: list[float]) -> np.ndarray:
+    """Sequence numbers mod PERIOD of the received temperatures; injected frames outside the code are dropped."""
+    code = counts(temperatures) - TEMP_BASE
+    return code[(code >= 0) & (code < PERIOD)]
+
+
+def gaps(seq: np.ndarray) -> int:
+    """Places where the sequence steps by anything but one: frames lost (or a restart)."""
+    return int(np.count_nonzero(np.mod(np.diff(seq), PERIOD) != 1))
+
+
+def wait_frames(listener: Listener, n: int, proc, output: Path) -> int:
+    """Wait for ``n`` more sequence-coded frames; the number of temperatures received before them."""
+    start = len(listener.temperatures())
+    wait_until(lambda: len(residues(listener.temperatures(start))) >= n, f'{n} more frames', proc, output)
+    return start
+
+
+def wait_tail(listener: Listener, fake: FakeRd2100, proc, output: Path) -> None:
+    """Stop the fake and wait until its last frame has arrived (no loss at the end either)."""
+    fake.stop()
+    last = (fake.sent - 1) % PERIOD
+    wait_until(lambda: (r := residues(listener.temperatures())).size and r[-1] == last,
+               f'the last frame sent (seq mod {PERIOD} = {last})', proc, output)
+
+
+def inject_alone(fake: FakeRd2100, data: bytes) -> None:
+    """Inject ``data`` between two frames, and wait for the frame after it (so two injections never touch)."""
+    fake.inject(data)
+    sent = fake.sent   # read after the injection: a frame counted later was written after it
+    wait_until(lambda: fake.sent > sent, 'a frame after the injection')
+
+
+def counter(status: dict, key: str) -> int:
+    """An integer value of a diagnostic status."""
+    return int(status[key])
+
+
+def flip(frame: bytes, byte: int, bit: int) -> bytes:
+    """``frame`` with one bit flipped."""
+    out = bytearray(frame)
+    out[byte] ^= 1 << bit
+    return bytes(out)
+
+
+def misclocked(data: bytes, ratio: float) -> bytes:
+    """What a UART at ``ratio`` times the sender's baud decodes from ``data`` (8N1, idle high, LSB first).
+
+    The receiver waits for a falling edge, then samples the middle of each of its own bit
+    times; a byte whose stop bit reads 0 (framing error) is delivered anyway, as a tty
+    without INPCK does.
+    """
+    bits = [1] * 20
+    for byte in data:
+        bits += [0] + [(byte >> i) & 1 for i in range(8)] + [1]
+    bits += [1] * 40
+    out = bytearray()
+    bit_time = 1.0 / ratio          # the receiver's bit in sender bits
+    t = 0.0
+    while t + 10 * bit_time < len(bits):
+        if bits[int(t)]:
+            t += bit_time / 16      # look for the start bit at 16x the receiver's bit rate
+            continue
+        out.append(sum(bits[int(t + (1.5 + i) * bit_time)] << i for i in range(8)))
+        t += 9.5 * bit_time         # the stop bit's middle: look for the next start from there
+    return bytes(out)
+
+
+def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopback: None) -> None:
+    """Garbage, truncated frames, bit flips, a checksum burst, absurd and out-of-range temperatures."""
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    rng = random.Random(5)   # the garbage is the same in every run
+    with sequence_gyro(tmp_path / 'rd2100') as fake:
+        listener = Listener(domain)
+        proc = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
+                          '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false')
+        try:
+            wait_frames(listener, 10, proc, output)
+            link = listener.wait_status('link', lambda s: s['level'] == OK, 'the link OK', proc, output)
+            assert counter(link, 'rejected') == 0
+
+            # Random garbage between frames (it may hold well-framed windows: their checksums are bad).
+            bursts = [bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 200))) for _ in range(20)]
+            # Truncated frames: the first 1..7 of 8 bytes.
+            frame = encode_binary(0, TEMP_BASE)
+            truncated = [frame[:n] for n in range(1, 8)]
+            # Bit flips: a payload bit (still well framed, bad checksum) or a framing bit (a byte's top bit).
+            payload_flips = [flip(frame, byte, bit) for byte, bit in ((0, 3), (2, 0), (5, 6), (7, 1))]
+            framing_flips = [flip(frame, byte, 7) for byte in (0, 3, 7)]
+            # A burst of 500 bad checksums at once (4 kB, half a second of a 1 kHz gyro).
+            burst = b''.join(flip(encode_binary(rng.randint(-2000, 2000), TEMP_BASE), 4, rng.randint(0, 6))
+                             for _ in range(500))
+            faults = bursts + truncated + payload_flips + framing_flips + [burst]
+            # What each fault adds to the counters when a good frame follows it, as a fresh parser sees it.
+            expected = {'bad_checksum': 0, 'garbage': 0}
+            for fault in faults:
+                parser = make_parser('binary')
+                assert len(parser.feed(fault + frame)) == 1   # the fault hides no frame and adds none
+                for reason in expected:
+                    expected[reason] += parser.stats.rejected_by_reason[reason]
+            assert expected['bad_checksum'] >= 504 and expected['garbage'] >= 20 + 7 + 3
+            start = len(listener.temperatures())
+            for fault in faults:
+                inject_alone(fake, fault)
+            wait_frames(listener, 20, proc, output)
+            link = listener.wait_status(
+                'link', lambda s: counter(s, 'rejected_bad_checksum') == expected['bad_checksum']
+                and counter(s, 'rejected_garbage') == expected['garbage'], f'the faults counted: {expected}',
+                proc, output)
+            assert counter(link, 'bytes_skipped') == sum(map(len, faults))
+            assert link['connected'] == 'True' and link['level'] == OK
+            # Nothing of the above passed as a frame: only the fake's own frames, in sequence.
+            assert np.all(np.mod(np.diff(residues(listener.temperatures(start))), PERIOD) == 1)
+            assert len(residues(listener.temperatures(start))) == len(listener.temperatures(start))
+
+            # Absurd temperature counts (a frame with a valid checksum) and a hot, real-looking 60 degC.
+            for raw_temp in (32767, -32768, 1200):
+                inject_alone(fake, encode_binary(0, raw_temp))
+            wait_frames(listener, 10, proc, output)
+            received = counts(listener.temperatures(start))
+            assert [c for c in received if not TEMP_BASE <= c < TEMP_BASE + PERIOD] == [32767, -32768, 1200]
+            listener.wait_status('temperature', lambda s: counter(s, 'frames_outside_range') == 3,
+                                 'the frames outside the calibrated range counted', proc, output)
+            # The latest temperature is fine again, but the report of the period said what happened.
+            warnings = [s.message for m in listener.history() for s in m.status
+                        if s.name == 'gyro_node: temperature' and s.level == WARN]
+            assert any('were outside the calibrated range 10.0..50.0 degC' in w for w in warnings), warnings
+            # A sustained out-of-range temperature shows as WARN with the value.
+            fake.simulator.raw_temp = 1100   # 55 degC
+            hot = listener.wait_status('temperature', lambda s: s['level'] == WARN and '55.00 degC' in s['message'],
+                                       'the hot gyro warned', proc, output)
+            assert 'outside the calibrated range 10.0..50.0' in hot['message']
+            fake.simulator.raw_temp = None   # back to the sequence
+            back = listener.wait_status('temperature', lambda s: s['level'] == OK, 'the temperature OK again',
+                                        proc, output)
+            assert counter(back, 'frames_outside_range') > 3
+
+            # No frame of the fake lost in the whole test, including the end: the only step in the
+            # sequence is over the hot frames, and it is one more than their number.
+            wait_tail(listener, fake, proc, output)
+            received = listener.temperatures()
+            steps = np.mod(np.diff(residues(received)), PERIOD)
+            assert np.count_nonzero(steps != 1) == 1, np.flatnonzero(steps != 1)
+            assert steps[steps != 1][0] == np.count_nonzero(counts(received) == 1100) + 1
+            assert fake.dropped == 0
+        finally:
+            try:
+                stop_node(proc, signal.SIGINT, output)
+            finally:
+                listener.close()
+
+
+def test_link_faults_missing_port_wrong_baud_ten_replugs_and_sigterm(tmp_path: Path, loopback: None) -> None:
+    """Port missing at start-up, a gyro at another baud, ten unplug/replug cycles, SIGTERM while unplugged."""
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    link = tmp_path / 'rd2100'
+    listener = Listener(domain)
+    proc = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={link}',
+                      '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false')
+    fake = None
+    try:
+        # Missing port: the node runs, says so, and retries.
+        down = listener.wait_status('link', lambda s: s['connected'] == 'False', 'the missing port reported',
+                                    proc, output)
+        assert down['level'] == ERROR and f'cannot open {link}' in down['message'], down
+        assert counter(down, 'reopens') == 0 and counter(down, 'frames') == 0
+
+        # The gyro appears, at another baud than the node's: its frames arrive as garbage.
+        fake = sequence_gyro(link)
+        up = listener.wait_status('link', lambda s: s['connected'] == 'True', 'the port opened', proc, output)
+        assert counter(up, 'reopens') == 0   # the first open is not a reopen
+        frames = b''.join(encode_binary(0, TEMP_BASE + i) for i in range(100))
+        for ratio in (9600 / 115200, 115200 / 9600):   # node slower than the gyro, then faster
+            wrong = misclocked(frames, ratio)
+            assert wrong and not make_parser('binary').feed(wrong)
+            for i in range(0, len(wrong), 256):
+                fake.inject(wrong[i:i + 256])
+                time.sleep(0.02 if ratio > 1 else 0.1)
+        assert misclocked(frames, 1.0) == frames   # the model of the UART is right at the right baud
+        garbled = listener.wait_status('link', lambda s: counter(s, 'rejected') > 0 and s['level'] == WARN,
+                                       'the garbage counted, no frames', proc, output)
+        assert garbled['message'] == 'connected, no frames' and counter(garbled, 'frames') == 0, garbled
+        assert counter(garbled, 'published') == 0 and not listener.temperatures()
+
+        # The right baud: frames flow from the first one.
+        fake.start()
+        wait_frames(listener, 20, proc, output)
+        assert residues(listener.temperatures())[0] == 0
+        flowing = listener.wait_status('link', lambda s: s['level'] == OK, 'the link OK', proc, output)
+
+        # Ten unplug/replug cycles in a row; frames flow again after each.
+        for _ in range(10):
+            fake.unplug()
+            time.sleep(0.1)   # 5 frames that the gyro sends into the void
+            fake.replug()
+            wait_frames(listener, 15, proc, output)
+        replugged = listener.wait_status('link', lambda s: counter(s, 'reopens') == 10 and s['level'] == OK,
+                                         'ten reopens reported', proc, output)
+        assert replugged['connected'] == 'True'
+        # An unplug may cut a frame the node had half read (counted as garbage), nothing else.
+        assert counter(replugged, 'rejected_bad_checksum') == counter(flowing, 'rejected_bad_checksum')
+        assert 0 <= counter(replugged, 'rejected_garbage') - counter(flowing, 'rejected_garbage') <= 10
+
+        # Unplugged for good: the last frame before it arrived, and the only losses are the ten unplugs.
+        wait_tail(listener, fake, proc, output)
+        assert gaps(residues(listener.temperatures())) == 10
+        listener.wait_status('link', lambda s: s['connected'] == 'False', 'the final unplug reported', proc, output)
+    finally:
+        try:
+            stop_node(proc, signal.SIGTERM, output)   # while the driver retries the missing port
+        finally:
+            listener.close()
+            if fake is not None:
+                fake.stop()
+    assert 'Traceback' not in output.read_text()
+
+
+def test_static_bias_during_a_collection_and_while_turning_then_sigint(tmp_path: Path, loopback: None) -> None:
+    """A call joins the start-up collection, a call while turning is refused, SIGINT while a call waits."""
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    samples = 250   # 5 s at 50 Hz: the listener finds the service while the start-up collection runs
+    with sequence_gyro(tmp_path / 'rd2100') as fake:
+        listener = Listener(domain)
+        proc = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
+                          '-p', 'baud:=115200', '-p', f'bias_samples:={samples}')
+        try:
+            wait_until(lambda: listener.client.service_is_ready(), 'the static bias service', proc, output)
+            collecting = listener.wait_status('static bias', lambda s: True, 'a static bias status', proc, output)
+            assert collecting['state'] == 'collecting', f'start-up collection over before the call: {collecting}'
+            before = len(listener.temperatures())
+            joined = listener.static_bias(proc, output)
+            assert joined.success and f'over {samples} samples' in joined.message, joined.message
+            # It joined the running collection: its reply came before a whole new collection's worth of frames.
+            assert len(listener.temperatures()) - before < samples
+            bias = listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
+
+            # Turning: refused, the previous bias kept, frames published all along.
+            fake.simulator.raw_rate = 3000   # 9.15 deg/s
+            wait_until(lambda: fake.last_sample and fake.last_sample[0] == 3000, 'the fake turning')
+            refused = listener.static_bias(proc, output)
+            assert not refused.success and 'turning' in refused.message, refused.message
+            status = listener.wait_status('static bias', lambda s: s['state'] == 'refused', 'the refusal shown',
+                                          proc, output)
+            assert status['level'] == WARN and 'previous bias kept' in status['message']
+            assert status['static_bias_drift_dps'] == bias['static_bias_drift_dps']
+            assert status['samples'] == bias['samples'] == str(samples)
+            seq = residues(listener.temperatures())
+            assert gaps(seq) == 0 and len(seq) > samples   # the turning collection alone took `samples` frames
+
+            # SIGINT while a call waits for its collection: a clean stop.
+            fake.simulator.raw_rate = 0
+            pending = listener.client.call_async(Trigger.Request())
+            listener.wait_status('static bias', lambda s: s['state'] == 'collecting', 'the collection running',
+                                 proc, output)
+            assert not pending.done()
+        finally:
+            try:
+                stop_node(proc, signal.SIGINT, output)
+            finally:
+                listener.close()
+    text = output.read_text()
+    assert 'Traceback' not in text, text
