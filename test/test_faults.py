@@ -49,9 +49,9 @@ class SequenceCounts:
         return np.full(index.shape, self.raw_rate), temp
 
 
-def sequence_gyro(link: Path) -> FakeRd2100:
+def sequence_gyro(link: Path, protocol: str = 'binary') -> FakeRd2100:
     """A fake RD2100 on a pty behind ``link`` sending sequence-coded frames at RATE_HZ (not started)."""
-    fake = FakeRd2100('NAVC3545', link=str(link), rate_hz=RATE_HZ)
+    fake = FakeRd2100('NAVC3545', protocol=protocol, link=str(link), rate_hz=RATE_HZ)
     fake.simulator = SequenceCounts(RATE_HZ)
     return fake
 
@@ -326,3 +326,46 @@ def test_static_bias_during_a_collection_and_while_turning_then_sigint(tmp_path:
                 listener.close()
     text = output.read_text()
     assert 'Traceback' not in text, text
+
+
+def test_ascii_line_faults_nan_and_absurd_temperatures(tmp_path: Path, loopback: None) -> None:
+    """ASCII protocol: NaN, absurd and out-of-range temperatures, overlong and unterminated garbage."""
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    with sequence_gyro(tmp_path / 'rd2100', protocol='ascii') as fake:
+        listener = Listener(domain)
+        proc = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
+                          '-p', 'protocol:=ascii', '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false')
+        try:
+            wait_frames(listener, 10, proc, output)
+            # Whole bad lines: each is one rejection and costs no good frame.
+            malformed = [b'0 nan\r\n', b'0 NaN\r\n', b'0 inf\r\n', b'0 -nan\r\n', b'0 25.0\r\n', b'\x00\xff\x13\r\n']
+            out_of_range = [b'0 99999\r\n', b'0 -40000\r\n', b'70000 500\r\n']
+            too_long = [b'1 ' * 40 + b'\r\n']
+            for line in malformed + out_of_range + too_long:
+                inject_alone(fake, line)
+            # Absurd counts within 16 bits are valid lines: published, and counted outside the calibrated range.
+            for line in (b'0 32767\r\n', b'0 -32768\r\n'):
+                inject_alone(fake, line)
+            link = listener.wait_status(
+                'link', lambda s: (counter(s, 'rejected_malformed'), counter(s, 'rejected_out_of_range'),
+                                   counter(s, 'rejected_line_too_long')) == (len(malformed), len(out_of_range), 1),
+                'the bad lines counted', proc, output)
+            assert link['level'] == OK and counter(link, 'rejected') == len(malformed) + len(out_of_range) + 1
+            listener.wait_status('temperature', lambda s: counter(s, 'frames_outside_range') == 2,
+                                 'the absurd temperatures counted', proc, output)
+            assert [c for c in counts(listener.temperatures()) if c >= TEMP_BASE + PERIOD or c < TEMP_BASE] \
+                == [32767, -32768]
+            # Garbage without a line end runs into the next line: that one frame, and only it, is lost.
+            inject_alone(fake, b'\x07garbage')
+            wait_tail(listener, fake, proc, output)
+            steps = np.mod(np.diff(residues(listener.temperatures())), PERIOD)
+            assert sorted(steps[steps != 1]) == [2], np.flatnonzero(steps != 1)
+            assert counter(listener.wait_status('link', lambda s: counter(s, 'rejected_malformed') > len(malformed),
+                                                'the spoilt line counted', proc, output),
+                           'rejected_malformed') == len(malformed) + 1
+        finally:
+            try:
+                stop_node(proc, signal.SIGINT, output)
+            finally:
+                listener.close()
