@@ -21,6 +21,7 @@ from art_gyro_calibration.calibration import (TEMP_SCALE_FACTOR, CalibrationErro
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import LogError, RawLogWriter, read_log, write_columns
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
+from art_gyro_calibration.trace import DEFAULT_BLOCK_S
 
 # Most RD2100s read 0.00305 deg/s per count (report, section 1).
 DEFAULT_RATE_SCALE_FACTOR = 0.00305
@@ -64,7 +65,7 @@ def _fit(args: argparse.Namespace) -> int:
     result = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
                         rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
                         settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
-                        exclude=args.exclude)
+                        exclude=args.exclude, block_s=args.block_s)
     report = build_report(log, result, args.bias_samples, source=str(args.log))
     found = ', '.join(e.signal for e in result.effects) or 'nothing'
     write_calibration(args.out, result.extended,
@@ -158,6 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--seed', type=int, default=0, help='seed of the chance (shifted) scores')
     p.add_argument('--exclude', action='append', default=[], metavar='SIGNAL',
                    help='never use this signal or log column as an effect (e.g. one the node will not have); repeat')
+    p.add_argument('--block-s', type=float, default=DEFAULT_BLOCK_S,
+                   help='length of the held-out blocks of time, several times the correlation time of the '
+                        'bias wander (default %(default)s)')
     p.set_defaults(run=_fit)
 
     p = sub.add_parser('simulate', help='write a simulated rate-table and thermal-chamber run')

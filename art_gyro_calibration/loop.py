@@ -18,11 +18,12 @@ from numpy.typing import NDArray
 from art_gyro_calibration.calibration import TEMP_SCALE_FACTOR, Calibration
 from art_gyro_calibration.fit import Fit, TermSpec, fit_model
 from art_gyro_calibration.log import GyroLog, LogError
-from art_gyro_calibration.metrics import DEFAULT_SETTLE_S, Segments, noise_floor, steady_segments
+from art_gyro_calibration.metrics import (DEFAULT_SETTLE_S, Segments, correlation_time_s, noise_floor,
+                                          steady_segments)
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals
 from art_gyro_calibration.terms import Term
-from art_gyro_calibration.trace import (DEFAULT_BIN_S, DEFAULT_FOLDS, DEFAULT_MATERIALITY, DEFAULT_SHIFTS,
-                                        Binned, CandidateScore, Screen, TraceResult,
+from art_gyro_calibration.trace import (DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_FOLDS, DEFAULT_MATERIALITY,
+                                        DEFAULT_SHIFTS, Binned, CandidateScore, Screen, TraceResult,
                                         held_out_rms,
                                         trace_residual)
 
@@ -61,6 +62,7 @@ class LoopResult:
     noise_floor_dps: float
     held_out_rms_art_dps: float
     held_out_rms_extended_dps: float
+    held_out_block_s: float
     signals: Signals
     error: NDArray[np.float64]
     segments: Segments
@@ -73,13 +75,15 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
                max_effects: int = DEFAULT_MAX_EFFECTS, folds: int = DEFAULT_FOLDS,
                shifts: int = DEFAULT_SHIFTS, bin_s: float = DEFAULT_BIN_S,
                materiality: float = DEFAULT_MATERIALITY, seed: int = 0,
-               exclude: Sequence[str] = ()) -> LoopResult:
+               exclude: Sequence[str] = (), block_s: float = DEFAULT_BLOCK_S) -> LoopResult:
     """Fit -> trace -> extend -> repeat on a rate-table ``log`` (it needs ``ref_rate``).
 
     ``rate_scale_factor`` and ``temp_scale_factor`` only go into the calibrations
     returned (the log is already in deg/s and degC). The fit uses the steady rows of
     ``settle_s`` after each change of table rate. Signals in ``exclude`` are never
-    candidates (e.g. a log column the node will not have at run time).
+    candidates (e.g. a log column the node will not have at run time). ``block_s`` is the
+    shortest held-out block of time; each round lengthens it to the correlation time of
+    what the model leaves (a real gyro's bias wanders for hours).
     """
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: fitting needs the rate table\'s true rate')
@@ -100,14 +104,19 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     # A still gyro (one reference rate throughout) reads nothing but its error: a signal derived
     # from its rate would explain the error with itself, so none is a candidate.
     still = bool(np.ptp(log.ref_rate) == 0.0)
-    binned = Binned(signals, error, segments, rows, columns, folds, bin_s)
-    every_row = Binned(signals, error, segments, rows, columns, folds, bin_s=0.0)
+    binned = Binned(signals, error, segments, rows, columns, folds, bin_s, block_s)
+    every_row = Binned(signals, error, segments, rows, columns, folds, 0.0, block_s)
     options = dict(folds=folds, shifts=shifts, bin_s=bin_s, materiality=materiality, seed=seed,
                    noise_floor_dps=floor, exclude=[*exclude, *(RATE_SIGNALS if still else ())], binned=binned)
     specs: list[TermSpec] = []
     rounds: list[TraceResult] = []
     scores: list[CandidateScore] = []
     while len(specs) < max_effects:
+        # Held-out blocks at least as long as what the current model leaves stays correlated:
+        # shorter ones share a slow residual with their neighbours, and any slow signal seems to predict it.
+        current = art_fit if not specs else fit_model(signals, error, rows, columns, specs, index)
+        residual[index] = current.residual
+        binned.refold(max(block_s, correlation_time_s(signals.t, residual, segments)))
         found = trace_residual(signals, error, segments, rows, columns, specs, **options)
         rounds.append(found)
         best = found.best
@@ -118,12 +127,19 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     # A square is judged once every effect is in the model, so it cannot stand in for one not yet found.
     specs = [_maybe_square(spec, binned, specs[:i] + specs[i + 1:], materiality * floor ** 2)
              for i, spec in enumerate(specs)]
+    every_row.refold(binned.block_s)  # held-out errors on the blocks of the last round
+    # Every effect must lower the held-out error of the final model, every row counted: one
+    # that passed its screen only given candidates that did not make it is dropped.
+    while True:
+        held_out_all = held_out_rms(every_row, specs)
+        without = [held_out_rms(every_row, specs[:i] + specs[i + 1:]) for i in range(len(specs))]
+        if not specs or min(without) > held_out_all:
+            break
+        weakest = int(np.argmin(without))
+        del specs[weakest], scores[weakest]
     final = fit_model(signals, error, rows, columns, specs, index)
-    held_out_all = held_out_rms(every_row, specs)
-    effects = []
-    for i, (term, score) in enumerate(zip(final.model.terms, scores)):
-        without = held_out_rms(every_row, specs[:i] + specs[i + 1:])
-        effects.append(Effect(term, score, without, held_out_all))
+    effects = [Effect(term, score, rms_without, held_out_all)
+               for term, score, rms_without in zip(final.model.terms, scores, without)]
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
     art = Calibration(serial_number, rate_scale_factor, art_fit.model.polynomial,
                       (low, high if high > low else low + 1.0), temp_scale_factor, (), filters)
@@ -131,8 +147,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         art=art, extended=replace(art, polynomial=final.model.polynomial, terms=final.model.terms),
         effects=tuple(effects), rounds=tuple(rounds), noise_floor_dps=floor,
         held_out_rms_art_dps=held_out_rms(every_row),
-        held_out_rms_extended_dps=held_out_all, signals=signals, error=error, segments=segments,
-        extended_fit=final)
+        held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
+        error=error, segments=segments, extended_fit=final)
 
 
 def _maybe_square(spec: TermSpec, binned: Binned, specs: list[TermSpec], material_dps2: float) -> TermSpec:

@@ -420,8 +420,10 @@ def markdown(record: StaticRecord, still: NDArray[np.bool_], names: Sequence[str
         '- **Held out: one whole day**, which here is one orientation too. Day 2 lies within the training '
         'days\' temperatures (interpolation); day 3 reaches 24 degC where the training days stop at 20 '
         '(extrapolation). Day 1 is never held out: it holds the power-on, the origin of the `time` signal, '
-        'which must mean the same in the fit and in use. The loop sees only the training days (its own '
-        'screening holds out contiguous blocks of them).',
+        'which must mean the same in the fit and in use. The loop sees only the training days; its own '
+        'screening holds out blocks of them as long as what the model leaves stays correlated (hours here, '
+        'given per fold below): with shorter blocks, neighbouring blocks share the slow bias wander and a slow '
+        'signal such as the depth seems to predict it on the training days, then fails on the held-out day.',
         f'- **Materiality**: `calibrate fit`\'s default counts an effect only if it removes '
         f'{DEFAULT_MATERIALITY:.0%} of the per-sample white-noise variance, which for this gyro '
         f'({min(noise):.2f}-{max(noise):.2f} deg/s per 1 Hz sample) means an effect of '
@@ -454,7 +456,8 @@ def markdown(record: StaticRecord, still: NDArray[np.bool_], names: Sequence[str
         for fold in folds:
             r = fold[i]
             found = effect_lines(r)
-            lines.append(f'- {r.held_name} held out (materiality {r.materiality:.4f}): '
+            lines.append(f'- {r.held_name} held out (materiality {r.materiality:.4f}, '
+                         f'held-out blocks of {r.loop.held_out_block_s / HOUR:.1f} h): '
                          + ('effects found: ' + '; '.join(found) if found else
                             'no effect beyond the ART polynomial; best candidates: ' + near_misses(r)) + '.')
         lines.append('')

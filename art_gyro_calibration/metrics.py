@@ -44,6 +44,41 @@ class Segments:
         return (csum[self.stops] - csum[self.starts]) / self.counts
 
 
+def correlation_time_s(t: ArrayLike, residual: ArrayLike, segments: Segments, bin_s: float = 60.0) -> float:
+    """Lag (s) where the autocorrelation of the residual's ``bin_s`` means over the steady rows falls below 1/e.
+
+    Means on a regular time grid, empty bins left out of the sums (a gappy
+    autocorrelation by FFT), so rests and gaps between segments do not matter. White
+    noise gives one bin; a slow bias wander or an unmodelled slow effect, its time scale
+    (the 1/e point of the autocorrelation from one bin on, where white noise is gone).
+    """
+    index = segments.rows()
+    if index.size < 2:
+        return 0.0
+    tt = np.asarray(t, dtype=float)[index]
+    k = np.floor((tt - tt[0]) / bin_s).astype(np.int64)
+    n = int(k[-1]) + 1
+    counts = np.bincount(k, minlength=n).astype(float)
+    sums = np.bincount(k, np.asarray(residual, dtype=float)[index], minlength=n)
+    present = counts > 0
+    x = np.zeros(n)
+    x[present] = sums[present] / counts[present]
+    x[present] -= x[present].mean()
+    size = 2 * n
+    fx, fm = np.fft.rfft(x, size), np.fft.rfft(present.astype(float), size)
+    pairs = np.fft.irfft(fm * np.conj(fm), size)[:n]
+    covariance = np.fft.irfft(fx * np.conj(fx), size)[:n] / np.maximum(np.rint(pairs), 1.0)
+    # White noise adds to lag 0 only: the slow part's variance is the covariance at one bin,
+    # if that stands out of the sampling noise of an autocorrelation (2 / sqrt(bins)).
+    slow = covariance[1] if n > 1 else 0.0
+    if covariance[0] <= 0.0 or slow <= 2.0 / np.sqrt(present.sum()) * covariance[0]:
+        return bin_s
+    # Lags with few pairs are noise; stop looking where fewer than a tenth of the bins pair up.
+    usable = np.flatnonzero(pairs >= 0.1 * pairs[0])[1:]
+    below = usable[covariance[usable] < slow * np.exp(-1.0)]
+    return float((below[0] if below.size else usable[-1]) * bin_s)
+
+
 def steady_segments(t: ArrayLike, ref_rate: ArrayLike, settle_s: float = DEFAULT_SETTLE_S,
                     min_rows: int = 3) -> Segments:
     """Runs of constant ``ref_rate`` without their first ``settle_s`` seconds, of at least ``min_rows`` rows."""

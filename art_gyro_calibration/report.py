@@ -75,6 +75,7 @@ def build_report(log: GyroLog, result: LoopResult, bias_samples: int, source: st
                        'extended_coefficients': result.extended.polynomial.coefficients.tolist()},
         'noise_floor_dps': result.noise_floor_dps,
         'held_out_rms_dps': {'art': result.held_out_rms_art_dps, 'extended': result.held_out_rms_extended_dps},
+        'held_out_block_s': result.held_out_block_s,
         'effects': effects,
         'errors': {stage: error_metrics(errors[stage], result.segments).to_dict() for stage in STAGES},
         'screens': [[{'signal': c.signal, 'held_out_improvement_dps2': c.improvement_dps2,

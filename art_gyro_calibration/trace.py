@@ -129,12 +129,20 @@ class Binned:
         self.rows_total = int(counts.sum())
         poly = Design(signals, rows, columns, (), self.index).matrix
         self.base = self._bin(np.column_stack([poly, np.asarray(error, dtype=float)[self.index]]))
-        t_bin = signals.t[self.index[self.starts]]
-        duration = float(t_bin[-1] - t_bin[0])
-        block = np.floor((t_bin - t_bin[0]) / min(block_s, max(duration / (2 * folds), 1e-9))).astype(np.int64)
-        fold = block % folds
-        self.folds = [np.flatnonzero(fold == k) for k in range(folds)]
+        self._t_bin = signals.t[self.index[self.starts]]
+        self.n_folds = folds
+        self.block_s = 0.0
+        self.folds: list[NDArray[np.int64]] = []
+        self.refold(block_s)
         self._means: dict[TermSpec, NDArray[np.float64]] = {}
+
+    def refold(self, block_s: float) -> None:
+        """Deal blocks of ``block_s`` (at most a ``2 * folds``-th of the run) to the folds in turn."""
+        t_bin = self._t_bin
+        duration = float(t_bin[-1] - t_bin[0])
+        self.block_s = min(block_s, max(duration / (2 * self.n_folds), 1e-9))
+        fold = np.floor((t_bin - t_bin[0]) / self.block_s).astype(np.int64) % self.n_folds
+        self.folds = [np.flatnonzero(fold == k) for k in range(self.n_folds)]
 
     def _bin(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
         """Bin sums of steady-row ``values`` divided by sqrt(count): a mean weighted to unit noise."""

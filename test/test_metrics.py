@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from art_gyro_calibration.metrics import error_metrics, heading_errors_360, noise_floor, steady_segments
+from art_gyro_calibration.metrics import (correlation_time_s, error_metrics, heading_errors_360, noise_floor,
+                                          steady_segments)
 
 
 def test_segments_skip_the_settling_time():
@@ -37,3 +38,21 @@ def test_noise_floor_ignores_slow_effects():
     residual = 0.004 * rng.standard_normal(t.size) + 0.05 * np.sin(t / 300.0)
     seg = steady_segments(t, ref)
     assert noise_floor(residual, seg) == pytest.approx(0.004, rel=0.05)
+
+
+def test_correlation_time_of_white_noise_and_of_a_slow_wander():
+    rng = np.random.default_rng(5)
+    t = np.arange(0, 48 * 3600.0, 1.0)
+    ref = np.zeros_like(t)
+    ref[40000:40100] = 10.0  # a turn: a gap in the steady rows
+    segments = steady_segments(t, ref)
+    assert correlation_time_s(t, rng.normal(0, 0.1, len(t)), segments) <= 60.0
+    # First-order Gauss-Markov with a 2 h correlation time, far above the white noise in 1-min means.
+    tau = 7200.0
+    phi = np.exp(-1.0 / tau)
+    wander = np.zeros(len(t))
+    kicks = rng.normal(0, 0.01 * np.sqrt(1 - phi ** 2), len(t))
+    for i in range(1, len(t)):
+        wander[i] = phi * wander[i - 1] + kicks[i]
+    measured = correlation_time_s(t, wander + rng.normal(0, 0.1, len(t)), segments)
+    assert 0.5 * tau < measured < 2.0 * tau
