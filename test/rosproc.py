@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -158,3 +160,18 @@ class Listener:
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
         self._thread.join(TIMEOUT_S)
+
+
+@contextmanager
+def node_with_listener(domain: int, output: Path, *ros_args: str, signum: int = signal.SIGINT,
+                       namespace: str = '') -> Iterator[tuple[subprocess.Popen[bytes], Listener]]:
+    """A listener, then ``gyro_node`` with ``ros_args``; at the end the node must stop cleanly on ``signum``."""
+    listener = Listener(domain, namespace)
+    proc = start_node(domain, output, *ros_args)
+    try:
+        yield proc, listener
+    finally:
+        try:
+            stop_node(proc, signum, output)
+        finally:
+            listener.close()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import random
 import signal
+import subprocess
 import time
 from pathlib import Path
 
@@ -20,7 +21,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from rosproc import Listener, domain_id, start_node, stop_node, wait_until  # noqa: E402
+from rosproc import Listener, domain_id, node_with_listener, wait_until  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
@@ -56,6 +57,12 @@ def sequence_gyro(link: Path, protocol: str = 'binary') -> FakeRd2100:
     return fake
 
 
+def node_args(port: str | Path, *params: str) -> list[str]:
+    """ROS arguments of a node reading NAVC3545 on ``port`` at 115200 baud, with more ``name:=value`` parameters."""
+    return [arg for param in ('serial_number:=NAVC3545', f'port:={port}', 'baud:=115200', *params)
+            for arg in ('-p', param)]
+
+
 def counts(temperatures: list[float]) -> np.ndarray:
     """Raw temperature counts of received temperatures."""
     return np.rint(np.asarray(temperatures) / TEMP_SCALE).astype(np.int64)
@@ -72,14 +79,14 @@ def gaps(seq: np.ndarray) -> int:
     return int(np.count_nonzero(np.mod(np.diff(seq), PERIOD) != 1))
 
 
-def wait_frames(listener: Listener, n: int, proc, output: Path) -> int:
+def wait_frames(listener: Listener, n: int, proc: subprocess.Popen[bytes], output: Path) -> int:
     """Wait for ``n`` more sequence-coded frames; the number of temperatures received before them."""
     start = len(listener.temperatures())
     wait_until(lambda: len(residues(listener.temperatures(start))) >= n, f'{n} more frames', proc, output)
     return start
 
 
-def wait_tail(listener: Listener, fake: FakeRd2100, proc, output: Path) -> None:
+def wait_tail(listener: Listener, fake: FakeRd2100, proc: subprocess.Popen[bytes], output: Path) -> None:
     """Stop the fake and wait until its last frame has arrived (no loss at the end either)."""
     fake.stop()
     last = (fake.sent - 1) % PERIOD
@@ -134,84 +141,77 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
     domain = domain_id()
     output = tmp_path / 'node.log'
     rng = random.Random(5)   # the garbage is the same in every run
-    with sequence_gyro(tmp_path / 'rd2100') as fake:
-        listener = Listener(domain)
-        proc = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
-                          '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false')
-        try:
-            wait_frames(listener, 10, proc, output)
-            link = listener.wait_status('link', lambda s: s['level'] == OK, 'the link OK', proc, output)
-            assert counter(link, 'rejected') == 0
+    with (sequence_gyro(tmp_path / 'rd2100') as fake,
+          node_with_listener(domain, output, *node_args(fake.path, 'static_bias_on_startup:=false'))
+          as (proc, listener)):
+        wait_frames(listener, 10, proc, output)
+        link = listener.wait_status('link', lambda s: s['level'] == OK, 'the link OK', proc, output)
+        assert counter(link, 'rejected') == 0
 
-            # Random garbage between frames (it may hold well-framed windows: their checksums are bad).
-            bursts = [bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 200))) for _ in range(20)]
-            # Truncated frames: the first 1..7 of 8 bytes.
-            frame = encode_binary(0, TEMP_BASE)
-            truncated = [frame[:n] for n in range(1, 8)]
-            # Bit flips: a payload bit (still well framed, bad checksum) or a framing bit (a byte's top bit).
-            payload_flips = [flip(frame, byte, bit) for byte, bit in ((0, 3), (2, 0), (5, 6), (7, 1))]
-            framing_flips = [flip(frame, byte, 7) for byte in (0, 3, 7)]
-            # A burst of 500 bad checksums at once (4 kB, half a second of a 1 kHz gyro).
-            burst = b''.join(flip(encode_binary(rng.randint(-2000, 2000), TEMP_BASE), 4, rng.randint(0, 6))
-                             for _ in range(500))
-            faults = bursts + truncated + payload_flips + framing_flips + [burst]
-            # What each fault adds to the counters when a good frame follows it, as a fresh parser sees it.
-            expected = {'bad_checksum': 0, 'garbage': 0}
-            for fault in faults:
-                parser = make_parser('binary')
-                assert len(parser.feed(fault + frame)) == 1   # the fault hides no frame and adds none
-                for reason in expected:
-                    expected[reason] += parser.stats.rejected_by_reason[reason]
-            assert expected['bad_checksum'] >= 504 and expected['garbage'] >= 20 + 7 + 3
-            start = len(listener.temperatures())
-            for fault in faults:
-                inject_alone(fake, fault)
-            wait_frames(listener, 20, proc, output)
-            link = listener.wait_status(
-                'link', lambda s: counter(s, 'rejected_bad_checksum') == expected['bad_checksum']
-                and counter(s, 'rejected_garbage') == expected['garbage'], f'the faults counted: {expected}',
-                proc, output)
-            assert counter(link, 'bytes_skipped') == sum(map(len, faults))
-            assert link['connected'] == 'True' and link['level'] == OK
-            # Nothing of the above passed as a frame: only the fake's own frames, in sequence.
-            assert np.all(np.mod(np.diff(residues(listener.temperatures(start))), PERIOD) == 1)
-            assert len(residues(listener.temperatures(start))) == len(listener.temperatures(start))
+        # Random garbage between frames (it may hold well-framed windows: their checksums are bad).
+        bursts = [bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 200))) for _ in range(20)]
+        # Truncated frames: the first 1..7 of 8 bytes.
+        frame = encode_binary(0, TEMP_BASE)
+        truncated = [frame[:n] for n in range(1, 8)]
+        # Bit flips: a payload bit (still well framed, bad checksum) or a framing bit (a byte's top bit).
+        payload_flips = [flip(frame, byte, bit) for byte, bit in ((0, 3), (2, 0), (5, 6), (7, 1))]
+        framing_flips = [flip(frame, byte, 7) for byte in (0, 3, 7)]
+        # A burst of 500 bad checksums at once (4 kB, half a second of a 1 kHz gyro).
+        burst = b''.join(flip(encode_binary(rng.randint(-2000, 2000), TEMP_BASE), 4, rng.randint(0, 6))
+                         for _ in range(500))
+        faults = bursts + truncated + payload_flips + framing_flips + [burst]
+        # What each fault adds to the counters when a good frame follows it, as a fresh parser sees it.
+        expected = {'bad_checksum': 0, 'garbage': 0}
+        for fault in faults:
+            parser = make_parser('binary')
+            assert len(parser.feed(fault + frame)) == 1   # the fault hides no frame and adds none
+            for reason in expected:
+                expected[reason] += parser.stats.rejected_by_reason[reason]
+        assert expected['bad_checksum'] >= 504 and expected['garbage'] >= 20 + 7 + 3
+        start = len(listener.temperatures())
+        for fault in faults:
+            inject_alone(fake, fault)
+        wait_frames(listener, 20, proc, output)
+        link = listener.wait_status(
+            'link', lambda s: counter(s, 'rejected_bad_checksum') == expected['bad_checksum']
+            and counter(s, 'rejected_garbage') == expected['garbage'], f'the faults counted: {expected}',
+            proc, output)
+        assert counter(link, 'bytes_skipped') == sum(map(len, faults))
+        assert link['connected'] == 'True' and link['level'] == OK
+        # Nothing of the above passed as a frame: only the fake's own frames, in sequence.
+        assert np.all(np.mod(np.diff(residues(listener.temperatures(start))), PERIOD) == 1)
+        assert len(residues(listener.temperatures(start))) == len(listener.temperatures(start))
 
-            # Absurd temperature counts (a frame with a valid checksum) and a hot, real-looking 60 degC.
-            for raw_temp in (32767, -32768, 1200):
-                inject_alone(fake, encode_binary(0, raw_temp))
-            wait_frames(listener, 10, proc, output)
-            received = counts(listener.temperatures(start))
-            assert [c for c in received if not TEMP_BASE <= c < TEMP_BASE + PERIOD] == [32767, -32768, 1200]
-            listener.wait_status('temperature', lambda s: counter(s, 'frames_outside_range') == 3,
-                                 'the frames outside the calibrated range counted', proc, output)
-            # The latest temperature is fine again, but the report of the period said what happened.
-            warnings = [s.message for m in listener.history() for s in m.status
-                        if s.name == 'gyro_node: temperature' and s.level == WARN]
-            assert any('were outside the calibrated range 10.0..50.0 degC' in w for w in warnings), warnings
-            # A sustained out-of-range temperature shows as WARN with the value.
-            fake.simulator.raw_temp = 1100   # 55 degC
-            hot = listener.wait_status('temperature', lambda s: s['level'] == WARN and '55.00 degC' in s['message'],
-                                       'the hot gyro warned', proc, output)
-            assert 'outside the calibrated range 10.0..50.0' in hot['message']
-            fake.simulator.raw_temp = None   # back to the sequence
-            back = listener.wait_status('temperature', lambda s: s['level'] == OK, 'the temperature OK again',
-                                        proc, output)
-            assert counter(back, 'frames_outside_range') > 3
+        # Absurd temperature counts (a frame with a valid checksum) and a hot, real-looking 60 degC.
+        for raw_temp in (32767, -32768, 1200):
+            inject_alone(fake, encode_binary(0, raw_temp))
+        wait_frames(listener, 10, proc, output)
+        received = counts(listener.temperatures(start))
+        assert [c for c in received if not TEMP_BASE <= c < TEMP_BASE + PERIOD] == [32767, -32768, 1200]
+        listener.wait_status('temperature', lambda s: counter(s, 'frames_outside_range') == 3,
+                             'the frames outside the calibrated range counted', proc, output)
+        # The latest temperature is fine again, but the report of the period said what happened.
+        warnings = [s.message for m in listener.history() for s in m.status
+                    if s.name == 'gyro_node: temperature' and s.level == WARN]
+        assert any('were outside the calibrated range 10.0..50.0 degC' in w for w in warnings), warnings
+        # A sustained out-of-range temperature shows as WARN with the value.
+        fake.simulator.raw_temp = 1100   # 55 degC
+        hot = listener.wait_status('temperature', lambda s: s['level'] == WARN and '55.00 degC' in s['message'],
+                                   'the hot gyro warned', proc, output)
+        assert 'outside the calibrated range 10.0..50.0' in hot['message']
+        fake.simulator.raw_temp = None   # back to the sequence
+        back = listener.wait_status('temperature', lambda s: s['level'] == OK, 'the temperature OK again',
+                                    proc, output)
+        assert counter(back, 'frames_outside_range') > 3
 
-            # No frame of the fake lost in the whole test, including the end: the only step in the
-            # sequence is over the hot frames, and it is one more than their number.
-            wait_tail(listener, fake, proc, output)
-            received = listener.temperatures()
-            steps = np.mod(np.diff(residues(received)), PERIOD)
-            assert np.count_nonzero(steps != 1) == 1, np.flatnonzero(steps != 1)
-            assert steps[steps != 1][0] == np.count_nonzero(counts(received) == 1100) + 1
-            assert fake.dropped == 0
-        finally:
-            try:
-                stop_node(proc, signal.SIGINT, output)
-            finally:
-                listener.close()
+        # No frame of the fake lost in the whole test, including the end: the only step in the
+        # sequence is over the hot frames, and it is one more than their number.
+        wait_tail(listener, fake, proc, output)
+        received = listener.temperatures()
+        steps = np.mod(np.diff(residues(received)), PERIOD)
+        assert np.count_nonzero(steps != 1) == 1, np.flatnonzero(steps != 1)
+        assert steps[steps != 1][0] == np.count_nonzero(counts(received) == 1100) + 1
+        assert fake.dropped == 0
 
 
 def test_link_faults_missing_port_wrong_baud_ten_replugs_and_sigterm(tmp_path: Path, loopback: None) -> None:
@@ -219,62 +219,58 @@ def test_link_faults_missing_port_wrong_baud_ten_replugs_and_sigterm(tmp_path: P
     domain = domain_id()
     output = tmp_path / 'node.log'
     link = tmp_path / 'rd2100'
-    listener = Listener(domain)
-    proc = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={link}',
-                      '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false')
     fake = None
-    try:
-        # Missing port: the node runs, says so, and retries.
-        down = listener.wait_status('link', lambda s: s['connected'] == 'False', 'the missing port reported',
-                                    proc, output)
-        assert down['level'] == ERROR and f'cannot open {link}' in down['message'], down
-        assert counter(down, 'reopens') == 0 and counter(down, 'frames') == 0
-
-        # The gyro appears, at another baud than the node's: its frames arrive as garbage.
-        fake = sequence_gyro(link)
-        up = listener.wait_status('link', lambda s: s['connected'] == 'True', 'the port opened', proc, output)
-        assert counter(up, 'reopens') == 0   # the first open is not a reopen
-        frames = b''.join(encode_binary(0, TEMP_BASE + i) for i in range(100))
-        for ratio in (9600 / 115200, 115200 / 9600):   # node slower than the gyro, then faster
-            wrong = misclocked(frames, ratio)
-            assert wrong and not make_parser('binary').feed(wrong)
-            for i in range(0, len(wrong), 256):
-                fake.inject(wrong[i:i + 256])
-                time.sleep(0.02 if ratio > 1 else 0.1)
-        assert misclocked(frames, 1.0) == frames   # the model of the UART is right at the right baud
-        garbled = listener.wait_status('link', lambda s: counter(s, 'rejected') > 0 and s['level'] == WARN,
-                                       'the garbage counted, no frames', proc, output)
-        assert garbled['message'] == 'connected, no frames' and counter(garbled, 'frames') == 0, garbled
-        assert counter(garbled, 'published') == 0 and not listener.temperatures()
-
-        # The right baud: frames flow from the first one.
-        fake.start()
-        wait_frames(listener, 20, proc, output)
-        assert residues(listener.temperatures())[0] == 0
-        flowing = listener.wait_status('link', lambda s: s['level'] == OK, 'the link OK', proc, output)
-
-        # Ten unplug/replug cycles in a row; frames flow again after each.
-        for _ in range(10):
-            fake.unplug()
-            time.sleep(0.1)   # 5 frames that the gyro sends into the void
-            fake.replug()
-            wait_frames(listener, 15, proc, output)
-        replugged = listener.wait_status('link', lambda s: counter(s, 'reopens') == 10 and s['level'] == OK,
-                                         'ten reopens reported', proc, output)
-        assert replugged['connected'] == 'True'
-        # An unplug may cut a frame the node had half read (counted as garbage), nothing else.
-        assert counter(replugged, 'rejected_bad_checksum') == counter(flowing, 'rejected_bad_checksum')
-        assert 0 <= counter(replugged, 'rejected_garbage') - counter(flowing, 'rejected_garbage') <= 10
-
-        # Unplugged for good: the last frame before it arrived, and the only losses are the ten unplugs.
-        wait_tail(listener, fake, proc, output)
-        assert gaps(residues(listener.temperatures())) == 10
-        listener.wait_status('link', lambda s: s['connected'] == 'False', 'the final unplug reported', proc, output)
-    finally:
+    # SIGTERM at the end comes while the driver retries the unplugged port.
+    with node_with_listener(domain, output, *node_args(link, 'static_bias_on_startup:=false'),
+                            signum=signal.SIGTERM) as (proc, listener):
         try:
-            stop_node(proc, signal.SIGTERM, output)   # while the driver retries the missing port
+            # Missing port: the node runs, says so, and retries.
+            down = listener.wait_status('link', lambda s: s['connected'] == 'False', 'the missing port reported',
+                                        proc, output)
+            assert down['level'] == ERROR and f'cannot open {link}' in down['message'], down
+            assert counter(down, 'reopens') == 0 and counter(down, 'frames') == 0
+
+            # The gyro appears, at another baud than the node's: its frames arrive as garbage.
+            fake = sequence_gyro(link)
+            up = listener.wait_status('link', lambda s: s['connected'] == 'True', 'the port opened', proc, output)
+            assert counter(up, 'reopens') == 0   # the first open is not a reopen
+            frames = b''.join(encode_binary(0, TEMP_BASE + i) for i in range(100))
+            for ratio in (9600 / 115200, 115200 / 9600):   # node slower than the gyro, then faster
+                wrong = misclocked(frames, ratio)
+                assert wrong and not make_parser('binary').feed(wrong)
+                for i in range(0, len(wrong), 256):
+                    fake.inject(wrong[i:i + 256])
+                    time.sleep(0.02 if ratio > 1 else 0.1)
+            assert misclocked(frames, 1.0) == frames   # the model of the UART is right at the right baud
+            garbled = listener.wait_status('link', lambda s: counter(s, 'rejected') > 0 and s['level'] == WARN,
+                                           'the garbage counted, no frames', proc, output)
+            assert garbled['message'] == 'connected, no frames' and counter(garbled, 'frames') == 0, garbled
+            assert counter(garbled, 'published') == 0 and not listener.temperatures()
+
+            # The right baud: frames flow from the first one.
+            fake.start()
+            wait_frames(listener, 20, proc, output)
+            assert residues(listener.temperatures())[0] == 0
+            flowing = listener.wait_status('link', lambda s: s['level'] == OK, 'the link OK', proc, output)
+
+            # Ten unplug/replug cycles in a row; frames flow again after each.
+            for _ in range(10):
+                fake.unplug()
+                time.sleep(0.1)   # 5 frames that the gyro sends into the void
+                fake.replug()
+                wait_frames(listener, 15, proc, output)
+            replugged = listener.wait_status('link', lambda s: counter(s, 'reopens') == 10 and s['level'] == OK,
+                                             'ten reopens reported', proc, output)
+            assert replugged['connected'] == 'True'
+            # An unplug may cut a frame the node had half read (counted as garbage), nothing else.
+            assert counter(replugged, 'rejected_bad_checksum') == counter(flowing, 'rejected_bad_checksum')
+            assert 0 <= counter(replugged, 'rejected_garbage') - counter(flowing, 'rejected_garbage') <= 10
+
+            # Unplugged for good: the last frame before it arrived, and the only losses are the ten unplugs.
+            wait_tail(listener, fake, proc, output)
+            assert gaps(residues(listener.temperatures())) == 10
+            listener.wait_status('link', lambda s: s['connected'] == 'False', 'the final unplug reported', proc, output)
         finally:
-            listener.close()
             if fake is not None:
                 fake.stop()
     assert 'Traceback' not in output.read_text()
@@ -285,45 +281,37 @@ def test_static_bias_during_a_collection_and_while_turning_then_sigint(tmp_path:
     domain = domain_id()
     output = tmp_path / 'node.log'
     samples = 250   # 5 s at 50 Hz: the listener finds the service while the start-up collection runs
-    with sequence_gyro(tmp_path / 'rd2100') as fake:
-        listener = Listener(domain)
-        proc = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
-                          '-p', 'baud:=115200', '-p', f'bias_samples:={samples}')
-        try:
-            wait_until(lambda: listener.client.service_is_ready(), 'the static bias service', proc, output)
-            collecting = listener.wait_status('static bias', lambda s: True, 'a static bias status', proc, output)
-            assert collecting['state'] == 'collecting', f'start-up collection over before the call: {collecting}'
-            before = len(listener.temperatures())
-            joined = listener.static_bias(proc, output)
-            assert joined.success and f'over {samples} samples' in joined.message, joined.message
-            # It joined the running collection: its reply came before a whole new collection's worth of frames.
-            assert len(listener.temperatures()) - before < samples
-            bias = listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
+    with (sequence_gyro(tmp_path / 'rd2100') as fake,
+          node_with_listener(domain, output, *node_args(fake.path, f'bias_samples:={samples}')) as (proc, listener)):
+        wait_until(lambda: listener.client.service_is_ready(), 'the static bias service', proc, output)
+        collecting = listener.wait_status('static bias', lambda s: True, 'a static bias status', proc, output)
+        assert collecting['state'] == 'collecting', f'start-up collection over before the call: {collecting}'
+        before = len(listener.temperatures())
+        joined = listener.static_bias(proc, output)
+        assert joined.success and f'over {samples} samples' in joined.message, joined.message
+        # It joined the running collection: its reply came before a whole new collection's worth of frames.
+        assert len(listener.temperatures()) - before < samples
+        bias = listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
 
-            # Turning: refused, the previous bias kept, frames published all along.
-            fake.simulator.raw_rate = 3000   # 9.15 deg/s
-            wait_until(lambda: fake.last_sample and fake.last_sample[0] == 3000, 'the fake turning')
-            refused = listener.static_bias(proc, output)
-            assert not refused.success and 'turning' in refused.message, refused.message
-            status = listener.wait_status('static bias', lambda s: s['state'] == 'refused', 'the refusal shown',
-                                          proc, output)
-            assert status['level'] == WARN and 'previous bias kept' in status['message']
-            assert status['static_bias_drift_dps'] == bias['static_bias_drift_dps']
-            assert status['samples'] == bias['samples'] == str(samples)
-            seq = residues(listener.temperatures())
-            assert gaps(seq) == 0 and len(seq) > samples   # the turning collection alone took `samples` frames
+        # Turning: refused, the previous bias kept, frames published all along.
+        fake.simulator.raw_rate = 3000   # 9.15 deg/s
+        wait_until(lambda: fake.last_sample and fake.last_sample[0] == 3000, 'the fake turning')
+        refused = listener.static_bias(proc, output)
+        assert not refused.success and 'turning' in refused.message, refused.message
+        status = listener.wait_status('static bias', lambda s: s['state'] == 'refused', 'the refusal shown',
+                                      proc, output)
+        assert status['level'] == WARN and 'previous bias kept' in status['message']
+        assert status['static_bias_drift_dps'] == bias['static_bias_drift_dps']
+        assert status['samples'] == bias['samples'] == str(samples)
+        seq = residues(listener.temperatures())
+        assert gaps(seq) == 0 and len(seq) > samples   # the turning collection alone took `samples` frames
 
-            # SIGINT while a call waits for its collection: a clean stop.
-            fake.simulator.raw_rate = 0
-            pending = listener.client.call_async(Trigger.Request())
-            listener.wait_status('static bias', lambda s: s['state'] == 'collecting', 'the collection running',
-                                 proc, output)
-            assert not pending.done()
-        finally:
-            try:
-                stop_node(proc, signal.SIGINT, output)
-            finally:
-                listener.close()
+        # SIGINT while a call waits for its collection: a clean stop.
+        fake.simulator.raw_rate = 0
+        pending = listener.client.call_async(Trigger.Request())
+        listener.wait_status('static bias', lambda s: s['state'] == 'collecting', 'the collection running',
+                             proc, output)
+        assert not pending.done()
     text = output.read_text()
     assert 'Traceback' not in text, text
 
@@ -332,40 +320,33 @@ def test_ascii_line_faults_nan_and_absurd_temperatures(tmp_path: Path, loopback:
     """ASCII protocol: NaN, absurd and out-of-range temperatures, overlong and unterminated garbage."""
     domain = domain_id()
     output = tmp_path / 'node.log'
-    with sequence_gyro(tmp_path / 'rd2100', protocol='ascii') as fake:
-        listener = Listener(domain)
-        proc = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
-                          '-p', 'protocol:=ascii', '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false')
-        try:
-            wait_frames(listener, 10, proc, output)
-            # Whole bad lines: each is one rejection and costs no good frame.
-            malformed = [b'0 nan\r\n', b'0 NaN\r\n', b'0 inf\r\n', b'0 -nan\r\n', b'0 25.0\r\n', b'\x00\xff\x13\r\n']
-            out_of_range = [b'0 99999\r\n', b'0 -40000\r\n', b'70000 500\r\n']
-            too_long = [b'1 ' * 40 + b'\r\n']
-            for line in malformed + out_of_range + too_long:
-                inject_alone(fake, line)
-            # Absurd counts within 16 bits are valid lines: published, and counted outside the calibrated range.
-            for line in (b'0 32767\r\n', b'0 -32768\r\n'):
-                inject_alone(fake, line)
-            link = listener.wait_status(
-                'link', lambda s: (counter(s, 'rejected_malformed'), counter(s, 'rejected_out_of_range'),
-                                   counter(s, 'rejected_line_too_long')) == (len(malformed), len(out_of_range), 1),
-                'the bad lines counted', proc, output)
-            assert link['level'] == OK and counter(link, 'rejected') == len(malformed) + len(out_of_range) + 1
-            listener.wait_status('temperature', lambda s: counter(s, 'frames_outside_range') == 2,
-                                 'the absurd temperatures counted', proc, output)
-            assert [c for c in counts(listener.temperatures()) if c >= TEMP_BASE + PERIOD or c < TEMP_BASE] \
-                == [32767, -32768]
-            # Garbage without a line end runs into the next line: that one frame, and only it, is lost.
-            inject_alone(fake, b'\x07garbage')
-            wait_tail(listener, fake, proc, output)
-            steps = np.mod(np.diff(residues(listener.temperatures())), PERIOD)
-            assert sorted(steps[steps != 1]) == [2], np.flatnonzero(steps != 1)
-            assert counter(listener.wait_status('link', lambda s: counter(s, 'rejected_malformed') > len(malformed),
-                                                'the spoilt line counted', proc, output),
-                           'rejected_malformed') == len(malformed) + 1
-        finally:
-            try:
-                stop_node(proc, signal.SIGINT, output)
-            finally:
-                listener.close()
+    with (sequence_gyro(tmp_path / 'rd2100', protocol='ascii') as fake,
+          node_with_listener(domain, output, *node_args(fake.path, 'protocol:=ascii', 'static_bias_on_startup:=false'))
+          as (proc, listener)):
+        wait_frames(listener, 10, proc, output)
+        # Whole bad lines: each is one rejection and costs no good frame.
+        malformed = [b'0 nan\r\n', b'0 NaN\r\n', b'0 inf\r\n', b'0 -nan\r\n', b'0 25.0\r\n', b'\x00\xff\x13\r\n']
+        out_of_range = [b'0 99999\r\n', b'0 -40000\r\n', b'70000 500\r\n']
+        too_long = [b'1 ' * 40 + b'\r\n']
+        for line in malformed + out_of_range + too_long:
+            inject_alone(fake, line)
+        # Absurd counts within 16 bits are valid lines: published, and counted outside the calibrated range.
+        for line in (b'0 32767\r\n', b'0 -32768\r\n'):
+            inject_alone(fake, line)
+        link = listener.wait_status(
+            'link', lambda s: (counter(s, 'rejected_malformed'), counter(s, 'rejected_out_of_range'),
+                               counter(s, 'rejected_line_too_long')) == (len(malformed), len(out_of_range), 1),
+            'the bad lines counted', proc, output)
+        assert link['level'] == OK and counter(link, 'rejected') == len(malformed) + len(out_of_range) + 1
+        listener.wait_status('temperature', lambda s: counter(s, 'frames_outside_range') == 2,
+                             'the absurd temperatures counted', proc, output)
+        assert [c for c in counts(listener.temperatures()) if c >= TEMP_BASE + PERIOD or c < TEMP_BASE] \
+            == [32767, -32768]
+        # Garbage without a line end runs into the next line: that one frame, and only it, is lost.
+        inject_alone(fake, b'\x07garbage')
+        wait_tail(listener, fake, proc, output)
+        steps = np.mod(np.diff(residues(listener.temperatures())), PERIOD)
+        assert sorted(steps[steps != 1]) == [2], np.flatnonzero(steps != 1)
+        assert counter(listener.wait_status('link', lambda s: counter(s, 'rejected_malformed') > len(malformed),
+                                            'the spoilt line counted', proc, output),
+                       'rejected_malformed') == len(malformed) + 1
