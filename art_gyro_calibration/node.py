@@ -16,8 +16,8 @@ Topics (relative names, so they follow the node's namespace and remappings):
 
 Service ``imu/static_bias`` (std_srvs/Trigger): collect a new static bias over
 ``bias_samples`` frames; the reply comes when it is done. A call while a collection runs
-joins it and gets its result. Motion (mean or spread of the rate beyond the thresholds)
-refuses it and keeps the previous bias. Publishing goes on meanwhile with the previous bias.
+joins it and gets its result. Motion (mean compensated rate or spread of the rate beyond
+the thresholds) refuses it and keeps the previous bias. Publishing goes on meanwhile with the previous bias.
 """
 
 from __future__ import annotations
@@ -74,8 +74,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     'frame_id': ('imu_link', 'header.frame_id of the published messages.'),
     'bias_samples': (DEFAULT_SAMPLES, 'Frames per static bias collection (100 = 10 s at 10 Hz).'),
     'static_bias_on_startup': (True, 'Collect a static bias at startup (the gyro must be still).'),
-    'static_bias_max_mean_dps': (DEFAULT_MAX_MEAN_DPS, 'A static bias whose mean rate exceeds this (deg/s) '
-                                                       'is refused: the gyro was turning.'),
+    'static_bias_max_mean_dps': (DEFAULT_MAX_MEAN_DPS, 'A static bias whose mean compensated rate exceeds '
+                                                       'this (deg/s) is refused: the gyro was turning.'),
     'static_bias_max_std_dps': (DEFAULT_MAX_STD_DPS, 'A static bias whose rate spread (standard deviation, '
                                                      'deg/s) exceeds this is refused: the gyro was moving.'),
     'yaw_rate_stddev': (0.001, 'Standard deviation of the compensated yaw rate (rad/s); its square is '
