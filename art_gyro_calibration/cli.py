@@ -50,10 +50,9 @@ def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
             return packaged.rate_scale_factor, packaged.temp_scale_factor
         except CalibrationError:
             pass
-    with open(args.log, encoding='utf-8') as f:
-        if 'raw_rate' in [name.strip() for name in f.readline().split(',')]:
-            print(f'calibrate fit: using the usual rate scale factor {DEFAULT_RATE_SCALE_FACTOR} deg/s per count',
-                  file=sys.stderr)
+    # Said whether the log is raw or not: the factor goes into the calibration file, and the node scales by it.
+    print(f'calibrate fit: no --rate-scale-factor and no packaged calibration of {args.serial or "the gyro"}: '
+          f'using the usual {DEFAULT_RATE_SCALE_FACTOR} deg/s per count', file=sys.stderr)
     return DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR
 
 
