@@ -46,10 +46,12 @@ def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
         return args.rate_scale_factor, TEMP_SCALE_FACTOR
     if args.serial:
         try:
-            packaged = load_calibration(find_calibration_file(args.serial), expected_serial=args.serial)
-            return packaged.rate_scale_factor, packaged.temp_scale_factor
+            path = find_calibration_file(args.serial)
         except CalibrationError:
-            pass
+            path = None  # a gyro not calibrated before; a packaged file that is bad is refused below
+        if path is not None:
+            packaged = load_calibration(path, expected_serial=args.serial)
+            return packaged.rate_scale_factor, packaged.temp_scale_factor
     # Said whether the log is raw or not: the factor goes into the calibration file, and the node scales by it.
     print(f'calibrate fit: no --rate-scale-factor and no packaged calibration of {args.serial or "the gyro"}: '
           f'using the usual {DEFAULT_RATE_SCALE_FACTOR} deg/s per count', file=sys.stderr)
