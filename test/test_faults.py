@@ -280,7 +280,7 @@ def test_static_bias_during_a_collection_and_while_turning_then_sigint(tmp_path:
     """A call joins the start-up collection, a call while turning is refused, SIGINT while a call waits."""
     domain = domain_id()
     output = tmp_path / 'node.log'
-    samples = 250   # 5 s at 50 Hz: the listener finds the service while the start-up collection runs
+    samples = 400   # 8 s at 50 Hz: the listener finds the service while the start-up collection runs
     with (sequence_gyro(tmp_path / 'rd2100') as fake,
           node_with_listener(domain, output, *node_args(fake.path, f'bias_samples:={samples}')) as (proc, listener)):
         wait_until(lambda: listener.client.service_is_ready(), 'the static bias service', proc, output)
