@@ -60,6 +60,10 @@ UNMEASURED_VARIANCE = 1.0e6
 DIAGNOSTICS_PERIOD_S = 1.0
 # A static bias collection with no frame for this long has lost its gyro: it is abandoned.
 COLLECTION_STALL_S = 5.0
+# A frame claiming a temperature outside what any electronics survives is corrupt (its 8-bit
+# checksum passed by luck) or the temperature field is not where this package assumes it: at
+# +-1600 degC the polynomial alone would add 70-80 deg/s, so such a frame is dropped and counted.
+PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
 # Parameters whose presence means the calibration comes in as parameters (--params-file).
 CALIBRATION_KEYS = ('rate_scale_factor', 'polynomial.rows', 'polynomial.columns', 'polynomial.coefficients')
 
@@ -204,6 +208,8 @@ class GyroNode(Node):
         # Frames outside the calibrated range: the latest temperature alone would hide a glitch.
         self._outside_range = 0
         self._outside_range_reported = 0   # as of the last diagnostics
+        self._implausible = 0
+        self._implausible_reported = 0
         self._rate_window = (time.monotonic(), 0)
         self._log: RawLogWriter | None = None
         if self.settings.log_path:
@@ -298,9 +304,12 @@ class GyroNode(Node):
         rate_dps, temp_c = compensator.scale(sample.raw_rate, sample.raw_temp)
         stamp_ns = frame.stamp_ns
         t = stamp_ns * 1e-9
-        error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals
         if self._log is not None:
-            self._log.write(t, sample.raw_rate, sample.raw_temp)
+            self._log.write(t, sample.raw_rate, sample.raw_temp)   # the log keeps what the wire said
+        if not PLAUSIBLE_TEMPERATURE_C[0] <= temp_c <= PLAUSIBLE_TEMPERATURE_C[1]:
+            self._implausible += 1
+            return
+        error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals
         collection = self._collection
         if collection is not None:
             collection.last_sample = time.monotonic()
@@ -437,18 +446,25 @@ class GyroNode(Node):
         low, high = self._temp_range
         outside = self._outside_range
         recent, self._outside_range_reported = outside - self._outside_range_reported, outside
+        implausible = self._implausible
+        dropped, self._implausible_reported = implausible - self._implausible_reported, implausible
         values = {'temperature_c': f'{temp:.2f}', 'calibrated_min_c': low, 'calibrated_max_c': high,
-                  'frames_outside_range': outside}
-        if math.isnan(temp):
+                  'frames_outside_range': outside, 'frames_implausible_temperature': implausible}
+        if math.isnan(temp) and not dropped:
             return self._status('temperature', DiagnosticStatus.STALE, 'no frame yet', values)
-        if not low <= temp <= high:
-            return self._status('temperature', DiagnosticStatus.WARN,
-                                f'{temp:.2f} degC is outside the calibrated range {low}..{high} degC', values)
-        if recent:
-            return self._status('temperature', DiagnosticStatus.WARN,
-                                f'{temp:.2f} degC; {recent} frames since the last report were outside the '
-                                f'calibrated range {low}..{high} degC', values)
-        return self._status('temperature', DiagnosticStatus.OK, f'{temp:.2f} degC', values)
+        level, parts = DiagnosticStatus.OK, [f'{temp:.2f} degC' if not math.isnan(temp) else 'no valid frame yet']
+        if not math.isnan(temp) and not low <= temp <= high:
+            level = DiagnosticStatus.WARN
+            parts = [f'{temp:.2f} degC is outside the calibrated range {low}..{high} degC']
+        elif recent:
+            level = DiagnosticStatus.WARN
+            parts.append(f'{recent} frames since the last report were outside the calibrated range {low}..{high} degC')
+        if dropped:
+            level = DiagnosticStatus.ERROR
+            parts.append(f'{dropped} frames since the last report claimed a temperature outside '
+                         f'{PLAUSIBLE_TEMPERATURE_C[0]:g}..{PLAUSIBLE_TEMPERATURE_C[1]:g} degC and were dropped: '
+                         'corrupt frames, or the temperature field is not m[3]:m[4] on this unit')
+        return self._status('temperature', level, '; '.join(parts), values)
 
     # --- shutdown ------------------------------------------------------------------------
 

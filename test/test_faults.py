@@ -182,17 +182,22 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
         assert np.all(np.mod(np.diff(residues(listener.temperatures(start))), PERIOD) == 1)
         assert len(residues(listener.temperatures(start))) == len(listener.temperatures(start))
 
-        # Absurd temperature counts (a frame with a valid checksum) and a hot, real-looking 60 degC.
+        # Absurd temperature counts (frames with a valid checksum: dropped, counted, ERROR for the
+        # period) and a hot, real-looking 60 degC (published, counted outside the calibrated range).
         for raw_temp in (32767, -32768, 1200):
             inject_alone(fake, encode_binary(0, raw_temp))
         wait_frames(listener, 10, proc, output)
         received = counts(listener.temperatures(start))
-        assert [c for c in received if not TEMP_BASE <= c < TEMP_BASE + PERIOD] == [32767, -32768, 1200]
-        listener.wait_status('temperature', lambda s: counter(s, 'frames_outside_range') == 3,
-                             'the frames outside the calibrated range counted', proc, output)
+        assert [c for c in received if not TEMP_BASE <= c < TEMP_BASE + PERIOD] == [1200]
+        listener.wait_status('temperature', lambda s: counter(s, 'frames_outside_range') == 1
+                             and counter(s, 'frames_implausible_temperature') == 2,
+                             'the implausible and the out-of-range frames counted', proc, output)
+        errors = [s.message for m in listener.history() for s in m.status
+                  if s.name == 'gyro_node: temperature' and s.level == ERROR]
+        assert any('2 frames since the last report claimed a temperature outside' in e for e in errors), errors
         # The latest temperature is fine again, but the report of the period said what happened.
         warnings = [s.message for m in listener.history() for s in m.status
-                    if s.name == 'gyro_node: temperature' and s.level == WARN]
+                    if s.name == 'gyro_node: temperature' and s.level in (WARN, ERROR)]
         assert any('were outside the calibrated range 10.0..50.0 degC' in w for w in warnings), warnings
         # A sustained out-of-range temperature shows as WARN with the value.
         fake.simulator.raw_temp = 1100   # 55 degC
@@ -330,7 +335,7 @@ def test_ascii_line_faults_nan_and_absurd_temperatures(tmp_path: Path, loopback:
         too_long = [b'1 ' * 40 + b'\r\n']
         for line in malformed + out_of_range + too_long:
             inject_alone(fake, line)
-        # Absurd counts within 16 bits are valid lines: published, and counted outside the calibrated range.
+        # Absurd counts within 16 bits are valid lines, but no gyro is at +-1638 degC: dropped and counted.
         for line in (b'0 32767\r\n', b'0 -32768\r\n'):
             inject_alone(fake, line)
         link = listener.wait_status(
@@ -338,10 +343,10 @@ def test_ascii_line_faults_nan_and_absurd_temperatures(tmp_path: Path, loopback:
                                counter(s, 'rejected_line_too_long')) == (len(malformed), len(out_of_range), 1),
             'the bad lines counted', proc, output)
         assert link['level'] == OK and counter(link, 'rejected') == len(malformed) + len(out_of_range) + 1
-        listener.wait_status('temperature', lambda s: counter(s, 'frames_outside_range') == 2,
-                             'the absurd temperatures counted', proc, output)
-        assert [c for c in counts(listener.temperatures()) if c >= TEMP_BASE + PERIOD or c < TEMP_BASE] \
-            == [32767, -32768]
+        listener.wait_status('temperature', lambda s: counter(s, 'frames_implausible_temperature') == 2
+                             and counter(s, 'frames_outside_range') == 0, 'the absurd temperatures counted',
+                             proc, output)
+        assert [c for c in counts(listener.temperatures()) if c >= TEMP_BASE + PERIOD or c < TEMP_BASE] == []
         # Garbage without a line end runs into the next line: that one frame, and only it, is lost.
         inject_alone(fake, b'\x07garbage')
         wait_tail(listener, fake, proc, output)
