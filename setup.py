@@ -16,7 +16,7 @@ setup(
         ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml'))),
     ],
     python_requires='>=3.10',
-    install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'pyserial', 'matplotlib'],
+    install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'pyserial', 'matplotlib', 'h5py'],
     zip_safe=True,
     maintainer='art_gyro_calibration developers',
     maintainer_email='dev@art-gyro.local',
