@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.calibration import TEMP_SCALE_FACTOR, Calibration
-from art_gyro_calibration.fit import Fit, TermSpec, fit_model
+from art_gyro_calibration.fit import TermSpec, fit_model
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.metrics import (DEFAULT_SETTLE_S, Segments, correlation_time_s, noise_floor,
                                           steady_segments)
@@ -66,7 +66,6 @@ class LoopResult:
     signals: Signals
     error: NDArray[np.float64]
     segments: Segments
-    extended_fit: Fit
 
 
 def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DEFAULT_SERIAL,
@@ -148,7 +147,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         effects=tuple(effects), rounds=tuple(rounds), noise_floor_dps=floor,
         held_out_rms_art_dps=held_out_rms(every_row),
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
-        error=error, segments=segments, extended_fit=final)
+        error=error, segments=segments)
 
 
 def _maybe_square(spec: TermSpec, binned: Binned, specs: list[TermSpec], material_dps2: float) -> TermSpec:
