@@ -86,11 +86,9 @@ class Calibration:
         return params
 
 
-def _get(params: Mapping[str, Any], key: str, where: str, default: Any = None) -> Any:
+def _get(params: Mapping[str, Any], key: str, where: str) -> Any:
     if key in params:
         return params[key]
-    if default is not None:
-        return default
     raise CalibrationError(f'{where}: missing parameter {key!r}')
 
 
@@ -106,13 +104,16 @@ def _integer(value: Any, key: str, where: str) -> int:
     return value
 
 
+def _list(value: Any, key: str, where: str, of: str) -> list[Any]:
+    # A list in YAML, a list or an array.array as a ROS parameter; a string or scalar is refused here,
+    # not by a TypeError further on.
+    if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, '__iter__'):
+        raise CalibrationError(f'{where}: {key} must be a list of {of}, got {value!r}')
+    return list(value)
+
+
 def _numbers(value: Any, key: str, where: str) -> list[float]:
-    if isinstance(value, (str, bytes)) or not hasattr(value, '__iter__'):
-        raise CalibrationError(f'{where}: {key} must be a list of numbers, got {value!r}')
-    out = []
-    for i, v in enumerate(value):
-        out.append(_number(v, f'{key}[{i}]', where))
-    return out
+    return [_number(v, f'{key}[{i}]', where) for i, v in enumerate(_list(value, key, where, 'numbers'))]
 
 
 def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
@@ -151,8 +152,8 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
 
 
 def _terms(params: Mapping[str, Any], where: str) -> tuple[Term, ...]:
-    signals = params.get('extended.signals', [])
-    if isinstance(signals, str) or not all(isinstance(s, str) and SIGNAL_PATTERN.match(s) for s in signals):
+    signals = _list(params.get('extended.signals', []), 'extended.signals', where, 'signal names')
+    if not all(isinstance(s, str) and SIGNAL_PATTERN.match(s) for s in signals):
         raise CalibrationError(f'{where}: extended.signals must be a list of signal names, got {signals!r}')
     if len(set(signals)) != len(signals):
         raise CalibrationError(f'{where}: extended.signals names a signal twice: {signals}')
@@ -160,7 +161,7 @@ def _terms(params: Mapping[str, Any], where: str) -> tuple[Term, ...]:
     for signal in signals:
         prefix = f'extended.{signal}.'
         form = _get(params, prefix + 'form', where)
-        powers = params.get(prefix + 'powers', [])
+        powers = _list(params.get(prefix + 'powers', []), prefix + 'powers', where, 'whole numbers')
         if not all(isinstance(p, int) and not isinstance(p, bool) for p in powers):
             raise CalibrationError(f'{where}: {prefix}powers must be whole numbers, got {powers!r}')
         try:

@@ -90,6 +90,11 @@ def _params(serial: str = 'NAVC3545') -> dict:
     ({'extended.signals': ['rate'], 'extended.rate.form': 'spline', 'extended.rate.coefficients': [0.1]},
      "form 'spline' is not one of"),
     ({'filters.temperature_rate_tau_s': 0.0}, 'temperature_rate_tau_s must be a positive'),
+    ({'temperature_range_c': 25.0}, 'temperature_range_c must be a list of numbers, got 25.0'),
+    ({'extended.signals': 5}, 'extended.signals must be a list of signal names, got 5'),
+    ({'extended.signals': None}, 'extended.signals must be a list of signal names, got None'),
+    ({'extended.signals': ['time'], 'extended.time.form': 'power', 'extended.time.coefficients': [0.1],
+      'extended.time.powers': 2}, 'extended.time.powers must be a list of whole numbers, got 2'),
 ])
 def test_malformed_parameters_are_refused(change: dict, message: str) -> None:
     params = _params()
