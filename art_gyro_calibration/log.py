@@ -66,7 +66,8 @@ def read_log(path: str | os.PathLike[str], rate_scale_factor: float | None = Non
                     warnings.simplefilter('ignore', UserWarning)  # an empty log is refused below
                     data = np.loadtxt(f, delimiter=',', dtype=float, ndmin=2)
             except ValueError as e:
-                raise LogError(f'{where}: {e} (row 1 is the first after the header)') from None
+                # numpy counts rows from 0 in one message and from 1 in another: find the row again.
+                raise LogError(f'{where}: {_bad_row(path, header) or e}') from None
     except OSError as e:
         raise LogError(f'{where}: cannot read: {e.strerror}') from None
     if data.size == 0:
@@ -95,6 +96,27 @@ def read_log(path: str | os.PathLike[str], rate_scale_factor: float | None = Non
             raise LogError(f'{where}: {name} is not a finite number at row {bad[0] + 1}')
     extras = {k: v for k, v in cols.items() if k not in _KNOWN}
     return GyroLog(t, rate, temp, cols.get('ref_rate'), extras)
+
+
+def _bad_row(path: str | os.PathLike[str], header: list[str]) -> str:
+    """The first data row ``np.loadtxt`` refuses, as ``row N: why`` (row 1 is the first after the header)."""
+    with open(path, encoding='utf-8') as f:
+        f.readline()
+        row = 0
+        for line in f:
+            text = line.split('#', 1)[0].strip()
+            if not text:
+                continue   # loadtxt skips blank and comment lines
+            row += 1
+            fields = text.split(',')
+            if len(fields) != len(header):
+                return f'row {row}: {len(fields)} values but {len(header)} header names'
+            for name, value in zip(header, fields):
+                try:
+                    float(value)
+                except ValueError:
+                    return f'row {row}: {name} is {value.strip()!r}, not a number'
+    return ''
 
 
 def _first_bad_time(t: NDArray[np.float64]) -> int:
