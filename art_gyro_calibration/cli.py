@@ -20,11 +20,9 @@ from art_gyro_calibration.calibration import (TEMP_SCALE_FACTOR, CalibrationErro
                                               load_calibration, write_calibration)
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import LogError, RawLogWriter, read_log, write_columns
+from art_gyro_calibration.loop import DEFAULT_MAX_EFFECTS, DEFAULT_RATE_SCALE_FACTOR, DEFAULT_SERIAL, close_loop
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.trace import DEFAULT_BLOCK_S
-
-# Most RD2100s read 0.00305 deg/s per count (report, section 1).
-DEFAULT_RATE_SCALE_FACTOR = 0.00305
 
 
 def _apply(args: argparse.Namespace) -> int:
@@ -59,7 +57,6 @@ def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from art_gyro_calibration.loop import DEFAULT_SERIAL, close_loop
     from art_gyro_calibration.report import build_report, write_report
     rate_scale, temp_scale = _scale_factors(args)
     log = read_log(args.log, rate_scale, temp_scale)
@@ -153,16 +150,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--bias-samples', type=int, default=DEFAULT_SAMPLES,
                    help='rows at rest at the start of the log for the static bias (default %(default)s)')
     p.add_argument('--rate-scale-factor', type=float,
-                   help='deg/s per count of raw_rate (default: the packaged calibration of --serial, else 0.00305)')
+                   help='deg/s per count of raw_rate (default: the packaged calibration of --serial, '
+                        f'else {DEFAULT_RATE_SCALE_FACTOR})')
     p.add_argument('--settle-s', type=float, default=DEFAULT_SETTLE_S,
                    help='seconds skipped after each change of table rate (default %(default)s)')
-    p.add_argument('--max-effects', type=int, default=4, help='most effects to add (default %(default)s)')
+    p.add_argument('--max-effects', type=int, default=DEFAULT_MAX_EFFECTS,
+                   help='most effects to add (default %(default)s)')
     p.add_argument('--seed', type=int, default=0, help='seed of the chance (shifted) scores')
     p.add_argument('--exclude', action='append', default=[], metavar='SIGNAL',
                    help='never use this signal or log column as an effect (e.g. one the node will not have); repeat')
     p.add_argument('--block-s', type=float, default=DEFAULT_BLOCK_S,
-                   help='length of the held-out blocks of time, several times the correlation time of the '
-                        'bias wander (default %(default)s)')
+                   help='shortest held-out block of time (s); each screen lengthens it to the correlation time '
+                        'of what the model leaves (default %(default)s)')
     p.set_defaults(run=_fit)
 
     p = sub.add_parser('simulate', help='write a simulated rate-table and thermal-chamber run')

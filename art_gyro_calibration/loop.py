@@ -28,6 +28,8 @@ from art_gyro_calibration.trace import (DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_
                                         trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
+# Most RD2100s read 0.00305 deg/s per count (report, section 1).
+DEFAULT_RATE_SCALE_FACTOR = 0.00305
 # Signals computed from the measured rate alone.
 RATE_SIGNALS = ('rate', 'rate_abs', 'rate_sign', 'rate_change', 'angle')
 DEFAULT_SERIAL = 'UNSPECIFIED'
@@ -69,7 +71,7 @@ class LoopResult:
 
 
 def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DEFAULT_SERIAL,
-               rate_scale_factor: float = 0.00305, temp_scale_factor: float = TEMP_SCALE_FACTOR,
+               rate_scale_factor: float = DEFAULT_RATE_SCALE_FACTOR, temp_scale_factor: float = TEMP_SCALE_FACTOR,
                filters: SignalFilters = SignalFilters(), settle_s: float = DEFAULT_SETTLE_S,
                max_effects: int = DEFAULT_MAX_EFFECTS, folds: int = DEFAULT_FOLDS,
                shifts: int = DEFAULT_SHIFTS, bin_s: float = DEFAULT_BIN_S,
