@@ -6,7 +6,6 @@ The error is what the gyro reads too much, in deg/s; compensation subtracts it
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,11 +92,6 @@ class ErrorModel:
         for term in self.terms:
             comp += term.evaluate_one(tracker.value(term.signal))
         return comp
-
-    @property
-    def signals_used(self) -> Sequence[str]:
-        """Signals the extended terms need, in term order."""
-        return [term.signal for term in self.terms]
 
 
 def measured_from_true(polynomial: ArtPolynomial, true_rate_dps: ArrayLike, temp_c: ArrayLike,
