@@ -66,5 +66,4 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, calibration.filters)
     comp = calibration.model.error(signals)
     bias = static_bias(log.rate_dps[:bias_samples], comp[:bias_samples], max_mean_dps, max_std_dps)
-    corrected = log.rate_dps - bias.static_bias_drift_dps - comp + bias.calc_static_bias_drift_dps
-    return Applied(comp, corrected, bias)
+    return Applied(comp, bias.correct(log.rate_dps, comp), bias)

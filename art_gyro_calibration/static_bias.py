@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 DEFAULT_SAMPLES = 100
 # At rest an RD2100 reads its modelled error plus well under 0.02 deg/s of bias drift and
@@ -21,6 +22,9 @@ DEFAULT_SAMPLES = 100
 # not the gyro drifting (the modelled error alone reaches 0.1 deg/s at some temperatures).
 DEFAULT_MAX_MEAN_DPS = 0.1
 DEFAULT_MAX_STD_DPS = 0.05
+
+# One sample (the node) or a whole log (apply_calibration).
+Rate = TypeVar('Rate', float, NDArray[np.float64])
 
 
 class MotionError(ValueError):
@@ -36,8 +40,8 @@ class StaticBias:
     samples: int
     rate_std_dps: float
 
-    def correct(self, rate_dps: float, error_dps: float) -> float:
-        """``CompRate`` of the report for one sample."""
+    def correct(self, rate_dps: Rate, error_dps: Rate) -> Rate:
+        """``CompRate`` of the report, for one sample or arrays of them."""
         return rate_dps - self.static_bias_drift_dps - error_dps + self.calc_static_bias_drift_dps
 
     def describe(self) -> str:
