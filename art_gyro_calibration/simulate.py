@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from art_gyro_calibration.calibration import Calibration
-from art_gyro_calibration.log import write_columns
+from art_gyro_calibration.log import GyroLog, write_columns
 from art_gyro_calibration.model import measured_from_true
 from art_gyro_calibration.signals import SignalFilters, compute_signals
 
@@ -87,6 +87,12 @@ class SimulatedRun:
 
     columns: dict[str, NDArray[np.float64]]
     truth: dict[str, Any]
+
+    def log(self, calibration: Calibration) -> GyroLog:
+        """The log as ``read_log`` gives it back: counts scaled by ``calibration``'s factors, ``supply_v`` an extra."""
+        c = self.columns
+        return GyroLog(c['t'], c['raw_rate'] * calibration.rate_scale_factor,
+                       c['raw_temp'] * calibration.temp_scale_factor, c['ref_rate'], {'supply_v': c['supply_v']})
 
 
 def table_profile(t: NDArray[np.float64], settings: SimulationSettings,

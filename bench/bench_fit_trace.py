@@ -13,7 +13,6 @@ import resource
 import time
 
 from art_gyro_calibration.calibration import load_packaged_calibration
-from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.loop import close_loop
 from art_gyro_calibration.simulate import EFFECTS, SimulationSettings, simulate_run
 
@@ -29,9 +28,7 @@ def main() -> None:
     cal = load_packaged_calibration(args.serial)
     effects = () if args.no_effects else tuple(EFFECTS)
     run = simulate_run(cal, SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=effects))
-    c = run.columns
-    log = GyroLog(c['t'], c['raw_rate'] * cal.rate_scale_factor, c['raw_temp'] * cal.temp_scale_factor,
-                  c['ref_rate'], {'supply_v': c['supply_v']})
+    log = run.log(cal)
     start, cpu_start = time.perf_counter(), time.process_time()
     result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, serial_number=args.serial)
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start

@@ -5,7 +5,6 @@ import pytest
 
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.fit import Scaling, TermSpec, fit_model, polynomial_basis, polynomial_from_scaled
-from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.metrics import steady_segments
 from art_gyro_calibration.model import ArtPolynomial
 from art_gyro_calibration.signals import compute_signals
@@ -14,10 +13,8 @@ from art_gyro_calibration.simulate import SimulationSettings, simulate_run
 
 def simulated(serial, hours=3.0, rate_hz=2.0, seed=11, effects=()):
     cal = load_packaged_calibration(serial)
-    c = simulate_run(cal, SimulationSettings(hours=hours, rate_hz=rate_hz, seed=seed, effects=effects)).columns
-    log = GyroLog(c['t'], c['raw_rate'] * cal.rate_scale_factor, c['raw_temp'] * cal.temp_scale_factor,
-                  c['ref_rate'], {'supply_v': c['supply_v']})
-    return cal, log
+    run = simulate_run(cal, SimulationSettings(hours=hours, rate_hz=rate_hz, seed=seed, effects=effects))
+    return cal, run.log(cal)
 
 
 def test_scaled_basis_maps_back_exactly():

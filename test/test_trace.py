@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.calibration import load_packaged_calibration
-from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.loop import close_loop
 from art_gyro_calibration.simulate import EFFECTS, SimulationSettings, simulate_run
 
@@ -19,10 +18,7 @@ HOURS, RATE_HZ = 6.0, 2.0
 def run_loop(serial, effects=(), seed=7):
     cal = load_packaged_calibration(serial)
     sim = simulate_run(cal, SimulationSettings(hours=HOURS, rate_hz=RATE_HZ, seed=seed, effects=effects))
-    c = sim.columns
-    log = GyroLog(c['t'], c['raw_rate'] * cal.rate_scale_factor, c['raw_temp'] * cal.temp_scale_factor,
-                  c['ref_rate'], {'supply_v': c['supply_v']})
-    return sim.truth, close_loop(log, cal.polynomial.rows, cal.polynomial.columns, serial_number=serial)
+    return sim.truth, close_loop(sim.log(cal), cal.polynomial.rows, cal.polynomial.columns, serial_number=serial)
 
 
 @pytest.mark.parametrize('seed', [100, 101, 102])
