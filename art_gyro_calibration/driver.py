@@ -116,14 +116,10 @@ class Rd2100Driver:
         self._thread.start()
 
     def stop(self, timeout_s: float = 2.0) -> None:
-        """Stop the reader thread and close the port."""
+        """Stop the reader thread and close the port (seen within READ_TIMEOUT_S)."""
+        # The reader thread alone touches the port: a cancel_read() from here could race its
+        # close() (pyserial then writes to a closed, possibly reused, descriptor).
         self._stop.set()
-        port = self._serial
-        if port is not None:
-            try:
-                port.cancel_read()   # wake a blocked read now rather than at its timeout
-            except (AttributeError, OSError, serial.SerialException):
-                pass
         if self._thread is not None:
             self._thread.join(timeout_s)
             if self._thread.is_alive():
