@@ -3,8 +3,9 @@
 Each candidate signal (every derived signal and every extra column of the log) gets
 the term form that fits its physics (:func:`candidate_specs`). It is scored by how
 much it lowers the *held-out* mean squared error of the model: the steady rows are cut
-into blocks of time (15 minutes), dealt in turn to ``folds`` folds; for each fold the
-base model plus the candidate is fitted on the other folds and predicts this one.
+into blocks of time (15 minutes, which :func:`loop.close_loop` lengthens to the residual's
+correlation time), dealt in turn to ``folds`` folds; for each fold the base model plus the
+candidate is fitted on the other folds and predicts this one.
 
 Chance is measured on the data itself: the same score with the candidate circularly
 shifted by ``shifts`` large random offsets, which keeps the candidate's own slowness and
