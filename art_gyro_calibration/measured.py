@@ -218,7 +218,7 @@ def run_axis(log: GyroLog, held: NDArray[np.bool_], held_name: str, axis: str,
     for stage in STAGES:
         comp = stage_comp(loop, signals, stage)[held]
         bias = static_bias(measured[:BIAS_SAMPLES], comp[:BIAS_SAMPLES], MAX_MEAN_DPS, MAX_STD_DPS)
-        errors[stage] = measured - bias.static_bias_drift_dps - comp + bias.calc_static_bias_drift_dps
+        errors[stage] = bias.correct(measured, comp)
         summaries[stage] = summarize(t_held, errors[stage])
         allan[stage] = allan_deviation(errors[stage], SAMPLE_RATE_HZ, run_held)
     return AxisResult(axis, log, held, held_name, loop, materiality, floor, signals, errors, summaries, allan)
