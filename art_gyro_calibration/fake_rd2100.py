@@ -191,16 +191,23 @@ class FakeRd2100:
 
     def _open_pty(self) -> None:
         master, slave = os.openpty()
-        tty.setraw(slave)           # no byte translated (no CR/LF mapping, no echo, no signals)
-        os.set_blocking(master, False)
-        self._master, self._slave, self._slave_name = master, slave, os.ttyname(slave)
-        if self.link is not None:
-            # Re-point atomically so a reader never sees the link missing while plugged.
-            temporary = f'{self.link}.{os.getpid()}.tmp'
-            if os.path.lexists(temporary):
-                os.unlink(temporary)
-            os.symlink(self._slave_name, temporary)
-            os.replace(temporary, self.link)
+        try:
+            tty.setraw(slave)           # no byte translated (no CR/LF mapping, no echo, no signals)
+            os.set_blocking(master, False)
+            name = os.ttyname(slave)
+            if self.link is not None:
+                # Re-point atomically so a reader never sees the link missing while plugged.
+                temporary = f'{self.link}.{os.getpid()}.tmp'
+                if os.path.lexists(temporary):
+                    os.unlink(temporary)
+                os.symlink(name, temporary)
+                os.replace(temporary, self.link)
+        except BaseException:
+            # No link (its folder gone, say): stay unplugged rather than hold a pty nobody can find.
+            os.close(master)
+            os.close(slave)
+            raise
+        self._master, self._slave, self._slave_name = master, slave, name
 
     def _close_pty(self) -> None:
         if self.link is not None and os.path.islink(self.link):

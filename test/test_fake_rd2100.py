@@ -183,6 +183,29 @@ def test_link_follows_unplug_and_replug(tmp_path):
     assert not os.path.lexists(link)
 
 
+def test_a_link_that_cannot_be_made_leaks_no_pty(tmp_path):
+    folder = tmp_path / 'dev'
+    link = str(folder / 'rd2100')
+    fds = len(os.listdir('/proc/self/fd'))
+    with pytest.raises(FileNotFoundError):
+        FakeRd2100('NAVC3545', link=link)
+    assert len(os.listdir('/proc/self/fd')) == fds
+    folder.mkdir()
+    fake = FakeRd2100('NAVC3545', link=link)
+    try:
+        fake.unplug()
+        folder.rmdir()
+        with pytest.raises(FileNotFoundError):
+            fake.replug()
+        assert len(os.listdir('/proc/self/fd')) == fds   # still unplugged: no pty held
+        folder.mkdir()
+        fake.replug()
+        assert os.path.realpath(link).startswith('/dev/pts/')
+    finally:
+        fake.stop()
+    assert len(os.listdir('/proc/self/fd')) == fds
+
+
 def test_unplug_makes_an_open_reader_fail():
     with FakeRd2100('NAVC3545', rate_hz=50) as fake:
         with serial.Serial(fake.path, 115200, timeout=0.5) as port:
