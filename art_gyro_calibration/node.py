@@ -199,7 +199,8 @@ class GyroNode(Node):
         self._lock = threading.Lock()
         self._closing = threading.Event()
         self._collection: _Collection | None = None
-        self._bias_state = 'none'
+        # How the last collection ended: none yet, ok or refused; while one runs, the state is 'collecting'.
+        self._bias_outcome = 'none'
         self._bias_refusal = ''
         self._bias_time = 0.0
         self._published = 0
@@ -341,7 +342,6 @@ class GyroNode(Node):
                 self._collection = _Collection(StaticBiasCollector(
                     self.settings.bias_samples, self.settings.static_bias_max_mean_dps,
                     self.settings.static_bias_max_std_dps))
-                self._bias_state = 'collecting'
                 self.get_logger().info(f'static bias: collecting {self.settings.bias_samples} samples; '
                                        'keep the gyro still')
             return self._collection
@@ -361,11 +361,11 @@ class GyroNode(Node):
             self._collection = None
             if bias is not None:
                 self._compensator.bias = bias
-                self._bias_state = 'ok'
+                self._bias_outcome = 'ok'
                 self._bias_time = time.monotonic()
                 self.get_logger().info(f'static bias: {bias.describe()}')
             else:
-                self._bias_state = 'refused'
+                self._bias_outcome = 'refused'
                 self._bias_refusal = error
                 self.get_logger().warning(f'static bias refused, previous bias kept: {error}')
             collection.result = bias
@@ -419,24 +419,24 @@ class GyroNode(Node):
         return self._status('link', DiagnosticStatus.OK, f'connected, {rate_hz:.1f} Hz', values)
 
     def _bias_status(self) -> DiagnosticStatus:
-        with self._lock:
-            state = self._bias_state
+        with self._lock:   # one consistent snapshot: the reader thread may end a collection meanwhile
             collection = self._collection
-        bias = self._compensator.bias
+            state = 'collecting' if collection is not None else self._bias_outcome
+            bias, refusal, bias_time = self._compensator.bias, self._bias_refusal, self._bias_time
         values: dict[str, Any] = {
             'state': state, 'static_bias_drift_dps': f'{bias.static_bias_drift_dps:.6f}',
             'calc_static_bias_drift_dps': f'{bias.calc_static_bias_drift_dps:.6f}',
             'samples': bias.samples, 'rate_std_dps': f'{bias.rate_std_dps:.6f}',
-            'age_s': f'{time.monotonic() - self._bias_time:.0f}' if bias.samples else 'none',
-            'last_refusal': self._bias_refusal}
-        if state == 'collecting' and collection is not None:
+            'age_s': f'{time.monotonic() - bias_time:.0f}' if bias.samples else 'none',
+            'last_refusal': refusal}
+        if collection is not None:
             progress = f'{collection.collector.count}/{self.settings.bias_samples}'
             return self._status('static bias', DiagnosticStatus.OK, f'collecting ({progress})', values)
         if state == 'ok':
             return self._status('static bias', DiagnosticStatus.OK, bias.describe(), values)
         if state == 'refused':
             kept = 'previous bias kept' if bias.samples else 'no bias applied'
-            return self._status('static bias', DiagnosticStatus.WARN, f'refused ({self._bias_refusal}); {kept}',
+            return self._status('static bias', DiagnosticStatus.WARN, f'refused ({refusal}); {kept}',
                                 values)
         return self._status('static bias', DiagnosticStatus.WARN,
                             'none: call imu/static_bias with the gyro still', values)
