@@ -210,11 +210,13 @@ class FakeRd2100:
         self._master, self._slave, self._slave_name = master, slave, name
 
     def _close_pty(self) -> None:
-        if self.link is not None and os.path.islink(self.link):
+        if self._master is None:
+            return
+        # Only a link to this pty: another fake may have re-pointed it since (a renamed device).
+        if self.link is not None and os.path.islink(self.link) and os.readlink(self.link) == self._slave_name:
             os.unlink(self.link)
-        for fd in (self._master, self._slave):
-            if fd is not None:
-                os.close(fd)
+        os.close(self._master)
+        os.close(self._slave)
         self._master = self._slave = None
         self._pending = b''
 

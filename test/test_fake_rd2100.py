@@ -206,6 +206,28 @@ def test_a_link_that_cannot_be_made_leaks_no_pty(tmp_path):
     assert len(os.listdir('/proc/self/fd')) == fds
 
 
+def test_stop_leaves_a_link_that_another_fake_took(tmp_path):
+    link = str(tmp_path / 'rd2100')
+    first = FakeRd2100('NAVC3545', link=link)
+    try:
+        second = FakeRd2100('NAVC3545', link=link)   # re-points the link: a renamed device
+        try:
+            first.stop()
+            first.stop()   # twice is harmless
+            assert os.path.realpath(link).startswith('/dev/pts/')
+            fd = os.open(link, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+            try:
+                second.inject(b'\x82second')
+                assert read_for(fd, 7) == b'\x82second'
+            finally:
+                os.close(fd)
+        finally:
+            second.stop()
+        assert not os.path.lexists(link)
+    finally:
+        first.stop()
+
+
 def test_unplug_makes_an_open_reader_fail():
     with FakeRd2100('NAVC3545', rate_hz=50) as fake:
         with serial.Serial(fake.path, 115200, timeout=0.5) as port:
