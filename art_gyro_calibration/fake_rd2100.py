@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
-from art_gyro_calibration.frame import INT16_MAX, INT16_MIN, make_encoder
+from art_gyro_calibration.frame import INT16_MAX, INT16_MIN, PROTOCOLS, make_encoder
 from art_gyro_calibration.model import measured_from_true
 
 # White noise of an RD2100 at its 10 Hz output, one sample's standard deviation.
@@ -304,7 +304,7 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog='fake_rd2100', description=__doc__.splitlines()[0])
     p.add_argument('--serial', required=True, help='serial number of a packaged calibration, e.g. NAVC3545')
     p.add_argument('--link', help='symlink to the current pty, e.g. /tmp/rd2100 (survives replugging)')
-    p.add_argument('--protocol', choices=('binary', 'ascii'), default='binary')
+    p.add_argument('--protocol', choices=PROTOCOLS, default='binary')
     p.add_argument('--rate-hz', type=float, default=10.0, help='output rate (default 10)')
     p.add_argument('--profile', default='0',
                    help='true rate: deg/s, or repeating segments "duration_s:rate_dps,..." (default 0)')
