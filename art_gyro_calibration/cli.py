@@ -107,7 +107,7 @@ def _record(args: argparse.Namespace) -> int:
         stop = threading.Event()
         driver.start()
         try:
-            stop.wait(args.duration if args.duration is not None else None)
+            stop.wait(args.duration)  # None: until Ctrl-C
         except KeyboardInterrupt:
             pass
         finally:
