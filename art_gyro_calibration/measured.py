@@ -30,6 +30,7 @@ from art_gyro_calibration.importers import (StaticRecord, read_cats_netcdf, runs
                                             still_mask)
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.loop import DEFAULT_MAX_EFFECTS, LoopResult, close_loop
+from art_gyro_calibration.report import STAGES
 from art_gyro_calibration.trace import DEFAULT_MATERIALITY
 from art_gyro_calibration.signals import Signals, compute_signals
 from art_gyro_calibration.static_bias import static_bias
@@ -106,7 +107,6 @@ BLOCK_S = 600.0  # the systematic error: rms of 10-minute means
 MAX_MEAN_DPS = 10.0
 MAX_STD_DPS = 0.5
 RUN_GAP_S = 60.0
-STAGES = ('uncalibrated', 'art', 'extended')
 
 
 def orientation_labels(log: GyroLog, accel: Sequence[str] = ACCELERATION_CHANNELS,
