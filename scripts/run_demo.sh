@@ -26,7 +26,11 @@ trap cleanup EXIT
 # Still for 12 s (the startup static bias takes 100 frames = 10 s), then turns: +30, 0, -45 deg/s.
 .venv/bin/fake_rd2100 --serial "$SERIAL" --link "$link" --profile '12:0,6:30,6:0,6:-45' --seed 1 >/dev/null &
 pids+=($!)
-for _ in $(seq 50); do [[ -e $link ]] && break; sleep 0.1; done
+# The link appears once the fake is up; a fake that exited (an unknown SERIAL, say) has said why.
+until [[ -e $link ]]; do
+    kill -0 "${pids[0]}" 2>/dev/null || { echo "demo: fake_rd2100 did not start" >&2; exit 1; }
+    sleep 0.1
+done
 
 .venv/bin/gyro_node --ros-args -p serial_number:="$SERIAL" -p port:="$link" &
 pids+=($!)
