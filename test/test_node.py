@@ -17,7 +17,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from rosproc import REPO, TIMEOUT_S, Listener, domain_id, node_env, start_node, stop_node, wait_until  # noqa: E402
+from rosproc import REPO, TIMEOUT_S, domain_id, node_env, node_with_listener, start_node, wait_until  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile  # noqa: E402
@@ -36,81 +36,76 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
     domain = domain_id()
     output = tmp_path / 'node.log'
     turning_dps = 80.0   # uncompensated, NAVC3545 reads about 0.8 deg/s off at this rate
-    with FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=3) as fake:
-        listener = Listener(domain, namespace='/robot')   # the node's relative names follow its namespace
-        proc = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
-                          '-p', 'bias_samples:=20', '-p', 'frame_id:=gyro_test', '-r', '__ns:=/robot')
-        try:
-            # Startup static bias over the first 20 still frames.
-            bias = listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the startup static bias',
-                                        proc, output)
-            assert bias['level'] == b'\x00' and int(bias['samples']) == 20
+    # The listener in /robot too: the node's relative names follow its namespace.
+    with (FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=3) as fake,
+          node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
+                             '-p', 'bias_samples:=20', '-p', 'frame_id:=gyro_test', '-r', '__ns:=/robot',
+                             namespace='/robot') as (proc, listener)):
+        # Startup static bias over the first 20 still frames.
+        bias = listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the startup static bias',
+                                    proc, output)
+        assert bias['level'] == b'\x00' and int(bias['samples']) == 20
 
-            # Still: the compensated rate is zero within the noise; REP 145 layout; temperature.
-            still = listener.wait_imu(10, proc, output)
-            assert abs(rates_dps(still).mean()) < 0.01
-            m = still[-1]
-            assert m.header.frame_id == 'gyro_test'
-            assert m.orientation_covariance[0] == -1.0 and m.linear_acceleration_covariance[0] == -1.0
-            cov = np.reshape(m.angular_velocity_covariance, (3, 3))
-            assert cov[0, 0] == cov[1, 1] == UNMEASURED_VARIANCE
-            assert cov[2, 2] == pytest.approx(0.001 ** 2)
-            assert np.count_nonzero(cov - np.diag(np.diag(cov))) == 0
-            assert m.angular_velocity.x == m.angular_velocity.y == 0.0
-            stamps = [s.header.stamp.sec + s.header.stamp.nanosec * 1e-9 for s in still]
-            assert np.all(np.diff(stamps) > 0) and abs(stamps[-1] - time.time()) < 5.0
-            wait_until(lambda: listener.temperature, 'a temperature message', proc, output)
-            assert listener.temperature[-1] == pytest.approx(25.0)
+        # Still: the compensated rate is zero within the noise; REP 145 layout; temperature.
+        still = listener.wait_imu(10, proc, output)
+        assert abs(rates_dps(still).mean()) < 0.01
+        m = still[-1]
+        assert m.header.frame_id == 'gyro_test'
+        assert m.orientation_covariance[0] == -1.0 and m.linear_acceleration_covariance[0] == -1.0
+        cov = np.reshape(m.angular_velocity_covariance, (3, 3))
+        assert cov[0, 0] == cov[1, 1] == UNMEASURED_VARIANCE
+        assert cov[2, 2] == pytest.approx(0.001 ** 2)
+        assert np.count_nonzero(cov - np.diag(np.diag(cov))) == 0
+        assert m.angular_velocity.x == m.angular_velocity.y == 0.0
+        stamps = [s.header.stamp.sec + s.header.stamp.nanosec * 1e-9 for s in still]
+        assert np.all(np.diff(stamps) > 0) and abs(stamps[-1] - time.time()) < 5.0
+        wait_until(lambda: listener.temperature, 'a temperature message', proc, output)
+        assert listener.temperature[-1] == pytest.approx(25.0)
 
-            # Turning: the compensated rate is the true rate (counter-clockwise positive, rad/s).
-            fake.simulator.profile = RateProfile.parse(str(turning_dps))
-            wait_until(lambda: fake.last_sample and fake.last_sample[0] > 20000, 'the fake turning')
-            turning = listener.wait_imu(12, proc, output)[2:]   # skip any still frame still in flight
-            assert rates_dps(turning).mean() == pytest.approx(turning_dps, abs=0.01)
+        # Turning: the compensated rate is the true rate (counter-clockwise positive, rad/s).
+        fake.simulator.profile = RateProfile.parse(str(turning_dps))
+        wait_until(lambda: fake.last_sample and fake.last_sample[0] > 20000, 'the fake turning')
+        turning = listener.wait_imu(12, proc, output)[2:]   # skip any still frame still in flight
+        assert rates_dps(turning).mean() == pytest.approx(turning_dps, abs=0.01)
 
-            # A static bias while turning is refused and the previous one kept.
-            response = listener.static_bias(proc, output)
-            assert not response.success and 'turning' in response.message, response.message
-            refused = listener.wait_status('static bias', lambda s: s['state'] == 'refused', 'the refusal',
-                                           proc, output)
-            assert refused['static_bias_drift_dps'] == bias['static_bias_drift_dps']
-            assert rates_dps(listener.wait_imu(10, proc, output)).mean() == pytest.approx(turning_dps, abs=0.01)
+        # A static bias while turning is refused and the previous one kept.
+        response = listener.static_bias(proc, output)
+        assert not response.success and 'turning' in response.message, response.message
+        refused = listener.wait_status('static bias', lambda s: s['state'] == 'refused', 'the refusal',
+                                       proc, output)
+        assert refused['static_bias_drift_dps'] == bias['static_bias_drift_dps']
+        assert rates_dps(listener.wait_imu(10, proc, output)).mean() == pytest.approx(turning_dps, abs=0.01)
 
-            # Still again: a new static bias, its values in the reply.
-            fake.simulator.profile = RateProfile.parse('0')
-            wait_until(lambda: fake.last_sample and abs(fake.last_sample[0]) < 100, 'the fake still')
-            # A second call while the first collects joins it; frames are published meanwhile.
-            before = listener.count()
-            first, second = listener.static_bias(proc, output, calls=2)
-            assert listener.count() - before >= 20
-            assert first.success and 'StaticBiasDrift=' in first.message, first.message
-            assert 'over 20 samples' in first.message
-            assert (second.success, second.message) == (first.success, first.message)
+        # Still again: a new static bias, its values in the reply.
+        fake.simulator.profile = RateProfile.parse('0')
+        wait_until(lambda: fake.last_sample and abs(fake.last_sample[0]) < 100, 'the fake still')
+        # A second call while the first collects joins it; frames are published meanwhile.
+        before = listener.count()
+        first, second = listener.static_bias(proc, output, calls=2)
+        assert listener.count() - before >= 20
+        assert first.success and 'StaticBiasDrift=' in first.message, first.message
+        assert 'over 20 samples' in first.message
+        assert (second.success, second.message) == (first.success, first.message)
 
-            # Garbage between frames is counted, and frames flow on.
-            fake.inject(b'not a frame \x01\x02\x03')
-            link = listener.wait_status('link', lambda s: int(s['rejected_garbage']) >= 1, 'garbage counted',
-                                        proc, output)
-            assert 2.0 < float(link['frame_rate_hz']) < 20.0 and link['level'] == b'\x00'   # 10 Hz, generously
-            listener.wait_imu(5, proc, output)
+        # Garbage between frames is counted, and frames flow on.
+        fake.inject(b'not a frame \x01\x02\x03')
+        link = listener.wait_status('link', lambda s: int(s['rejected_garbage']) >= 1, 'garbage counted',
+                                    proc, output)
+        assert 2.0 < float(link['frame_rate_hz']) < 20.0 and link['level'] == b'\x00'   # 10 Hz, generously
+        listener.wait_imu(5, proc, output)
 
-            # Unplug and replug: the node reopens the port and publishes again.
-            fake.unplug()
-            listener.wait_status('link', lambda s: s['connected'] == 'False', 'the link reported down',
-                                 proc, output)
-            assert listener.status('link')['level'] == b'\x02'
-            response = listener.static_bias(proc, output)   # no frames: abandoned after 5 s, bias kept
-            assert not response.success and 'no frame from the gyro' in response.message, response.message
-            fake.replug()
-            link = listener.wait_status('link', lambda s: s['connected'] == 'True' and int(s['reopens']) >= 1,
-                                        'the reopen reported', proc, output)
-            assert int(link['published']) > 0
-            assert abs(rates_dps(listener.wait_imu(10, proc, output)).mean()) < 0.01
-        finally:
-            try:
-                stop_node(proc, signal.SIGINT, output)
-            finally:
-                listener.close()
+        # Unplug and replug: the node reopens the port and publishes again.
+        fake.unplug()
+        listener.wait_status('link', lambda s: s['connected'] == 'False', 'the link reported down',
+                             proc, output)
+        assert listener.status('link')['level'] == b'\x02'
+        response = listener.static_bias(proc, output)   # no frames: abandoned after 5 s, bias kept
+        assert not response.success and 'no frame from the gyro' in response.message, response.message
+        fake.replug()
+        link = listener.wait_status('link', lambda s: s['connected'] == 'True' and int(s['reopens']) >= 1,
+                                    'the reopen reported', proc, output)
+        assert int(link['published']) > 0
+        assert abs(rates_dps(listener.wait_imu(10, proc, output)).mean()) < 0.01
 
 
 def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) -> None:
@@ -119,40 +114,34 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
     output = tmp_path / 'node.log'
     logs = tmp_path / 'logs'
     logs.mkdir()
-    with FakeRd2100('NAVC4058', protocol='ascii', profile='0', temperature=5.0, seed=4) as fake:
-        listener = Listener(domain)
-        proc = start_node(domain, output, '--params-file', str(REPO / 'config' / 'NAVC4058.yaml'),
-                          '-p', f'port:={fake.path}', '-p', 'protocol:=ascii', '-p', 'static_bias_on_startup:=false',
-                          '-p', f'log_path:={logs}', '-p', 'yaw_rate_stddev:=0.002', '-p', 'baud:=115200',
-                          '-p', 'bias_samples:=10')
-        try:
-            messages = listener.wait_imu(10, proc, output)
-            assert messages[-1].header.frame_id == 'imu_link'
-            assert messages[-1].angular_velocity_covariance[8] == pytest.approx(0.002 ** 2)
-            temperature = listener.wait_status('temperature', lambda s: s['level'] == b'\x01',
-                                               'the temperature warning', proc, output)
-            assert 'outside the calibrated range' in temperature['message']
-            bias = listener.status('static bias')
-            assert bias['state'] == 'none' and bias['level'] == b'\x01'
-            assert 'calibration loaded: NAVC4058 from parameters' in output.read_text()
-            # The demo's monitor prints the rate in deg/s and exits after --count messages.
-            echo = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--count', '3'],
-                                  env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
-            lines = echo.stdout.splitlines()
-            assert echo.returncode == 0 and len(lines) == 3, echo.stdout + echo.stderr
-            assert all(' imu_link: yaw rate ' in line and 'deg/s' in line and ' 5.00 degC' in line
-                       for line in lines[1:]), lines
-            # Its --static-bias calls the service: the first static bias of this node.
-            call = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--static-bias'],
-                                  env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
-            assert call.returncode == 0 and call.stdout.startswith('StaticBiasDrift='), call.stdout + call.stderr
-            assert 'over 10 samples' in call.stdout
-            listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
-        finally:
-            try:
-                stop_node(proc, signal.SIGTERM, output)
-            finally:
-                listener.close()
+    with (FakeRd2100('NAVC4058', protocol='ascii', profile='0', temperature=5.0, seed=4) as fake,
+          node_with_listener(domain, output, '--params-file', str(REPO / 'config' / 'NAVC4058.yaml'),
+                             '-p', f'port:={fake.path}', '-p', 'protocol:=ascii',
+                             '-p', 'static_bias_on_startup:=false', '-p', f'log_path:={logs}',
+                             '-p', 'yaw_rate_stddev:=0.002', '-p', 'baud:=115200', '-p', 'bias_samples:=10',
+                             signum=signal.SIGTERM) as (proc, listener)):
+        messages = listener.wait_imu(10, proc, output)
+        assert messages[-1].header.frame_id == 'imu_link'
+        assert messages[-1].angular_velocity_covariance[8] == pytest.approx(0.002 ** 2)
+        temperature = listener.wait_status('temperature', lambda s: s['level'] == b'\x01',
+                                           'the temperature warning', proc, output)
+        assert 'outside the calibrated range' in temperature['message']
+        bias = listener.status('static bias')
+        assert bias['state'] == 'none' and bias['level'] == b'\x01'
+        assert 'calibration loaded: NAVC4058 from parameters' in output.read_text()
+        # The demo's monitor prints the rate in deg/s and exits after --count messages.
+        echo = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--count', '3'],
+                              env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+        lines = echo.stdout.splitlines()
+        assert echo.returncode == 0 and len(lines) == 3, echo.stdout + echo.stderr
+        assert all(' imu_link: yaw rate ' in line and 'deg/s' in line and ' 5.00 degC' in line
+                   for line in lines[1:]), lines
+        # Its --static-bias calls the service: the first static bias of this node.
+        call = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--static-bias'],
+                              env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
+        assert call.returncode == 0 and call.stdout.startswith('StaticBiasDrift='), call.stdout + call.stderr
+        assert 'over 10 samples' in call.stdout
+        listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
     # Every frame received is in the raw log, in counts, with the stamps in seconds.
     files = list(logs.glob('NAVC4058_*.csv'))
     assert len(files) == 1
