@@ -161,14 +161,8 @@ class Fit:
     """A fitted model and its residual over the rows it was fitted on."""
 
     model: ErrorModel
-    specs: tuple[TermSpec, ...]
     index: NDArray[np.int64]
     residual: NDArray[np.float64]
-
-    @property
-    def rms_dps(self) -> float:
-        """RMS of the in-sample residual."""
-        return float(np.sqrt(np.mean(self.residual ** 2)))
 
 
 def fit_model(signals: Signals, error: ArrayLike, rows: int, columns: int,
@@ -186,4 +180,4 @@ def fit_model(signals: Signals, error: ArrayLike, rows: int, columns: int,
     design = Design(signals, rows, columns, specs, idx)
     x = design.matrix
     beta = solve_normal(x.T @ x, x.T @ e[idx])
-    return Fit(design.model(beta), tuple(specs), idx, e[idx] - x @ beta)
+    return Fit(design.model(beta), idx, e[idx] - x @ beta)
