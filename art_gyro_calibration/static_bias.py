@@ -107,7 +107,8 @@ class StaticBiasCollector:
 def _checked(mean: float, mean_error: float, std: float, n: int,
              max_mean_dps: float, max_std_dps: float) -> StaticBias:
     if not (math.isfinite(mean) and math.isfinite(std) and math.isfinite(mean_error)):
-        raise ValueError('static bias samples are not finite numbers')
+        raise ValueError(f'static bias over {n} samples: not finite (mean rate {mean}, mean modelled error '
+                         f'{mean_error}, rate spread {std} deg/s): a rate or modelled error is NaN or infinite')
     if abs(mean - mean_error) > max_mean_dps:
         raise MotionError(f'mean compensated rate {mean - mean_error:.4f} deg/s over {n} samples exceeds '
                           f'{max_mean_dps} deg/s: the gyro is turning')

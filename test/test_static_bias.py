@@ -47,7 +47,7 @@ def test_turning_is_refused() -> None:
 def test_bad_input() -> None:
     with pytest.raises(ValueError, match='equally many'):
         static_bias([], [])
-    with pytest.raises(ValueError, match='not finite'):
+    with pytest.raises(ValueError, match='static bias over 3 samples: not finite .mean rate nan'):
         static_bias([float('nan')] * 3, [0.0] * 3)
     with pytest.raises(ValueError, match='at least 2'):
         StaticBiasCollector(1)
