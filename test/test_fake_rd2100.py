@@ -13,8 +13,8 @@ import pytest
 import serial
 
 from art_gyro_calibration.calibration import CalibrationError, load_packaged_calibration
-from art_gyro_calibration.fake_rd2100 import (ART_LATITUDE_DEG, FakeRd2100, GyroSimulator, RateProfile,
-                                              TemperatureProfile, default_noise_dps, earth_rate_dps)
+from art_gyro_calibration.fake_rd2100 import (ART_LATITUDE_DEG, MAX_PENDING_BYTES, FakeRd2100, GyroSimulator,
+                                              RateProfile, TemperatureProfile, default_noise_dps, earth_rate_dps)
 from art_gyro_calibration.frame import make_parser
 
 REPO = Path(__file__).resolve().parent.parent
@@ -156,6 +156,23 @@ def test_pty_is_raw_so_no_byte_is_translated():
             assert read_for(fd, 256) == garbage
         finally:
             os.close(fd)
+    finally:
+        fake.stop()
+
+
+def test_bytes_nobody_reads_are_held_then_dropped_past_a_bound():
+    fake = FakeRd2100('NAVC3545')   # not started, and no reader: only injected bytes, and the pty fills
+    try:
+        total = 64 * 1024   # more than a pty buffers plus MAX_PENDING_BYTES
+        for _ in range(total // 1024):
+            fake.inject(bytes(1024))   # never an error
+        assert fake.dropped > 0 and len(fake._pending) <= MAX_PENDING_BYTES
+        fd = os.open(fake.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            buffered = read_for(fd, total, timeout_s=1.0)
+        finally:
+            os.close(fd)
+        assert len(buffered) + len(fake._pending) + fake.dropped == total
     finally:
         fake.stop()
 
