@@ -75,6 +75,8 @@ def correlation_time_s(t: ArrayLike, residual: ArrayLike, segments: Segments, bi
         return bin_s
     # Lags with few pairs are noise; stop looking where fewer than a tenth of the bins pair up.
     usable = np.flatnonzero(pairs >= 0.1 * pairs[0])[1:]
+    if not usable.size:
+        return bin_s  # bins too sparse (a few samples over a long log) to follow the correlation at all
     below = usable[covariance[usable] < slow * np.exp(-1.0)]
     return float((below[0] if below.size else usable[-1]) * bin_s)
 

@@ -56,3 +56,10 @@ def test_correlation_time_of_white_noise_and_of_a_slow_wander():
         wander[i] = phi * wander[i - 1] + kicks[i]
     measured = correlation_time_s(t, wander + rng.normal(0, 0.1, len(t)), segments)
     assert 0.5 * tau < measured < 2.0 * tau
+
+
+def test_correlation_time_of_bins_too_sparse_to_pair_up():
+    """Eleven one-sample bins on a Golomb ruler: each lag pairs up once (under a tenth); one bin, no IndexError."""
+    t = np.array([0, 1, 4, 13, 28, 33, 47, 54, 64, 70, 72]) * 60.0 + 30.0
+    residual = np.array([5.0, 5.0, -1, 1, -1, 1, -1, 1, -1, 1, -1])
+    assert correlation_time_s(t, residual, steady_segments(t, np.zeros(len(t)), settle_s=0.0)) == 60.0
