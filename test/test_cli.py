@@ -33,6 +33,11 @@ def test_fit_writes_calibration_report_and_plots(fitted):
     assert [t.signal for t in cal.terms] == ['temperature_rate']
     report = json.loads((fitted / 'REPORT.json').read_text())
     assert [e['signal'] for e in report['effects']] == ['temperature_rate']
+    # Each effect as fitted: the calibration's term, what it describes, and a held-out error it lowers.
+    for effect, term in zip(report['effects'], cal.terms):
+        assert effect['coefficients'] == list(term.coefficients)
+        assert effect['description'] == term.describe()
+        assert effect['held_out_rms_with_dps'] < effect['held_out_rms_without_dps']
     for stage in ('uncalibrated', 'art', 'extended'):
         assert set(report['errors'][stage]) == {'rms_dps', 'systematic_rms_dps', 'heading_360_deg_max'}
     errors = report['errors']
