@@ -193,13 +193,17 @@ class AsciiFrameParser(_ChunkParser):
 
     def __init__(self) -> None:
         super().__init__((MALFORMED, OUT_OF_RANGE, LINE_TOO_LONG))
-        self._discarding = False   # inside the rest of an overlong line
+        self._discarding = False   # inside the rest of an overlong line, or of a line cut by a reset
 
     def reset(self) -> None:
-        """Drop a partly received line; statistics are kept."""
+        """Drop a partly received line, and the next bytes up to a line break; statistics are kept.
+
+        A port opened or reopened mid-line gets the tail of a line, which may parse as a
+        wrong sample (``34 500`` of ``-1234 500``): it is skipped, not counted as a rejection.
+        """
         self.stats.bytes_skipped += len(self._buffer)
         self._buffer = b''
-        self._discarding = False
+        self._discarding = True
 
     def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
         """Parse a chunk; each valid line with the offset just past its newline within ``data``."""

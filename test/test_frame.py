@@ -109,6 +109,17 @@ def test_reset_drops_a_partial_frame():
     assert samples(parser.feed(frame)) == [(4, 5)]
 
 
+def test_ascii_reset_skips_to_the_next_line_break_so_a_cut_line_gives_no_wrong_sample():
+    parser = AsciiFrameParser()
+    assert samples(parser.feed(b'-1234 500\r\n-12')) == [(-1234, 500)]
+    parser.reset()   # the link was lost mid-line; the port reopens mid-line of another sample
+    assert parser.feed(b'34 5') == []
+    assert parser.feed(b'00\r\n-1234 500\r\n') == [(RawSample(-1234, 500), 15)]
+    assert parser.stats.rejected == 0 and parser.stats.bytes_skipped == 3 + 8
+    parser.reset()   # at a line start, the first whole line is skipped too: it cannot be told from a tail
+    assert samples(parser.feed(b'1 2\n3 4\n')) == [(3, 4)]
+
+
 def test_ascii_accepts_lf_and_crlf_and_counts_malformed_lines():
     parser = AsciiFrameParser()
     data = b'12 -34\r\n5 6\nabc\r\n1 2 3\r\n7\r\n\r\n1.5 2\r\n-7 +8\r\n 9 10 \r\n'
