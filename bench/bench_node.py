@@ -47,7 +47,6 @@ REPO = Path(__file__).resolve().parent.parent
 PERIOD = 4096           # sequence numbers repeat after this many frames (4 s at 1 kHz)
 STEP_COUNTS = 8         # raw_rate counts between successive sequence numbers
 RAW_TEMP = 500          # 25 degC at 0.05 degC per count
-BITS_PER_BYTE = 10
 READY_TIMEOUT_S = 60.0
 DRAIN_S = 3.0           # after the last write, time for the last messages to arrive
 
@@ -239,7 +238,9 @@ def run(args: argparse.Namespace) -> int:
     tty.setraw(slave)   # no byte translated
     port = os.ttyname(slave)
     writer = Writer(master, capacity)
-    frame_ns = 8 * BITS_PER_BYTE * 1_000_000_000 // args.baud
+    from art_gyro_calibration.driver import WireStamper
+    from art_gyro_calibration.frame import BINARY_FRAME_BYTES
+    frame_ns = WireStamper(args.baud, BINARY_FRAME_BYTES).frame_ns   # the wire time the node subtracts
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / 'node.log'
         out = str(Path(tmp) / 'received')
