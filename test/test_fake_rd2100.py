@@ -146,16 +146,21 @@ def test_frames_on_the_pty_decode_to_the_simulated_counts(protocol):
     assert parser.stats.frames >= 10
 
 
+def inject_and_read(fake, data):
+    """Open the fake's port as a bare reader (no termios set up), inject ``data`` and read it back."""
+    fd = os.open(fake.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        fake.inject(data)
+        return read_for(fd, len(data))
+    finally:
+        os.close(fd)
+
+
 def test_pty_is_raw_so_no_byte_is_translated():
     fake = FakeRd2100('NAVC3545')   # not started: only injected bytes are sent
     try:
-        fd = os.open(fake.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)   # no termios set up by the reader
-        try:
-            garbage = bytes(range(256))
-            fake.inject(garbage)
-            assert read_for(fd, 256) == garbage
-        finally:
-            os.close(fd)
+        garbage = bytes(range(256))
+        assert inject_and_read(fake, garbage) == garbage
     finally:
         fake.stop()
 
@@ -188,12 +193,7 @@ def test_link_follows_unplug_and_replug(tmp_path):
         fake.inject(b'lost')   # unplugged: nothing to write to, and no error
         fake.replug()
         assert os.path.exists(link)
-        fd = os.open(link, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-        try:
-            fake.inject(b'\x81back')
-            assert read_for(fd, 5) == b'\x81back'
-        finally:
-            os.close(fd)
+        assert inject_and_read(fake, b'\x81back') == b'\x81back'
         assert isinstance(first, str)
     finally:
         fake.stop()
@@ -232,12 +232,7 @@ def test_stop_leaves_a_link_that_another_fake_took(tmp_path):
             first.stop()
             first.stop()   # twice is harmless
             assert os.path.realpath(link).startswith('/dev/pts/')
-            fd = os.open(link, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-            try:
-                second.inject(b'\x82second')
-                assert read_for(fd, 7) == b'\x82second'
-            finally:
-                os.close(fd)
+            assert inject_and_read(second, b'\x82second') == b'\x82second'
         finally:
             second.stop()
         assert not os.path.lexists(link)
