@@ -9,8 +9,7 @@ Usage: python bench/bench_apply_vs_c.py [--samples 10000000] [--serial NAVC3545]
 from __future__ import annotations
 
 import argparse
-import shutil
-import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -21,7 +20,9 @@ from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import GyroLog
 
-C_SOURCE = Path(__file__).resolve().parent.parent / 'test' / 'c' / 'art_reference.c'
+# The C reference helper lives with the tests that also use it.
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'test'))
+from c_reference import compile_reference, run_reference  # noqa: E402
 
 
 def main() -> None:
@@ -38,17 +39,7 @@ def main() -> None:
     raw_temp = rng.integers(200, 1000, n).astype(np.int32)
 
     with tempfile.TemporaryDirectory() as tmp:
-        d = Path(tmp)
-        exe = d / 'art_reference'
-        subprocess.run([shutil.which('gcc') or 'gcc', '-O2', '-o', str(exe), str(C_SOURCE), '-lm'], check=True)
-        (d / 'params.txt').write_text(f'{cal.rate_scale_factor!r} {cal.polynomial.rows} {cal.polynomial.columns} '
-                                      + ' '.join(repr(float(c)) for c in cal.polynomial.coefficients.ravel())
-                                      + f' {nb}\n')
-        (d / 'in.bin').write_bytes(np.column_stack([raw_rate, raw_temp]).tobytes())
-        run = subprocess.run([str(exe), str(d / 'params.txt'), str(d / 'in.bin'), str(d / 'out.bin')],
-                             check=True, capture_output=True, text=True)
-        c_seconds = float(run.stdout)
-        c_out = np.fromfile(d / 'out.bin', dtype=np.float32).reshape(-1, 2)
+        c_out, c_seconds = run_reference(compile_reference(Path(tmp)), cal, raw_rate, raw_temp, nb, Path(tmp))
 
     t0 = time.perf_counter()
     log = GyroLog(np.arange(n) * 0.1, raw_rate * cal.rate_scale_factor, raw_temp * cal.temp_scale_factor)

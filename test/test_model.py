@@ -1,19 +1,17 @@
 """The model against straight transcriptions of the report's C program (Python and gcc)."""
 
 import math
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from c_reference import compile_reference, run_reference
 
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.compensation import Compensator, apply_calibration
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ArtPolynomial, measured_from_true
 
-C_SOURCE = Path(__file__).parent / 'c' / 'art_reference.c'
 RATES = np.linspace(-100.0, 100.0, 41)     # the RD2100's full scale, deg/s
 TEMPS = np.linspace(-10.0, 60.0, 15)       # beyond the calibrated range on both sides, degC
 
@@ -117,24 +115,14 @@ def test_comp_rate_matches_the_transcribed_program(serial: str) -> None:
 @pytest.fixture(scope='module')
 def c_reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The report's C program, compiled with gcc -O2."""
-    gcc = shutil.which('gcc')
-    assert gcc, 'gcc is needed to compile the report C program (.ci/run installs it)'
-    exe = tmp_path_factory.mktemp('c') / 'art_reference'
-    subprocess.run([gcc, '-O2', '-o', str(exe), str(C_SOURCE), '-lm'], check=True)
-    return exe
+    return compile_reference(tmp_path_factory.mktemp('c'))
 
 
 def test_comp_rate_matches_the_compiled_c_program(serial: str, c_reference: Path, tmp_path: Path) -> None:
     cal = load_packaged_calibration(serial)
     bias_samples = 100
     raw_rate, raw_temp = _raw_run(serial)
-    params = tmp_path / 'params.txt'
-    params.write_text(f'{cal.rate_scale_factor!r} {cal.polynomial.rows} {cal.polynomial.columns} '
-                      + ' '.join(repr(float(c)) for c in cal.polynomial.coefficients.ravel()) + f' {bias_samples}\n')
-    (tmp_path / 'in.bin').write_bytes(np.column_stack([raw_rate, raw_temp]).astype(np.int32).tobytes())
-    subprocess.run([str(c_reference), str(params), str(tmp_path / 'in.bin'), str(tmp_path / 'out.bin')],
-                   check=True, capture_output=True)
-    out = np.fromfile(tmp_path / 'out.bin', dtype=np.float32).reshape(-1, 2).astype(float)
+    out, _ = run_reference(c_reference, cal, raw_rate, raw_temp, bias_samples, tmp_path)
 
     log = GyroLog(np.arange(len(raw_rate)) * 0.1, raw_rate * cal.rate_scale_factor, raw_temp * 0.05)
     applied = apply_calibration(log, cal, bias_samples=bias_samples)
