@@ -16,7 +16,10 @@ setup(
         ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml'))),
     ],
     python_requires='>=3.10',
-    install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'pyserial', 'matplotlib', 'h5py'],
+    # The runtime a robot installs (the node, the driver, the fake gyro) needs only these;
+    # the offline tools (art_gyro_calibration.analysis: fit, trace, simulate, plots, importers) need the extra.
+    install_requires=['setuptools', 'numpy', 'pyyaml', 'pyserial'],
+    extras_require={'analysis': ['scipy', 'matplotlib', 'h5py']},
     zip_safe=True,
     maintainer='art_gyro_calibration developers',
     maintainer_email='dev@art-gyro.local',
@@ -27,7 +30,7 @@ setup(
         'console_scripts': [
             'gyro_node = art_gyro_calibration.node:main',
             'fake_rd2100 = art_gyro_calibration.fake_rd2100:main',
-            'calibrate = art_gyro_calibration.cli:main',
+            'calibrate = art_gyro_calibration.analysis.cli:main',
             'imu_echo = art_gyro_calibration.monitor:main',
         ],
     },

@@ -2,6 +2,6 @@
 
 import sys
 
-from art_gyro_calibration.cli import main
+from art_gyro_calibration.analysis.cli import main
 
 sys.exit(main())

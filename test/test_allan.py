@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from art_gyro_calibration.allan import allan_deviation
+from art_gyro_calibration.analysis.allan import allan_deviation
 
 
 def _slope(result, lo, hi):

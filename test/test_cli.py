@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration
-from art_gyro_calibration.cli import main
+from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.compensation import Compensator, apply_calibration
 from art_gyro_calibration.log import read_log
 

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.calibration import load_packaged_calibration
-from art_gyro_calibration.fit import Scaling, TermSpec, fit_model, polynomial_basis, polynomial_from_scaled
-from art_gyro_calibration.metrics import steady_segments
+from art_gyro_calibration.analysis.fit import Scaling, TermSpec, fit_model, polynomial_basis, polynomial_from_scaled
+from art_gyro_calibration.analysis.metrics import steady_segments
 from art_gyro_calibration.model import ArtPolynomial
 from art_gyro_calibration.signals import compute_signals
-from art_gyro_calibration.simulate import SimulationSettings, simulate_run
+from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run
 
 
 def simulated(serial, hours=3.0, rate_hz=2.0, seed=11, effects=()):

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from art_gyro_calibration.importers import (DEG_PER_MRAD, RecordError, StaticRecord, read_cats_netcdf,
-                                            runs, segment_labels, static_log, still_mask, write_static_log)
+from art_gyro_calibration.analysis.importers import (DEG_PER_MRAD, RecordError, StaticRecord, read_cats_netcdf,
+                                                     runs, segment_labels, static_log, still_mask, write_static_log)
 from art_gyro_calibration.log import read_log
 
 HOUR = 3600.0

@@ -1,15 +1,19 @@
 """The measured-data loop on a real record (fetched like the reproduction command) and its helpers offline."""
 
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from art_gyro_calibration import measured
-from art_gyro_calibration.importers import StaticRecord, read_cats_netcdf, static_log, still_mask, write_static_log
-from art_gyro_calibration.log import GyroLog, read_log
-from art_gyro_calibration.loop import RATE_SIGNALS
+# The study is a script beside the package, not part of what a robot installs.
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'studies'))
+import measured_data as measured  # noqa: E402
+from art_gyro_calibration.analysis.importers import (StaticRecord, read_cats_netcdf, static_log,  # noqa: E402
+                                                     still_mask, write_static_log)
+from art_gyro_calibration.analysis.loop import RATE_SIGNALS  # noqa: E402
+from art_gyro_calibration.log import GyroLog, read_log  # noqa: E402
 
 HOUR = 3600.0
 DATA_DIR = Path(__file__).resolve().parent.parent / 'data'  # gitignored download cache

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from art_gyro_calibration.metrics import (correlation_time_s, error_metrics, heading_errors_360, noise_floor,
-                                          steady_segments)
+from art_gyro_calibration.analysis.metrics import (correlation_time_s, error_metrics, heading_errors_360, noise_floor,
+                                                   steady_segments)
 
 
 def test_segments_skip_the_settling_time():

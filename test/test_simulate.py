@@ -7,7 +7,7 @@ import pytest
 
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.log import read_log
-from art_gyro_calibration.simulate import EFFECTS, SimulationSettings, simulate_run, truth_path, write_run
+from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run, truth_path, write_run
 
 
 @pytest.fixture(scope='module')

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.calibration import load_packaged_calibration
-from art_gyro_calibration.loop import close_loop
-from art_gyro_calibration.simulate import EFFECTS, SimulationSettings, simulate_run
+from art_gyro_calibration.analysis.loop import close_loop
+from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run
 
 HOURS, RATE_HZ = 6.0, 2.0
 

@@ -20,9 +20,10 @@ from art_gyro_calibration.calibration import (TEMP_SCALE_FACTOR, CalibrationErro
                                               load_calibration, write_calibration)
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import LogError, RawLogWriter, read_log, write_columns
-from art_gyro_calibration.loop import DEFAULT_MAX_EFFECTS, DEFAULT_RATE_SCALE_FACTOR, DEFAULT_SERIAL, close_loop
+from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RATE_SCALE_FACTOR, DEFAULT_SERIAL,
+                                                close_loop)
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
-from art_gyro_calibration.trace import DEFAULT_BLOCK_S
+from art_gyro_calibration.analysis.trace import DEFAULT_BLOCK_S
 
 
 def _apply(args: argparse.Namespace) -> int:
@@ -57,7 +58,7 @@ def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from art_gyro_calibration.report import build_report, write_report
+    from art_gyro_calibration.analysis.report import build_report, write_report
     rate_scale, temp_scale = _scale_factors(args)
     log = read_log(args.log, rate_scale, temp_scale)
     result = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
@@ -71,7 +72,7 @@ def _fit(args: argparse.Namespace) -> int:
                       f'effects beyond it: {found}.')
     summary = write_report(args.report, report)
     if args.plots:
-        from art_gyro_calibration.plots import plot_all
+        from art_gyro_calibration.analysis.plots import plot_all
         plot_all(log, result, args.bias_samples, args.plots, args.plot_prefix)
     print(summary.read_text(encoding='utf-8'), end='')
     return 0
@@ -79,7 +80,7 @@ def _fit(args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace) -> int:
     from art_gyro_calibration.calibration import load_packaged_calibration
-    from art_gyro_calibration.simulate import SimulationSettings, simulate_run, write_run
+    from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
     calibration = load_packaged_calibration(args.serial)
     settings = SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=tuple(args.effect),
                                   seed=args.seed)
@@ -125,8 +126,8 @@ def _record(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     """The ``calibrate`` command line."""
     from art_gyro_calibration.frame import PROTOCOLS
-    from art_gyro_calibration.metrics import DEFAULT_SETTLE_S
-    from art_gyro_calibration.simulate import EFFECTS
+    from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S
+    from art_gyro_calibration.analysis.simulate import EFFECTS
     parser = argparse.ArgumentParser(prog='calibrate', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
 
@@ -192,11 +193,22 @@ def _positive_int(text: str) -> int:
     return value
 
 
+# What the offline tools need beyond the node's runtime: the pip extra "analysis".
+ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'h5py')
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``calibrate``; returns the exit status."""
-    args = build_parser().parse_args(argv)
     try:
+        args = build_parser().parse_args(argv)
         return args.run(args)
+    except ModuleNotFoundError as e:
+        if e.name not in ANALYSIS_EXTRA:
+            raise
+        # A robot's install has the node's runtime only: say what to add instead of a traceback.
+        print(f'calibrate: error: the offline tools need {e.name}, which this installation lacks: '
+              'pip install "art_gyro_calibration[analysis]" (scipy, matplotlib, h5py)', file=sys.stderr)
+        return 1
     except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:
         print(f'calibrate {args.command}: error: {e}', file=sys.stderr)
         return 1

@@ -1,6 +1,6 @@
 """The calibration loop on a real gyro's log: a CATS tag's MEMS IMU lying still for three days.
 
-``python -m art_gyro_calibration.measured`` downloads the record (it ships in the
+``python studies/measured_data.py`` downloads the record (it ships in the
 scikit-diveMove 0.4.0 wheel; AGPL, so it is fetched at run time and never committed),
 imports each gyro axis as a static thermal log, runs the same loop as ``calibrate fit``
 and writes ``doc/measured-data.md`` with its figures.
@@ -25,13 +25,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.allan import AllanDeviation, allan_deviation
-from art_gyro_calibration.importers import (StaticRecord, read_cats_netcdf, runs, segment_labels, static_log,
-                                            still_mask)
+from art_gyro_calibration.analysis.allan import AllanDeviation, allan_deviation
+from art_gyro_calibration.analysis.importers import (StaticRecord, read_cats_netcdf, runs, segment_labels, static_log,
+                                                     still_mask)
 from art_gyro_calibration.log import GyroLog
-from art_gyro_calibration.loop import DEFAULT_MAX_EFFECTS, LoopResult, close_loop
-from art_gyro_calibration.report import STAGES
-from art_gyro_calibration.trace import DEFAULT_MATERIALITY
+from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, LoopResult, close_loop
+from art_gyro_calibration.analysis.report import STAGES
+from art_gyro_calibration.analysis.trace import DEFAULT_MATERIALITY
 from art_gyro_calibration.signals import Signals, compute_signals
 from art_gyro_calibration.static_bias import static_bias
 
@@ -391,7 +391,7 @@ def markdown(record: StaticRecord, still: NDArray[np.bool_], names: Sequence[str
     lines = [
         '# A real gyro\'s log: a CATS tag\'s MEMS IMU lying still for three days',
         '',
-        f'_Written by `python -m art_gyro_calibration.measured`{_version()}; every number below comes from that '
+        f'_Written by `python studies/measured_data.py`{_version()}; every number below comes from that '
         'run._',
         '',
         '## The data',

@@ -1,7 +1,7 @@
 """Close the loop on a rate-table log: fit, trace the residual, extend the model, repeat.
 
 :func:`close_loop` fits the ART polynomial, screens the residual against every signal
-(:mod:`art_gyro_calibration.trace`), adds the most significant effect as an extended term,
+(:mod:`art_gyro_calibration.analysis.trace`), adds the most significant effect as an extended term,
 refits everything jointly and screens again, until nothing significant remains. It
 returns the report's polynomial alone (``art``) and the extended calibration, both
 loadable by the node and by ``calibrate apply``.
@@ -16,16 +16,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.calibration import TEMP_SCALE_FACTOR, Calibration
-from art_gyro_calibration.fit import TermSpec, fit_model
+from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.log import GyroLog, LogError
-from art_gyro_calibration.metrics import (DEFAULT_SETTLE_S, Segments, correlation_time_s, noise_floor,
-                                          steady_segments)
+from art_gyro_calibration.analysis.metrics import (DEFAULT_SETTLE_S, Segments, correlation_time_s, noise_floor,
+                                                   steady_segments)
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals
 from art_gyro_calibration.terms import Term
-from art_gyro_calibration.trace import (DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_FOLDS, DEFAULT_MATERIALITY,
-                                        DEFAULT_SHIFTS, Binned, CandidateScore, Screen, TraceResult,
-                                        held_out_rms,
-                                        trace_residual)
+from art_gyro_calibration.analysis.trace import (DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_FOLDS, DEFAULT_MATERIALITY,
+                                                 DEFAULT_SHIFTS, Binned, CandidateScore, Screen, TraceResult,
+                                                 held_out_rms,
+                                                 trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
 # Most RD2100s read 0.00305 deg/s per count (report, section 1).
@@ -55,7 +55,7 @@ class Effect:
 
 @dataclass(frozen=True)
 class LoopResult:
-    """Everything :func:`close_loop` found; :mod:`art_gyro_calibration.report` serialises it."""
+    """Everything :func:`close_loop` found; :mod:`art_gyro_calibration.analysis.report` serialises it."""
 
     art: Calibration
     extended: Calibration

@@ -22,10 +22,10 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from art_gyro_calibration.log import GyroLog  # noqa: E402
-from art_gyro_calibration.loop import LoopResult  # noqa: E402
-from art_gyro_calibration.metrics import heading_errors_360  # noqa: E402
+from art_gyro_calibration.analysis.loop import LoopResult  # noqa: E402
+from art_gyro_calibration.analysis.metrics import heading_errors_360  # noqa: E402
 from art_gyro_calibration.model import ErrorModel  # noqa: E402
-from art_gyro_calibration.report import STAGES, stage_errors  # noqa: E402
+from art_gyro_calibration.analysis.report import STAGES, stage_errors  # noqa: E402
 
 BAND_C = 10.0
 TITLES = {'uncalibrated': 'uncalibrated (scale factor, static bias)', 'art': 'ART polynomial',

@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from art_gyro_calibration.fit import Design, TermSpec, centred, fit_model, solve_normal
-from art_gyro_calibration.metrics import Segments, noise_floor
+from art_gyro_calibration.analysis.fit import Design, TermSpec, centred, fit_model, solve_normal
+from art_gyro_calibration.analysis.metrics import Segments, noise_floor
 from art_gyro_calibration.signals import Signals
 
 DEFAULT_FOLDS = 6

@@ -19,8 +19,8 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
-from art_gyro_calibration.loop import LoopResult
-from art_gyro_calibration.metrics import error_metrics
+from art_gyro_calibration.analysis.loop import LoopResult
+from art_gyro_calibration.analysis.metrics import error_metrics
 from art_gyro_calibration.static_bias import static_bias
 
 STAGES = ('uncalibrated', 'art', 'extended')

@@ -1,0 +1,89 @@
+"""The runtime a robot installs needs only the design card's packages; the offline tools need the extra."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+PACKAGE = REPO / 'art_gyro_calibration'
+ANALYSIS_ONLY = ('scipy', 'matplotlib', 'h5py')
+RUNTIME_MODULES = ('node', 'monitor', 'driver', 'frame', 'fake_rd2100', 'compensation', 'calibration',
+                   'static_bias', 'signals', 'terms', 'model', 'log')
+# Imports of the analysis-only packages fail in the child, as on a robot without the extra.
+BLOCK = f'''
+import importlib.abc, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in {ANALYSIS_ONLY!r}:
+            raise ModuleNotFoundError(f'No module named {{name!r}}', name=name)
+sys.meta_path.insert(0, Block())
+'''
+
+
+def _run(code: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, '-c', BLOCK + code], capture_output=True, text=True, timeout=120,
+                          cwd=REPO)
+
+
+def test_runtime_modules_import_without_the_analysis_extra() -> None:
+    """Every runtime module imports with scipy, matplotlib and h5py missing, and pulls in no analysis module."""
+    pytest.importorskip('rclpy')
+    imports = '; '.join(f'import art_gyro_calibration.{m}' for m in RUNTIME_MODULES)
+    done = _run(imports + '; print(sorted(m for m in sys.modules if m.startswith("art_gyro_calibration.analysis")))')
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == '[]'
+
+
+def test_runtime_sources_never_import_the_analysis_subpackage() -> None:
+    """No runtime module names an analysis module or an analysis-only package, even in a function."""
+    for path in sorted(PACKAGE.glob('*.py')):
+        if path.name == '__main__.py':
+            continue   # ``python -m art_gyro_calibration`` is the calibrate command itself
+        for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ''] if isinstance(node, ast.ImportFrom) else [])
+            for name in names:
+                assert not name.startswith('art_gyro_calibration.analysis'), f'{path.name} imports {name}'
+                assert name.split('.')[0] not in ANALYSIS_ONLY, f'{path.name} imports {name}'
+
+
+def test_the_per_sample_path_runs_without_the_extra() -> None:
+    """A compensator with extended terms (filtered signals) and a static bias works on the runtime alone."""
+    done = _run('''
+from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration.compensation import Compensator
+from art_gyro_calibration.signals import compute_signals
+import dataclasses, numpy as np
+from art_gyro_calibration.terms import Term
+cal = dataclasses.replace(load_packaged_calibration('NAVC3545'),
+                          terms=(Term('temperature_rate', 'power', (0.2,), (1,)),))
+c = Compensator(cal)
+errors = [c.error(0.1 * i, 0.0, 20.0 + 0.01 * i) for i in range(100)]
+s = compute_signals(0.1 * np.arange(100), np.zeros(100), 20.0 + 0.01 * np.arange(100))
+assert np.allclose(cal.model.error(s), errors, rtol=0, atol=1e-12)
+print('ok')
+''')
+    assert done.returncode == 0 and done.stdout.strip() == 'ok', done.stderr
+
+
+def test_calibrate_without_the_extra_says_what_to_install() -> None:
+    """``calibrate`` on a robot's runtime install names the missing package and the extra, no traceback."""
+    done = _run('from art_gyro_calibration.analysis.cli import main; sys.exit(main(["simulate", "--help"]))')
+    assert done.returncode == 1
+    assert 'art_gyro_calibration[analysis]' in done.stderr and 'Traceback' not in done.stderr
+
+
+def test_install_metadata_keeps_the_runtime_lean() -> None:
+    """setup.py requires the design card's packages; package.xml's exec_depends name no analysis package."""
+    setup = (REPO / 'setup.py').read_text(encoding='utf-8')
+    requires = setup.split('install_requires=')[1].split(']')[0]
+    assert not [p for p in ANALYSIS_ONLY if p in requires], requires
+    assert "extras_require={'analysis': ['scipy', 'matplotlib', 'h5py']}" in setup
+    manifest = (REPO / 'package.xml').read_text(encoding='utf-8')
+    exec_depends = [line for line in manifest.splitlines() if '<exec_depend>' in line]
+    assert not [line for line in exec_depends if any(p in line for p in ANALYSIS_ONLY)], exec_depends
