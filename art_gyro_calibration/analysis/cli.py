@@ -23,7 +23,7 @@ from art_gyro_calibration.log import LogError, RawLogWriter, read_log, write_col
 from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RATE_SCALE_FACTOR, DEFAULT_SERIAL,
                                                 close_loop)
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
-from art_gyro_calibration.analysis.trace import DEFAULT_BLOCK_S
+from art_gyro_calibration.analysis.trace import DEFAULT_BLOCK_S, DEFAULT_DRAWS
 
 
 def _apply(args: argparse.Namespace) -> int:
@@ -64,7 +64,8 @@ def _fit(args: argparse.Namespace) -> int:
     result = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
                         rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
                         settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
-                        exclude=args.exclude, block_s=args.block_s)
+                        exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
+                        draws=args.draws)
     report = build_report(log, result, args.bias_samples, source=str(args.log))
     found = ', '.join(e.signal for e in result.effects) or 'nothing'
     write_calibration(args.out, result.extended,
@@ -157,7 +158,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help='seconds skipped after each change of table rate (default %(default)s)')
     p.add_argument('--max-effects', type=int, default=DEFAULT_MAX_EFFECTS,
                    help='most effects to add (default %(default)s)')
-    p.add_argument('--seed', type=int, default=0, help='seed of the chance (shifted) scores')
+    p.add_argument('--seed', type=int, default=0, help='seed of the chance scores (phase-randomised residuals)')
+    p.add_argument('--draws', type=_positive_int, default=DEFAULT_DRAWS,
+                   help='chance draws per screen (default %(default)s)')
+    p.add_argument('--materiality', type=float, metavar='DEG_PER_H',
+                   help='smallest effect worth adding, worst case over the logged envelope, deg/h '
+                        '(default: the bias instability of what the ART polynomial leaves)')
     p.add_argument('--exclude', action='append', default=[], metavar='SIGNAL',
                    help='never use this signal or log column as an effect (e.g. one the node will not have); repeat')
     p.add_argument('--block-s', type=float, default=DEFAULT_BLOCK_S,
