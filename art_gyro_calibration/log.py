@@ -11,6 +11,7 @@ A log has a header row and one row per sample:
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import warnings
@@ -87,7 +88,7 @@ def read_log_chunks(path: str | os.PathLike[str], rate_scale_factor: float | Non
     try:
         with open(path, encoding='utf-8-sig') as f:
             header = _header(f, where)
-            units = _units(header, where, rate_scale_factor, temp_scale_factor)
+            convert = _converter(header, where, rate_scale_factor, temp_scale_factor)
             rows = 0        # data rows before this chunk
             lines_read = 1  # lines before this chunk (the header)
             last_t = -math.inf
@@ -102,7 +103,7 @@ def read_log_chunks(path: str | os.PathLike[str], rate_scale_factor: float | Non
                     break
                 data = _parse(lines, header, where, lines_read, rows)
                 if data.shape[0]:
-                    chunk = units(data, last_t, lines, lines_read, rows)
+                    chunk = convert(data, last_t, lines, lines_read, rows)
                     last_t = float(chunk.t[-1])
                     rows += data.shape[0]
                     yield chunk
@@ -137,8 +138,8 @@ def _shown(text: str, limit: int = 120) -> str:
     return repr(text) if len(text) <= limit else f'{text[:limit]!r}... ({len(text)} characters)'
 
 
-def _units(header: list[str], where: str, rate_scale_factor: float | None,
-           temp_scale_factor: float | None) -> Callable[..., GyroLog]:
+def _converter(header: list[str], where: str, rate_scale_factor: float | None,
+               temp_scale_factor: float | None) -> Callable[..., GyroLog]:
     """The function turning a chunk's columns into a checked :class:`GyroLog` in deg/s and degC."""
     index = {name: i for i, name in enumerate(header)}
     if 't' not in index:
@@ -235,9 +236,8 @@ def write_columns(path: str | os.PathLike[str], columns: Mapping[str, NDArray[np
 class CsvWriter:
     """Writes a CSV log chunk by chunk: ``t`` to the microsecond at any epoch, other columns to fixed decimals.
 
-    Numbers are formatted with numpy integer arithmetic (several million rows a second),
-    trailing zeros dropped; a chunk holding a value too large for that (or not finite)
-    is formatted by Python's ``%f`` instead.
+    Numbers are formatted by :func:`format_fixed` with numpy (millions of rows a second),
+    trailing zeros dropped.
     """
 
     def __init__(self, stream: IO[bytes], names: Sequence[str], decimals: int = VALUE_DECIMALS) -> None:
@@ -252,52 +252,76 @@ class CsvWriter:
         rows = len(values[0])
         if not rows:
             return
-        comma = np.full((1, rows), ord(','), np.uint8)
-        parts = []
+        units: list[NDArray[np.uint32]] = []
         for v, d in zip(values, self._decimals):
-            parts += [format_fixed(v, d), comma]
-        parts[-1] = np.full((1, rows), ord('\n'), np.uint8)
-        text = np.concatenate(parts).T.ravel()   # row after row
+            units += format_fixed(v, d)
+            units.append(np.full(rows, _COMMA))
+        units[-1] = np.full(rows, _NEWLINE)
+        text = np.stack(units, axis=1).view(np.uint8).ravel()   # row after row
         self._stream.write(text[text != 0].tobytes())
 
 
-def format_fixed(x: NDArray[np.float64], decimals: int) -> NDArray[np.uint8]:
-    """``x`` as ``%.{decimals}f`` without trailing zeros (nor a ``.`` for whole numbers), as ASCII codes.
+def _as_units(texts: Sequence[str]) -> NDArray[np.uint32]:
+    """Each text (at most 4 ASCII characters) as one 4-byte unit, padded with zero bytes."""
+    return np.frombuffer(b''.join(t.encode().ljust(4, b'\0') for t in texts), np.uint32).copy()
 
-    Shape (characters, values): column ``i`` spells ``x[i]``, padded with zero bytes (to
-    be removed) where it is shorter than the longest.
+
+_ZERO, _POINT, _MINUS, _COMMA, _NEWLINE = _as_units(['\0\0\0' '0', '.', '-', ',', '\n'])
+
+
+@functools.cache
+def _digit_tables() -> tuple[NDArray[np.uint32], NDArray[np.uint32], NDArray[np.uint32]]:
+    """Four digits per unit: all of them, without leading zeros, without trailing zeros (built on first use)."""
+    return (_as_units([f'{i:04d}' for i in range(10000)]),
+            _as_units([f'{i:4d}'.replace(' ', '\0') if i else '' for i in range(10000)]),
+            _as_units([f'{i:04d}'.rstrip('0') for i in range(10000)]))
+
+
+def format_fixed(x: NDArray[np.float64], decimals: int) -> list[NDArray[np.uint32]]:
+    """``x`` as ``%.{decimals}f`` without trailing zeros (nor a ``.`` for whole numbers).
+
+    The text of ``x[i]`` is row ``i`` of the returned columns of 4-byte units read in
+    order, less its zero bytes. Digits come four at a time from tables (a value too large
+    for int64 fixed point, or not finite, is formatted by Python instead).
     """
     scale = 10 ** decimals
     a = np.abs(x)
-    if not np.all(a < 2.0 ** 62 / scale):    # NaN, infinities, or beyond int64's fixed point
-        text = [_fixed(v, decimals) for v in x.tolist()]
-        width = max(map(len, text))
-        return np.frombuffer(''.join(t.ljust(width, '\0') for t in text).encode(), np.uint8).reshape(-1, width).T
+    if not np.all(a < 2.0 ** 62 / scale):
+        text = [_fixed(v, decimals).encode() for v in x.tolist()]
+        width = -(-max(map(len, text)) // 4) * 4
+        matrix = np.frombuffer(b''.join(t.ljust(width, b'\0') for t in text), np.uint32).reshape(len(text), -1)
+        return list(matrix.T)
+    digits, leading, trailing = _digit_tables()
     whole = np.floor(a)
     frac = np.rint((a - whole) * scale).astype(np.int64)   # a - floor(a) is exact
     whole = whole.astype(np.int64)
     carry = frac >= scale
     whole[carry] += 1
     frac[carry] -= scale
-    width = len(str(int(whole.max(initial=0))))
-    out = np.zeros((1 + width + 1 + decimals, len(x)), np.uint8)
-    out[0] = np.where((x < 0) & ((whole > 0) | (frac > 0)), ord('-'), 0)
-    for k in range(width, 0, -1):           # integer digits, last first; leading zeros dropped
-        whole, digit = np.divmod(whole, 10)
-        out[k] = digit
-        out[k] += ord('0')
-        if k < width:
-            out[k][(whole == 0) & (digit == 0)] = 0
-    if decimals:
-        kept = np.zeros(len(x), bool)       # a non-zero digit follows (or is) this one
-        for k in range(width + 1 + decimals, width + 1, -1):   # fraction digits, last first
-            frac, digit = np.divmod(frac, 10)
-            kept |= digit != 0
-            out[k] = digit
-            out[k] += ord('0')
-            out[k][~kept] = 0
-        out[width + 1][kept] = ord('.')     # no fraction: no point either
-    return out
+    units = [np.where((x < 0) & ((whole > 0) | (frac > 0)), _MINUS, 0).astype(np.uint32)]
+    groups = []                                  # four digits each, least significant first
+    for _ in range(max(1, -(-len(str(int(whole.max(initial=0)))) // 4))):
+        whole, group = np.divmod(whole, 10000)
+        groups.append(group)
+    above = np.ones(len(x), bool)                # every group above this one is zero
+    for i, group in enumerate(reversed(groups)):
+        lead = leading[group]
+        if i == len(groups) - 1:
+            lead = np.where(group == 0, _ZERO, lead)   # the units digit is always written
+        units.append(np.where(above, lead, digits[group]))
+        above &= group == 0
+    fraction_groups = -(-decimals // 4)
+    if fraction_groups:
+        frac *= 10 ** (4 * fraction_groups - decimals)
+        units.append(np.where(frac != 0, _POINT, 0).astype(np.uint32))
+        tail = []
+        below = np.ones(len(x), bool)            # every group below this one is zero
+        for _ in range(fraction_groups):
+            frac, group = np.divmod(frac, 10000)
+            tail.append(np.where(below, trailing[group], digits[group]))
+            below &= group == 0
+        units += reversed(tail)
+    return units
 
 
 def _fixed(value: float, decimals: int) -> str:
