@@ -202,7 +202,7 @@ ADEQUACY_BLOCK_S = 600.0
 
 def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s: float,
              materiality_dph: float) -> Adequacy:
-    """The lack-of-fit alarm: do the held-out residual's 10-minute means stay within the noise budget?"""
+    """The lack-of-fit alarm: whether the held-out residual's 10-minute means stay within the noise budget."""
     residual = held_out_residual(binned, specs) / binned.sqrt_counts   # held-out bin means, deg/s
     t = binned.bin_times()
     block = np.floor((t - t[0]) / ADEQUACY_BLOCK_S).astype(np.int64)
