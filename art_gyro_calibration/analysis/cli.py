@@ -24,7 +24,7 @@ from pathlib import Path
 
 from art_gyro_calibration.calibration import (TEMP_SCALE_FACTOR, CalibrationError, find_calibration_file,
                                               load_calibration, write_calibration)
-from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C
+from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, RunStart
 from art_gyro_calibration.log import LogError, RawLogWriter, read_log
 from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RATE_SCALE_FACTOR, DEFAULT_SERIAL,
                                                 close_loop)
@@ -39,10 +39,13 @@ def _apply(args: argparse.Namespace) -> int:
         out = outputs.claim(args.out)
         calibration = load_calibration(args.calibration)
         with open(out, 'wb') as stream:
-            done = apply_to_csv(args.log, calibration, args.bias_samples, stream)
+            done = apply_to_csv(args.log, calibration, args.bias_samples, stream,
+                                start=RunStart(args.powered_on_at_start))
     low, high = PLAUSIBLE_TEMPERATURE_C
     print(f'{args.out}: {done.rows - done.dropped} of {done.rows} rows; {done.dropped} dropped as the node drops '
-          f'them (temperature outside {low:g}..{high:g} degC); {done.bias.describe()}')
+          f'them (temperature outside {low:g}..{high:g} degC); {done.clamped} outside the calibrated range '
+          f'{calibration.temperature_range_c[0]:g}..{calibration.temperature_range_c[1]:g} degC, compensated at '
+          f'its edge; {done.bias.describe()}')
     return 0
 
 
@@ -188,6 +191,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', required=True, help='CSV to write: t,rate_dps,temp_c,comp_dps,corrected_dps')
     p.add_argument('--bias-samples', type=int, default=DEFAULT_SAMPLES,
                    help='rows at rest at the start of the log for the static bias (default %(default)s)')
+    p.add_argument('--powered-on-at-start', action='store_true',
+                   help='the log starts at the gyro\'s power-on, as the node\'s parameter of that name: a warm-up '
+                        'term decays from its first row (otherwise it counts as decayed)')
     _force_option(p)
     p.set_defaults(run=_apply)
 
