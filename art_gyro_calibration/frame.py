@@ -433,12 +433,14 @@ class KvhFogEncoder:
     """Messages of a unit set as ``config`` for samples in deg/s and degC, numbered 0..127 in turn (the fake gyro).
 
     The other two gyros read 0; the accelerometer reads 1 g up the yaw axis (a level unit).
-    The temperature is rounded to what the unit's units carry.
+    The temperature is rounded to what the unit's units carry. ``status`` goes into every
+    message (a test sets it to flag a gyro invalid).
     """
 
     def __init__(self, config: KvhFogConfig) -> None:
         self.config = config
         self.sequence = 0
+        self.status = KVH_STATUS_ALL_VALID
 
     def __call__(self, rate_dps: float, temp_c: float) -> bytes:
         """The next message: ``rate_dps`` about the yaw axis, ``temp_c``."""
@@ -455,7 +457,7 @@ class KvhFogEncoder:
         self.sequence = (sequence + 1) % KVH_SEQUENCE_MODULO
         return encode_kvh_fog((rotation[0], rotation[1], rotation[2]),
                               (acceleration[0], acceleration[1], acceleration[2]),
-                              KVH_STATUS_ALL_VALID, sequence, temperature, config.message_format)
+                              self.status, sequence, temperature, config.message_format)
 
 
 class KvhFogParser(_ChunkParser):
@@ -515,6 +517,7 @@ class KvhFogParser(_ChunkParser):
         while (match := _KVH_HEADER.search(buf, pos)) is not None:
             start = match.start()
             self._skip(start - pos)
+            pos = start
             if buf[start + 3] != fmt.header[3]:
                 reasons[OTHER_FORMAT] += 1
                 stats.bytes_skipped += 4
