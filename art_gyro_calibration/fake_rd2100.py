@@ -179,7 +179,8 @@ class FakeRd2100:
             raise ValueError(f'link {link} exists and is not a symlink: refusing to replace it')
         self.kvh_fog = (dataclasses.replace(kvh_fog or KvhFogConfig(), output_rate_hz=rate_hz)
                         if protocol == KVH_FOG else None)
-        self._encode = make_encoder(protocol, self.kvh_fog)
+        # Public, so that a test can corrupt what follows (a kvh_fog encoder's status byte, say).
+        self.encoder = make_encoder(protocol, self.kvh_fog)
         self.protocol = protocol
         self.rate_hz = rate_hz
         self.link = link
@@ -190,6 +191,8 @@ class FakeRd2100:
             default_noise_dps(rate_hz) if noise_dps is None else noise_dps, seed, turn_on_bias_dps)
         self.sent = 0        # frames written
         self.dropped = 0     # bytes dropped because nobody read them
+        self.lost = 0        # frames made but not sent (drop())
+        self._to_lose = 0
         self.last_sample: tuple[float, float] | None = None
         self._lock = threading.Lock()    # master fd and pending bytes: frames and injections never interleave
         self._master: int | None = None
@@ -269,6 +272,11 @@ class FakeRd2100:
         with self._lock:
             self._write(data)
 
+    def drop(self, frames: int) -> None:
+        """Lose the next ``frames`` frames on the wire: made (and numbered, in kvh_fog) but not sent."""
+        with self._lock:
+            self._to_lose += frames
+
     def _write(self, data: bytes) -> None:
         """Write under the lock; what a slow reader leaves is kept, then dropped past a bound."""
         if self._master is None:
@@ -288,11 +296,11 @@ class FakeRd2100:
         block = max(1, int(self.rate_hz * 0.1))   # simulate 0.1 s at a time: numpy, not per sample
         start = time.monotonic()
         index = 0
-        # A KVH unit sends floats: its samples are the readings themselves, not counts.
-        samples = self.simulator.readings if self.protocol == KVH_FOG else self.simulator.counts
+        kvh = self.protocol == KVH_FOG
         while not self._stop.is_set():
             times = (index + np.arange(block)) * period
-            raw_rates, raw_temps = samples(times)
+            # A KVH unit sends floats: its samples are the readings themselves, not counts.
+            raw_rates, raw_temps = self.simulator.readings(times) if kvh else self.simulator.counts(times)
             for raw_rate, raw_temp in zip(raw_rates.tolist(), raw_temps.tolist()):
                 # Absolute deadlines: sleep jitter does not accumulate into a rate error.
                 delay = start + index * period - time.monotonic()
@@ -301,9 +309,14 @@ class FakeRd2100:
                 elif delay > 0 and self._stop.wait(delay):
                     return
                 with self._lock:
-                    self._write(self._encode(raw_rate, raw_temp))
+                    frame = self.encoder(raw_rate, raw_temp)
                     self.last_sample = (raw_rate, raw_temp)
-                    self.sent += 1
+                    if self._to_lose:
+                        self._to_lose -= 1
+                        self.lost += 1
+                    else:
+                        self._write(frame)
+                        self.sent += 1
                 index += 1
 
     def __enter__(self) -> FakeRd2100:

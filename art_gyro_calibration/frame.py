@@ -392,7 +392,7 @@ class KvhFogConfig:
         return unit, 0.0
 
     def temperature_c(self, value: float) -> float:
-        """degC of a temperature as sent."""
+        """The temperature in degC of a temperature as sent."""
         a, b = self._temperature_scale()
         return a * value + b
 
