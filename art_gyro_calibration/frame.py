@@ -152,7 +152,7 @@ def _int16(value: int) -> int:
 
 
 class _ChunkParser:
-    """What both parsers share: the bytes held between chunks and the statistics."""
+    """What every parser shares: the bytes held between chunks and the statistics."""
 
     def __init__(self, reasons: tuple[str, ...]) -> None:
         self.stats = ParserStats(rejected_by_reason=dict.fromkeys(reasons, 0))
@@ -164,18 +164,11 @@ class _ChunkParser:
         return (self._buffer + data if held else bytes(data)), held
 
 
-class BinaryFrameParser(_ChunkParser):
-    """Incremental parser of 8-byte binary frames.
+class _BinaryChunkParser(_ChunkParser):
+    """What the binary parsers share: bytes between frames are skipped, each run counted once as garbage."""
 
-    Every well-framed window (a top-bit byte then seven clear ones) is a candidate; two
-    candidates cannot overlap, so after a bad checksum the next candidate is the next
-    top-bit byte after the bad one, and a valid frame right after garbage is never lost.
-    """
-
-    frame_bytes = BINARY_FRAME_BYTES
-
-    def __init__(self) -> None:
-        super().__init__((BAD_CHECKSUM, GARBAGE))
+    def __init__(self, reasons: tuple[str, ...]) -> None:
+        super().__init__(reasons + (GARBAGE,))
         self._in_garbage = False
 
     def reset(self) -> None:
@@ -191,6 +184,20 @@ class BinaryFrameParser(_ChunkParser):
         if not self._in_garbage:
             self.stats.rejected_by_reason[GARBAGE] += 1
             self._in_garbage = True
+
+
+class BinaryFrameParser(_BinaryChunkParser):
+    """Incremental parser of 8-byte binary frames.
+
+    Every well-framed window (a top-bit byte then seven clear ones) is a candidate; two
+    candidates cannot overlap, so after a bad checksum the next candidate is the next
+    top-bit byte after the bad one, and a valid frame right after garbage is never lost.
+    """
+
+    frame_bytes = BINARY_FRAME_BYTES
+
+    def __init__(self) -> None:
+        super().__init__((BAD_CHECKSUM,))
 
     def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
         """Parse a chunk; each valid frame with the offset just past its last byte within ``data``."""
@@ -460,7 +467,7 @@ class KvhFogEncoder:
                               self.status, sequence, temperature, config.message_format)
 
 
-class KvhFogParser(_ChunkParser):
+class KvhFogParser(_BinaryChunkParser):
     """Incremental parser of kvh_fog messages of the configured format; samples in deg/s and degC.
 
     A candidate is the format's header and the message's length of bytes from it; a good CRC
@@ -476,33 +483,21 @@ class KvhFogParser(_ChunkParser):
     """
 
     def __init__(self, config: KvhFogConfig) -> None:
-        super().__init__((BAD_CRC, GARBAGE, OTHER_FORMAT, AXIS_INVALID, REPEATED_SEQUENCE, NOT_FINITE,
-                          NO_TEMPERATURE_YET))
+        super().__init__((BAD_CRC, OTHER_FORMAT, AXIS_INVALID, REPEATED_SEQUENCE, NOT_FINITE, NO_TEMPERATURE_YET))
         self.config = config
         fmt = config.format
         self.frame_bytes = fmt.length
         self._format = fmt
         self._axis = config.axis_index
         self._dps_per_unit = config.dps_per_unit
-        self._in_garbage = False
         self._last_sequence: int | None = None
         self._temp_c: float | None = None   # Format C: the latest temperature
 
     def reset(self) -> None:
         """Drop a partly received message; the sequence and held temperature restart; statistics are kept."""
-        self._skip(len(self._buffer))
-        self._buffer = b''
-        self._in_garbage = False
+        super().reset()
         self._last_sequence = None
         self._temp_c = None
-
-    def _skip(self, count: int) -> None:
-        if count <= 0:
-            return
-        self.stats.bytes_skipped += count
-        if not self._in_garbage:
-            self.stats.rejected_by_reason[GARBAGE] += 1
-            self._in_garbage = True
 
     def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
         """Parse a chunk; each valid message with the offset just past its last byte within ``data``."""

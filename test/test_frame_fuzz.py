@@ -23,6 +23,8 @@ import struct
 
 from hypothesis import given, strategies as st
 
+from test_frame import crc32_mpeg2_bitwise
+
 from art_gyro_calibration.frame import (INT16_MAX, INT16_MIN, KVH_HEADER_PREFIX, MAX_LINE_BYTES, AsciiFrameParser,
                                         BinaryFrameParser, KvhFogConfig, KvhFogParser, crc32_mpeg2, encode_ascii,
                                         encode_binary, encode_kvh_fog)
@@ -130,16 +132,6 @@ def test_ascii_line_after_a_line_break_is_found(prefix, raw_rate, raw_temp, suff
 # Messages with any sequence number and status (so gaps, repeats and invalid flags all occur),
 # messages with a bit flipped, cut short, of another format, and noise, cut into any chunks: the
 # parser must give what the slow, obvious reading of the manual gives.
-
-def crc32_mpeg2_bitwise(data: bytes) -> int:
-    """CRC-32/MPEG-2 a bit at a time, from its definition."""
-    crc = 0xFFFFFFFF
-    for byte in data:
-        crc ^= byte << 24
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x04C11DB7 if crc & 0x80000000 else crc << 1) & 0xFFFFFFFF
-    return crc
-
 
 @given(st.binary(max_size=300))
 def test_kvh_crc_matches_the_bitwise_definition(data):
