@@ -510,7 +510,9 @@ class GyroNode(Node):
             level = DiagnosticStatus.ERROR
             parts.append(f'{dropped} frames since the last report claimed a temperature outside '
                          f'{PLAUSIBLE_TEMPERATURE_C[0]:g}..{PLAUSIBLE_TEMPERATURE_C[1]:g} degC and were dropped: '
-                         'corrupt frames, or the temperature field is not m[3]:m[4] on this unit')
+                         'corrupt frames, or ' + ('kvh_fog.temperature_units is not what the unit sends'
+                                                  if self.settings.protocol == KVH_FOG
+                                                  else 'the temperature field is not m[3]:m[4] on this unit'))
         return self._status('temperature', level, '; '.join(parts), values)
 
     # --- shutdown ------------------------------------------------------------------------

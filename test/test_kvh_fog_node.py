@@ -131,6 +131,21 @@ def test_calibrate_fit_makes_a_kvh_fog_calibration_from_a_log_in_deg_s(tmp_path:
     assert np.sqrt(np.mean((out['corrected_dps'] - table.rate_at(t)) ** 2)) < 0.01
 
 
+def test_node_says_when_the_temperature_units_do_not_match_the_unit(tmp_path: Path, loopback: None) -> None:
+    """The unit sends hundredths of a degree, the node is told degrees: 2500 degC is dropped, and the hint names it."""
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    with (FakeRd2100(EXAMPLE, protocol='kvh_fog', rate_hz=RATE_HZ, temperature=25.0,
+                     kvh_fog=KvhFogConfig(temperature_units='C_100')) as fake,
+          node_with_listener(domain, output, '--params-file', str(REPO / 'config' / 'kvh_fog.params.yaml'),
+                             '-p', f'port:={fake.path}', '-p', f'kvh_fog.output_rate_hz:={RATE_HZ}')
+          as (proc, listener)):
+        status = listener.wait_status('temperature', lambda s: s['level'] == b'\x02', 'the temperature error',
+                                      proc, output)
+        assert 'kvh_fog.temperature_units is not what the unit sends' in status['message'], status['message']
+        assert int(status['frames_implausible_temperature']) > 0 and listener.count() == 0
+
+
 @pytest.mark.parametrize('args, message', [
     (['-p', 'protocol:=kvh_fog', '-p', 'serial_number:=NAVC3545'],
      'parameter protocol is kvh_fog, whose samples are deg/s and degC, but the calibration of NAVC3545'),
