@@ -3,20 +3,11 @@
 import threading
 import time
 
+from test_driver import wait_for
+
 from art_gyro_calibration.driver import BITS_PER_BYTE, Frame, Rd2100Driver
 from art_gyro_calibration.fake_rd2100 import FakeRd2100
 from art_gyro_calibration.frame import KvhFogConfig
-
-TIMEOUT_S = 10.0
-
-
-def wait_for(predicate, timeout_s=TIMEOUT_S):
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 def test_driver_reads_kvh_fog_counts_lost_frames_and_stamps_with_the_message_length():
