@@ -46,7 +46,8 @@ DEFAULT_MATERIALITY = 0.03
 # A shift is a fair draw of chance only if the shifted candidate does not resemble the
 # candidate itself (or its negative): a periodic chamber cycle would otherwise shift onto itself.
 MAX_SELF_CORRELATION = 0.3
-TIME_CONSTANT_GRID_SIZE = 6
+TIME_CONSTANT_GRID_SIZE = 8
+MAX_TIME_CONSTANT_RUNS = 4.0
 # Self-correlation of a candidate is judged on at most this many block means (cheap FFTs).
 SELF_CORRELATION_POINTS = 4096
 MIN_TIME_CONSTANT_S = 30.0
@@ -57,8 +58,8 @@ def candidate_specs(signals: Signals, rows: int, columns: int,
     """Per candidate signal, the term shapes to try (several only for a warm-up's time constant).
 
     temperature: the next power ``T**rows``; rate: the next power ``r**columns``;
-    time: ``exp(-t/tau)`` over a log grid of tau from 30 s to an eighth of the run (a warm-up
-    must decay within the run to be told apart from a drift); angle: once-per-turn harmonic;
+    time: a linear drift ``t``, or ``exp(-t/tau)`` over a log grid of tau from 30 s to four runs;
+    angle: once-per-turn harmonic;
     everything else (temperature_rate, rate_abs, rate_sign, rate_change, extra columns): linear.
     """
     duration = float(signals.t[-1] - signals.t[0]) if len(signals) else 0.0
@@ -71,9 +72,11 @@ def candidate_specs(signals: Signals, rows: int, columns: int,
         elif name == 'rate':
             out[name] = [TermSpec(name, 'power', (columns,))]
         elif name == 'time':
-            taus = np.geomspace(MIN_TIME_CONSTANT_S, max(duration / 8, 2 * MIN_TIME_CONSTANT_S),
+            # A linear drift, or a warm-up decaying from 30 s to several times the run (a long one
+            # is a slow drift that levels off); each fold picks the shape its training blocks prefer.
+            taus = np.geomspace(MIN_TIME_CONSTANT_S, max(MAX_TIME_CONSTANT_RUNS * duration, 2 * MIN_TIME_CONSTANT_S),
                                 TIME_CONSTANT_GRID_SIZE)
-            out[name] = [TermSpec(name, 'exp_decay', (), float(tau)) for tau in taus]
+            out[name] = [TermSpec(name, 'power', (1,))] + [TermSpec(name, 'exp_decay', (), float(tau)) for tau in taus]
         elif name == 'angle':
             out[name] = [TermSpec(name, 'harmonic')]
         else:
@@ -317,7 +320,7 @@ def _score(screen: Screen, signal: str, variants: Sequence[TermSpec], shifts: in
     real, null = improvement[0], improvement[1:]
     if null.size < min(shifts, 9):
         null = np.array([np.inf])  # too few fair shifts: chance cannot be measured, so nothing is claimed
-    spec = variants[0] if len(variants) == 1 else _best_time_constant(screen, variants)
+    spec = variants[0] if len(variants) == 1 else _best_variant(screen, variants)
     significant = bool(real > null.max() and real > materiality * floor_var)
     return CandidateScore(signal, spec, float(real), float(null.mean()), float(null.std()),
                           float(null.max()), float(real / floor_var), significant)
@@ -355,9 +358,15 @@ def held_out_rms(rows: Binned, specs: Sequence[TermSpec] = ()) -> float:
     return float(np.sqrt(screen.base_sse() / screen.rows_total))
 
 
-def _best_time_constant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
-    """The grid's best time constant on all the data, refined by golden-section search in log(tau)."""
+def _best_variant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
+    """The best variant on all the data; a time constant is refined by golden-section search in log(tau)."""
     sse = [screen.training_sse(v) for v in variants]
+    best = int(np.argmin(sse))
+    if variants[best].form != 'exp_decay':
+        return variants[best]
+    decays = [(s, v) for s, v in zip(sse, variants) if v.form == 'exp_decay']
+    sse = [s for s, _ in decays]
+    variants = [v for _, v in decays]
     i = int(np.argmin(sse))
     taus = [v.time_constant_s for v in variants]
     lo, hi = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, len(taus) - 1)])
