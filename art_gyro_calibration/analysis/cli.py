@@ -319,7 +319,7 @@ def _positive_int(text: str) -> int:
 
 
 # What the offline tools need beyond the node's runtime: the pip extra "analysis".
-ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'h5py')
+ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl')
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -332,7 +332,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         # A robot's install has the node's runtime only: say what to add instead of a traceback.
         print(f'calibrate: error: the offline tools need {e.name}, which this installation lacks: '
-              'pip install "art_gyro_calibration[analysis]" (scipy, matplotlib, h5py)', file=sys.stderr)
+              'pip install "art_gyro_calibration[analysis]" (scipy, matplotlib, h5py, threadpoolctl)', file=sys.stderr)
         return 1
     except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:
         print(f'calibrate {args.command}: error: {e}', file=sys.stderr)

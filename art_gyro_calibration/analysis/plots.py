@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from collections.abc import Callable
 from pathlib import Path
 
@@ -24,7 +25,6 @@ from numpy.typing import NDArray  # noqa: E402
 from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.analysis.loop import LoopResult  # noqa: E402
 from art_gyro_calibration.analysis.metrics import heading_errors_360  # noqa: E402
-from art_gyro_calibration.model import ErrorModel  # noqa: E402
 from art_gyro_calibration.analysis.report import STAGES, stage_errors  # noqa: E402
 
 BAND_C = 10.0
@@ -103,19 +103,20 @@ def _residual(result: LoopResult, i: int, path: Path) -> Path:
     """What the extended model less term ``i`` leaves, against the term's signal, binned."""
     model = result.extended.model
     effect = result.effects[i]
-    without = ErrorModel(model.polynomial, model.terms[:i] + model.terms[i + 1:])
+    without = replace(model, terms=model.terms[:i] + model.terms[i + 1:])
     rows = result.segments.rows()
     x = result.signals.for_term(effect.term)[rows]
     partial = (result.error - without.error(result.signals))[rows]
+    # The term on the same samples (a term with rate powers is no curve of its signal alone).
+    term = model.term_error(effect.term, result.signals)[rows]
     order = np.argsort(x, kind='stable')
     chunks = np.array_split(order, min(60, len(order)))
     bx = np.array([x[c].mean() for c in chunks])
     by = np.array([partial[c].mean() for c in chunks])
-    grid = np.linspace(x.min(), x.max(), 200)
+    bt = np.array([term[c].mean() for c in chunks])
     fig, ax = plt.subplots(figsize=(7, 4.5))
     ax.plot(bx, by, 'o', ms=4, label='residual of the model without this term (binned means)')
-    term = effect.term.evaluate(grid)
-    ax.plot(grid, term - term.mean() + by.mean(), '-', label=effect.term.describe())
+    ax.plot(bx, bt - bt.mean() + by.mean(), '-', label=effect.term.describe())
     ax.set_xlabel(effect.signal)
     ax.set_ylabel('residual (deg/s)')
     ax.set_title(f'traced effect: {effect.signal}')
