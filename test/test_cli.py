@@ -46,7 +46,14 @@ def test_fit_writes_calibration_report_and_plots(fitted):
     assert report['noise_floor_dps'] > 0
     assert (fitted / 'REPORT.md').read_text().startswith('# Calibration of NAVC4058')
     pngs = sorted(p.name for p in (fitted / 'plots').glob('*.png'))
-    assert pngs == ['error-vs-rate.png', 'heading-360.png', 'residual-temperature_rate.png']
+    assert pngs == ['error-vs-rate.png', 'heading-360.png', 'residual-temperature_rate.png', 'residual-vs-signals.png']
+    # The loop's statistics in physical units, the alarm, and the forms tried.
+    assert report['model_adequate'] is True and report['adequacy']['budget_dph'] > 0
+    assert report['materiality_dph'] == pytest.approx(report['bias_instability_dph'])
+    shupe = report['effects'][0]
+    assert 0 < shupe['p_value'] <= 0.05 and shupe['effect_dph'] > report['materiality_dph']
+    assert {'temperature_lag', 'time_since_power_on', 'rate_x_temperature_rate'} <= set(report['forms_tried'])
+    assert report['screens'][0]['draws'] == 200 and report['findings_not_written'] == []
     assert all((fitted / 'plots' / p).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' for p in pngs)
 
 
@@ -104,7 +111,7 @@ def test_excluded_signal_is_not_used(fitted):
                  '--exclude', 'temperature_rate', '--max-effects', '1',
                  '--out', str(d / 'X.yaml'), '--report', str(d / 'X.json')]) == 0
     report = json.loads((d / 'X.json').read_text())
-    assert all(c['signal'] != 'temperature_rate' for screen in report['screens'] for c in screen)
+    assert all(c['signal'] != 'temperature_rate' for screen in report['screens'] for c in screen['candidates'])
 
 
 def test_python_dash_m_is_calibrate():

@@ -87,6 +87,11 @@ def _fit(args: argparse.Namespace) -> int:
                             exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
                             draws=args.draws, from_power_on=not args.not_from_power_on)
         report = build_report(log, result, args.bias_samples, source=str(args.log))
+        if not report['model_adequate']:
+            adequacy = report['adequacy']
+            print(f'calibrate fit: warning: the model does not fit: {adequacy["excess_dph"]:.2f} deg/h beyond the '
+                  'noise budget, held out, over 10-minute means; see REPORT.md and the residual against each '
+                  'signal (--plots)', file=sys.stderr)
         calibration, found = result.extended, ', '.join(e.signal for e in result.effects) or 'nothing'
         if args.validate:
             calibration, found = _validate(args, result, report, found)

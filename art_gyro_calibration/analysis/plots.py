@@ -48,7 +48,39 @@ def plot_all(log: GyroLog, result: LoopResult, bias_samples: int, out_dir: str |
              _heading_360(errors, result, out / f'{prefix}heading-360.png')]
     for i, effect in enumerate(result.effects):
         paths.append(_residual(result, i, out / f'{prefix}residual-{effect.signal}.png'))
+    paths.append(_residual_vs_signals(result, out / f'{prefix}residual-vs-signals.png'))
     return paths
+
+
+# The signals a person checks what the final model leaves against (and every extra column of the log).
+LOOK_AT = ('temperature', 'temperature_rate', 'time', 'rate', 'rate_change', 'angle')
+
+
+def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
+    """What the final model leaves against each signal, binned: where the lack-of-fit alarm sends a person."""
+    rows = result.segments.rows()
+    residual = (result.error - result.extended.model.error(result.signals))[rows] * 3600.0
+    names = [*LOOK_AT, *result.signals.extras]
+    fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7), squeeze=False)
+    for ax, name in zip(axes.ravel(), names):
+        x = result.signals.get(name)[rows]
+        order = np.argsort(x, kind='stable')
+        chunks = np.array_split(order, min(40, len(order)))
+        ax.plot([x[c].mean() for c in chunks], [residual[c].mean() - residual.mean() for c in chunks], 'o-', ms=3)
+        ax.axhline(0.0, color='grey', lw=0.8)
+        ax.set_xlabel(name)
+        ax.grid(True, alpha=0.3)
+    for ax in axes.ravel()[len(names):]:
+        ax.set_visible(False)
+    for ax in axes[:, 0]:
+        ax.set_ylabel('residual, binned (deg/h)')
+    adequacy = result.adequacy
+    verdict = '' if adequacy is None else (' (adequate)' if adequacy.model_adequate else ' (DOES NOT FIT)')
+    fig.suptitle(f'what the final model leaves, against each signal{verdict}')
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
 
 
 def _per_stage(path: Path, ylabel: str, draw: Callable[[plt.Axes, str], None]) -> Path:
