@@ -201,9 +201,10 @@ def test_apply_never_overwrites_its_input_and_asks_before_replacing(fitted, tmp_
     _raw_log(log, 1000)
     original = log.read_bytes()
     (tmp_path / 'link.csv').symlink_to(log)
+    os.link(log, tmp_path / 'hard.csv')
     (tmp_path / 'sub').mkdir()
     cal = str(fitted / 'CAL.yaml')
-    for out in (log, tmp_path / 'link.csv', tmp_path / 'sub' / '..' / 'log.csv', cal):
+    for out in (log, tmp_path / 'link.csv', tmp_path / 'hard.csv', tmp_path / 'sub' / '..' / 'log.csv', cal):
         for force in ([], ['--force']):
             assert main(['apply', str(log), '--calibration', cal, '--out', str(out), *force]) == 1
             assert 'is the input' in capsys.readouterr().err
