@@ -46,7 +46,7 @@ from std_srvs.srv import Trigger
 
 from art_gyro_calibration.calibration import (Calibration, CalibrationError, find_calibration_file,
                                               from_parameters, load_calibration)
-from art_gyro_calibration.compensation import Compensator
+from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, Compensator, RunStart, plausible
 from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver
 from art_gyro_calibration.frame import PROTOCOLS
 from art_gyro_calibration.log import RawLogWriter
@@ -60,10 +60,6 @@ UNMEASURED_VARIANCE = 1.0e6
 DIAGNOSTICS_PERIOD_S = 1.0
 # A static bias collection with no frame for this long has lost its gyro: it is abandoned.
 COLLECTION_STALL_S = 5.0
-# A frame claiming a temperature outside what any electronics survives is corrupt (its 8-bit
-# checksum passed by luck) or the temperature field is not where this package assumes it: at
-# +-1600 degC the polynomial alone would add 70-80 deg/s, so such a frame is dropped and counted.
-PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
 # Parameters whose presence means the calibration comes in as parameters (--params-file).
 CALIBRATION_KEYS = ('rate_scale_factor', 'polynomial.rows', 'polynomial.columns', 'polynomial.coefficients')
 
@@ -84,6 +80,9 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
                                                      'deg/s) exceeds this is refused: the gyro was moving.'),
     'yaw_rate_stddev': (0.001, 'Standard deviation of the compensated yaw rate (rad/s); its square is '
                                'angular_velocity_covariance[8].'),
+    'powered_on_at_start': (False, 'The gyro was switched on with the node (a cold start): a warm-up term of the '
+                                   'calibration then decays from the node\'s first frame. Otherwise (the default, '
+                                   'safe on a warm restart) a warm-up term counts as decayed.'),
     'log_path': ('', 'If set, every received frame is appended as t,raw_rate,raw_temp: a file to create '
                      '(must not exist) or a directory, where <serial>_<UTC time>.csv is created.'),
 }
@@ -107,6 +106,7 @@ class Settings:
     static_bias_max_mean_dps: float
     static_bias_max_std_dps: float
     yaw_rate_stddev: float
+    powered_on_at_start: bool
     log_path: str
 
 
@@ -195,7 +195,7 @@ class GyroNode(Node):
         self.settings = check_settings({name: self._declare(name, default, description)
                                         for name, (default, description) in PARAMETERS.items()})
         self.calibration, self.calibration_source = self._load_calibration(params_files(argv))
-        self._compensator = Compensator(self.calibration)
+        self._compensator = Compensator(self.calibration, RunStart(self.settings.powered_on_at_start))
         self._lock = threading.Lock()
         self._closing = threading.Event()
         self._collection: _Collection | None = None
@@ -307,14 +307,14 @@ class GyroNode(Node):
         t = stamp_ns * 1e-9
         if self._log is not None:
             self._log.write(t, sample.raw_rate, sample.raw_temp)   # the log keeps what the wire said
-        if not PLAUSIBLE_TEMPERATURE_C[0] <= temp_c <= PLAUSIBLE_TEMPERATURE_C[1]:
+        if not plausible(temp_c):
             self._implausible += 1
             return
         error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals
         collection = self._collection
         if collection is not None:
             collection.last_sample = time.monotonic()
-            if collection.collector.add(rate_dps, error_dps):
+            if collection.collector.add(rate_dps, error_dps, t, temp_c, compensator.last_causal_dps):
                 self._finish_collection(collection)
         imu = self._imu
         imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
@@ -341,7 +341,7 @@ class GyroNode(Node):
             if self._collection is None:
                 self._collection = _Collection(StaticBiasCollector(
                     self.settings.bias_samples, self.settings.static_bias_max_mean_dps,
-                    self.settings.static_bias_max_std_dps))
+                    self.settings.static_bias_max_std_dps, keep_window=self._compensator.refinable))
                 self.get_logger().info(f'static bias: collecting {self.settings.bias_samples} samples; '
                                        'keep the gyro still')
             return self._collection
