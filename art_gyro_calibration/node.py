@@ -48,7 +48,7 @@ from art_gyro_calibration.calibration import (Calibration, CalibrationError, fin
                                               from_parameters, load_calibration)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, Compensator, RunStart, plausible
 from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver
-from art_gyro_calibration.frame import PROTOCOLS
+from art_gyro_calibration.frame import AXIS_INVALID, KVH_FOG, PROTOCOLS, KvhFogConfig
 from art_gyro_calibration.log import RawLogWriter
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES,
                                               MotionError, StaticBias, StaticBiasCollector)
@@ -87,9 +87,34 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
                      '(must not exist) or a directory, where <serial>_<UTC time>.csv is created.'),
 }
 
+# --- protocol kvh_fog (KVH DSP-1750/1760, 1725/1750/1775) ------------------------------------------
+# What the unit is set to send, which its messages do not say: name: (default, description). Declared
+# and checked at startup whatever the protocol; read by the kvh_fog parser only. Defaults: the manuals'.
+_KVH_FOG_DESCRIPTIONS = {
+    'message_format': 'kvh_fog message format (=OUTPUTFMT): A (36 bytes, the default), B (40) or C (38).',
+    'yaw_axis': 'kvh_fog axis that points up on the robot: x, y or z, or -x, -y, -z if it points down.',
+    'rotation': 'kvh_fog rotation output (=ROTFMT): delta_angle (the default) or rate.',
+    'angle_units': 'kvh_fog angle units (=ROTUNITS): rad (the default) or deg.',
+    'output_rate_hz': 'kvh_fog messages per second (=DR); a delta angle times it is the rate.',
+    'temperature_units': 'kvh_fog temperature units (=TEMPUNITS): C (the default), C_100, F or F_100.',
+}
+KVH_FOG_PARAMETERS: dict[str, tuple[Any, str]] = {
+    f'kvh_fog.{name}': (getattr(KvhFogConfig(), name), description)
+    for name, description in _KVH_FOG_DESCRIPTIONS.items()}
+
 
 class ParameterError(ValueError):
     """A node parameter that cannot be used, named in the message."""
+
+
+def check_kvh_fog_calibration(calibration: Calibration, source: str) -> None:
+    """Refuse for protocol kvh_fog a calibration whose scale factors are not 1.0 (its samples are deg/s, degC)."""
+    if calibration.rate_scale_factor != 1.0 or calibration.temp_scale_factor != 1.0:
+        raise ParameterError(
+            f'parameter protocol is {KVH_FOG}, whose samples are deg/s and degC, but the calibration of '
+            f'{calibration.serial_number} from {source} has rate_scale_factor {calibration.rate_scale_factor} and '
+            f'temp_scale_factor {calibration.temp_scale_factor}: both must be 1.0 '
+            '(config/KVH_DSP1760_EXAMPLE.yaml is an example)')
 
 
 @dataclass(frozen=True)
@@ -194,7 +219,10 @@ class GyroNode(Node):
         super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True)
         self.settings = check_settings({name: self._declare(name, default, description)
                                         for name, (default, description) in PARAMETERS.items()})
+        self.kvh_fog = self._kvh_fog_config()
         self.calibration, self.calibration_source = self._load_calibration(params_files(argv))
+        if self.settings.protocol == KVH_FOG:
+            check_kvh_fog_calibration(self.calibration, self.calibration_source)
         self._compensator = Compensator(self.calibration, RunStart(self.settings.powered_on_at_start))
         self._lock = threading.Lock()
         self._closing = threading.Event()
@@ -212,6 +240,7 @@ class GyroNode(Node):
         self._implausible = 0
         self._implausible_reported = 0
         self._rate_window = (time.monotonic(), 0)
+        self._lost_reported = self._invalid_reported = 0   # kvh_fog: as of the last diagnostics
         self._log: RawLogWriter | None = None
         if self.settings.log_path:
             self._open_log(self.settings.log_path)
@@ -240,7 +269,7 @@ class GyroNode(Node):
             f'calibration loaded: {self.calibration.serial_number} from {self.calibration_source}; '
             f'reading {self.settings.port} at {self.settings.baud} baud ({self.settings.protocol})')
         self._driver = Rd2100Driver(self.settings.port, self.settings.baud, self.settings.protocol,
-                                    self._on_frame, on_link=self._on_link)
+                                    self._on_frame, on_link=self._on_link, kvh_fog=self.kvh_fog)
         self._driver.start()
 
     # --- startup -------------------------------------------------------------------------
@@ -256,6 +285,14 @@ class GyroNode(Node):
         # Read-only: the node reads them once at startup, so a later change is refused, not ignored.
         return self.declare_parameter(name, value, ParameterDescriptor(description=description, read_only=True),
                                       ignore_override=True).value
+
+    def _kvh_fog_config(self) -> KvhFogConfig:
+        values = {name.removeprefix('kvh_fog.'): self._declare(name, default, description)
+                  for name, (default, description) in KVH_FOG_PARAMETERS.items()}
+        try:
+            return KvhFogConfig(**values)
+        except ValueError as e:
+            raise ParameterError(f'parameter {e}') from None
 
     def _load_calibration(self, files: Sequence[str]) -> tuple[Calibration, str]:
         serial = self.settings.serial_number
@@ -397,7 +434,8 @@ class GyroNode(Node):
 
     def _status(self, name: str, level: bytes, message: str, values: dict[str, Any]) -> DiagnosticStatus:
         return DiagnosticStatus(level=level, name=f'{self.get_name()}: {name}', message=message,
-                                hardware_id=f'KVH RD2100 {self.calibration.serial_number}',
+                                hardware_id=f'KVH {"FOG" if self.settings.protocol == KVH_FOG else "RD2100"} '
+                                            f'{self.calibration.serial_number}',
                                 values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
 
     def _link_status(self) -> DiagnosticStatus:
@@ -409,13 +447,22 @@ class GyroNode(Node):
         values: dict[str, Any] = {
             'port': stats.port, 'connected': stats.connected, 'reopens': stats.reopens,
             'last_error': stats.last_error, 'frame_rate_hz': f'{rate_hz:.2f}', 'frames': stats.frames,
-            'rejected': stats.rejected, 'bytes_skipped': stats.bytes_skipped, 'published': self._published}
+            'rejected': stats.rejected, 'bytes_skipped': stats.bytes_skipped, 'published': self._published,
+            'lost_frames': stats.lost_frames}
         for reason, count in stats.rejected_by_reason.items():
             values[f'rejected_{reason}'] = count
+        # kvh_fog: frames the gyro numbered but that never came, and frames it flagged invalid, since the last report.
+        invalid = stats.rejected_by_reason.get(AXIS_INVALID, 0)
+        lost, self._lost_reported = stats.lost_frames - self._lost_reported, stats.lost_frames
+        flagged, self._invalid_reported = invalid - self._invalid_reported, invalid
         if not stats.connected:
             return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
         if rate_hz == 0.0:
             return self._status('link', DiagnosticStatus.WARN, 'connected, no frames', values)
+        if lost or flagged:
+            return self._status('link', DiagnosticStatus.WARN,
+                                f'connected, {rate_hz:.1f} Hz; since the last report {lost} frames lost (sequence '
+                                f'gaps), {flagged} flagged invalid by the gyro', values)
         return self._status('link', DiagnosticStatus.OK, f'connected, {rate_hz:.1f} Hz', values)
 
     def _bias_status(self) -> DiagnosticStatus:
@@ -463,7 +510,9 @@ class GyroNode(Node):
             level = DiagnosticStatus.ERROR
             parts.append(f'{dropped} frames since the last report claimed a temperature outside '
                          f'{PLAUSIBLE_TEMPERATURE_C[0]:g}..{PLAUSIBLE_TEMPERATURE_C[1]:g} degC and were dropped: '
-                         'corrupt frames, or the temperature field is not m[3]:m[4] on this unit')
+                         'corrupt frames, or ' + ('kvh_fog.temperature_units is not what the unit sends'
+                                                  if self.settings.protocol == KVH_FOG
+                                                  else 'the temperature field is not m[3]:m[4] on this unit'))
         return self._status('temperature', level, '; '.join(parts), values)
 
     # --- shutdown ------------------------------------------------------------------------

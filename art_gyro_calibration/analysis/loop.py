@@ -25,13 +25,16 @@ from art_gyro_calibration.terms import Term
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_DRAWS,
                                                  DEFAULT_FOLDS, DEG_PER_H_PER_DPS, Binned, CandidateScore, Screen,
-                                                 TraceResult, held_out_residual, trace_residual)
+                                                 TraceResult, held_out_residual, joined, trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
 # Most RD2100s read 0.00305 deg/s per count (report, section 1).
 DEFAULT_RATE_SCALE_FACTOR = 0.00305
 # Signals computed from the measured rate alone.
-RATE_SIGNALS = ('rate', 'rate_abs', 'rate_sign', 'rate_change', 'angle')
+RATE_SIGNALS = ('rate', 'rate_abs', 'rate_sign', 'rate_change', 'angle', 'rate_x_temperature',
+                'rate_x_temperature_rate')
+# Effects of the heading: found and reported, never written into a calibration.
+HEADING_SIGNALS = ('angle',)
 DEFAULT_SERIAL = 'UNSPECIFIED'
 # Signals whose linear term may grow a square when the held-out error says so; the others
 # would duplicate the polynomial (rate_abs**2 = rate**2) or a constant (rate_sign**2).
@@ -88,6 +91,7 @@ class LoopResult:
     materiality_dph: float = 0.0
     bias_instability_dph: float = 0.0
     adequacy: Adequacy | None = None
+    findings: tuple[Effect, ...] = ()   # effects found but not written (heading: the node has no absolute heading)
 
 
 def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DEFAULT_SERIAL,
@@ -96,7 +100,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
                max_effects: int = DEFAULT_MAX_EFFECTS, folds: int = DEFAULT_FOLDS,
                draws: int = DEFAULT_DRAWS, alpha: float = DEFAULT_ALPHA, bin_s: float = DEFAULT_BIN_S,
                materiality_dph: float | None = None, seed: int = 0,
-               exclude: Sequence[str] = (), block_s: float = DEFAULT_BLOCK_S) -> LoopResult:
+               exclude: Sequence[str] = (), block_s: float = DEFAULT_BLOCK_S,
+               from_power_on: bool = True) -> LoopResult:
     """Fit -> trace -> extend -> repeat on a rate-table ``log`` (it needs ``ref_rate``).
 
     ``rate_scale_factor`` and ``temp_scale_factor`` only go into the calibrations
@@ -106,7 +111,10 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     shortest held-out block of time; each round lengthens it to the correlation time of
     what the model leaves (a real gyro's bias wanders for hours). An effect must reach
     ``materiality_dph`` over the logged envelope; by default the bias instability of what
-    the ART polynomial leaves (the floor of its Allan deviation).
+    the ART polynomial leaves (the floor of its Allan deviation). ``from_power_on``: the log
+    starts at the gyro's power-on (a warm-up is a candidate only then). A heading effect
+    is fitted against the angle of the rate the ART polynomial corrects, and reported in
+    ``findings``, never written: the node has no absolute heading.
     """
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: fitting needs the rate table\'s true rate')
@@ -114,13 +122,16 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
             raise LogError(f'column {name} is not a finite number at row {bad[0] + 1}')
-    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters)
+    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters, powered_on_at_start=from_power_on)
     error = log.rate_dps - log.ref_rate
     segments = steady_segments(log.t, log.ref_rate, settle_s)
     index = segments.rows()
     if index.size == 0:
         raise LogError('the log has no steady segments of constant ref_rate to fit')
     art_fit = fit_model(signals, error, rows, columns, (), index)
+    # The heading is the integral of what the gyro reads once corrected (one more pass), not of the raw
+    # reading, whose polynomial error and turn-on bias add hundreds of degrees in hours.
+    signals = replace(signals, angle_rate=log.rate_dps - art_fit.model.error(signals))
     residual = np.zeros(len(error))
     residual[index] = art_fit.residual
     floor = noise_floor(residual, segments)
@@ -132,23 +143,30 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     instability_dph = bias_instability_dph(Screen(binned).residual() / binned.sqrt_counts, bin_s)
     materiality = instability_dph if materiality_dph is None else materiality_dph
     options = dict(draws=draws, alpha=alpha, bin_s=bin_s, materiality_dph=materiality, seed=seed,
-                   noise_floor_dps=floor, exclude=[*exclude, *(RATE_SIGNALS if still else ())], binned=binned)
+                   noise_floor_dps=floor, binned=binned, still=still)
+    excluded = [*exclude, *(RATE_SIGNALS if still else ())]
     specs: list[TermSpec] = []
     rounds: list[TraceResult] = []
     scores: list[CandidateScore] = []
-    while len(specs) < max_effects:
+    while len(rounds) < max_effects:
         # Held-out blocks at least as long as what the current model leaves stays correlated:
         # shorter ones share a slow residual with their neighbours, and any slow signal seems to predict it.
         current = art_fit if not specs else fit_model(signals, error, rows, columns, specs, index)
         residual[index] = current.residual
         binned.refold(max(block_s, correlation_time_s(signals.t, residual, segments)))
-        found = trace_residual(signals, error, segments, rows, columns, specs, **options)
+        found = trace_residual(signals, error, segments, rows, columns, specs,
+                               exclude=excluded + [s.signal for s in scores], **options)
         rounds.append(found)
         best = found.best
         if best is None:
             break
-        specs.append(best.spec)
-        scores.append(best)
+        same = [i for i, spec in enumerate(specs) if spec.signal == best.spec.signal]
+        if same:   # one term per signal in a calibration file: a second form on it joins the first
+            specs[same[0]] = joined(specs[same[0]], best.spec)
+            scores[same[0]] = best
+        else:
+            specs.append(best.spec)
+            scores.append(best)
     # A square is judged once every effect is in the model, so it cannot stand in for one not yet found.
     specs = [_maybe_square(spec, binned, specs[:i] + specs[i + 1:], materiality)
              for i, spec in enumerate(specs)]
@@ -165,16 +183,21 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     final = fit_model(signals, error, rows, columns, specs, index)
     effects = [Effect(term, score, rms_without, held_out_all)
                for term, score, rms_without in zip(final.model.terms, scores, without)]
+    # A heading effect helped fit the rest; the file gets the model refitted without it.
+    heading = [e for e in effects if e.term.signal in HEADING_SIGNALS]
+    written = [spec for spec in specs if spec.signal not in HEADING_SIGNALS]
+    if heading:
+        final = fit_model(signals, error, rows, columns, written, index)
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
     art = Calibration(serial_number, rate_scale_factor, art_fit.model.polynomial,
                       (low, high if high > low else low + 1.0), temp_scale_factor, (), filters)
     return LoopResult(
         art=art, extended=replace(art, polynomial=final.model.polynomial, terms=final.model.terms),
-        effects=tuple(effects), rounds=tuple(rounds), noise_floor_dps=floor,
+        effects=tuple(e for e in effects if e not in heading), rounds=tuple(rounds), noise_floor_dps=floor,
         held_out_rms_art_dps=held_out_rms(every_row),
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
-        adequacy=adequacy(binned, specs, floor, bin_s, materiality))
+        adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading))
 
 
 def held_out_rms(rows: Binned, specs: Sequence[TermSpec] = ()) -> float:

@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.analysis.fit import Design, TermSpec, centred, fit_model, solve_normal
 from art_gyro_calibration.analysis.metrics import Segments, noise_floor
-from art_gyro_calibration.signals import DERIVED_SIGNALS, Signals
+from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, Signals
 
 DEFAULT_FOLDS = 6
 # Fewer folds than this leave too little to fit on; a short log gets this many, not shorter blocks.
@@ -58,35 +58,72 @@ MAX_TIME_CONSTANT_RUNS = 4.0
 MIN_TIME_CONSTANT_S = 30.0
 
 
-def candidate_specs(signals: Signals, rows: int, columns: int,
-                    exclude: Sequence[str] = ()) -> dict[str, list[TermSpec]]:
-    """Per candidate signal, the term shapes to try (several only for a warm-up's time constant).
+# The physical forms the screen tries, by candidate name (one family of shapes each). A name is
+# what the report calls the effect; the spec's signal is what the term is evaluated on.
+FORMS_TRIED = {
+    'temperature': 'the polynomial\'s next temperature row, T**rows x rate**0..columns-1 (bias and scale factor)',
+    'rate': 'the polynomial\'s next rate column, rate**columns (scale-factor non-linearity)',
+    'rate_x_temperature': 'the next rate column\'s temperature terms, T**1..rows-1 x rate**columns',
+    'temperature_rate': 'c dT/dt, the Shupe effect of a temperature gradient across the coil',
+    'rate_x_temperature_rate': 'c rate dT/dt, a scale factor that follows the temperature gradient',
+    'temperature_lag': 'the polynomial\'s temperature terms on a coil temperature lagging the sensor, '
+                       'T_lag**1..rows-1 x rate**0..columns-1, lag from 1 minute to 2 hours',
+    'time': 'c t, a linear drift (IEEE 952 ramp) from the run\'s start',
+    'time_since_power_on': 'c exp(-t/tau), a warm-up from power-on, tau from 30 s to four runs',
+    'rate_abs': 'c |rate|, scale-factor asymmetry',
+    'rate_sign': 'c sign(rate), a bias that depends on the turning direction (dead band, lock-in)',
+    'rate_change': 'c d(rate)/dt, angular-acceleration sensitivity',
+    'angle': 'c0 sin(heading) + c1 cos(heading), a once-per-turn (magnetic, tilt) coupling: reported, not '
+             'written (the node has no absolute heading)',
+    'extra columns': 'c x for every further numeric column of the log (a supply voltage, ...)',
+}
+LAG_GRID_S = (60.0, 3600.0 * 2)
 
-    temperature: the next power ``T**rows``; rate: the next power ``r**columns``;
-    time: a linear drift ``t``, or ``exp(-t/tau)`` over a log grid of tau from 30 s to four runs;
-    angle: once-per-turn harmonic;
-    everything else (temperature_rate, rate_abs, rate_sign, rate_change, extra columns): linear.
+
+def candidate_specs(signals: Signals, rows: int, columns: int, exclude: Sequence[str] = (),
+                    still: bool = False) -> dict[str, list[TermSpec]]:
+    """Per candidate (by name, :data:`FORMS_TRIED`), the term shapes to try: several for a time constant.
+
+    The polynomial's next orders are cross terms with the rate as the report's matrix has
+    them (not on a ``still`` log, whose rate is only its error); a warm-up is tried only on a
+    log that starts at power-on.
     """
     duration = float(signals.t[-1] - signals.t[0]) if len(signals) else 0.0
-    out: dict[str, list[TermSpec]] = {}
-    for name in signals.names():
-        if name in exclude:
-            continue
-        if name == 'temperature':
-            out[name] = [TermSpec(name, 'power', (rows,))]
-        elif name == 'rate':
-            out[name] = [TermSpec(name, 'power', (columns,))]
-        elif name == 'time':
-            # A linear drift, or a warm-up decaying from 30 s to several times the run (a long one
-            # is a slow drift that levels off); each fold picks the shape its training blocks prefer.
-            taus = np.geomspace(MIN_TIME_CONSTANT_S, max(MAX_TIME_CONSTANT_RUNS * duration, 2 * MIN_TIME_CONSTANT_S),
-                                TIME_CONSTANT_GRID_SIZE)
-            out[name] = [TermSpec(name, 'power', (1,))] + [TermSpec(name, 'exp_decay', (), float(tau)) for tau in taus]
-        elif name == 'angle':
-            out[name] = [TermSpec(name, 'harmonic')]
-        else:
-            out[name] = [TermSpec(name, 'power', (1,))]
-    return out
+    taus = np.geomspace(MIN_TIME_CONSTANT_S, max(MAX_TIME_CONSTANT_RUNS * duration, 2 * MIN_TIME_CONSTANT_S),
+                        TIME_CONSTANT_GRID_SIZE)
+    lags = np.geomspace(*LAG_GRID_S, TIME_CONSTANT_GRID_SIZE)
+    temperature_powers = tuple(range(1, rows))
+    rate_powers = (0,) if still else tuple(range(columns))
+    out: dict[str, list[TermSpec]] = {
+        'temperature': [TermSpec('temperature', 'power', (rows,), rate_powers=rate_powers)],
+        'rate': [TermSpec('rate', 'power', (columns,))],
+        'rate_x_temperature': [TermSpec('temperature', 'power', temperature_powers, rate_powers=(columns,))],
+        'temperature_rate': [TermSpec('temperature_rate', 'power', (1,))],
+        'rate_x_temperature_rate': [TermSpec('temperature_rate', 'power', (1,), rate_powers=(1,))],
+        'temperature_lag': [TermSpec(LAGGED_SIGNAL, 'power', temperature_powers, float(tau), rate_powers)
+                            for tau in lags],
+        'time': [TermSpec('time', 'power', (1,))],
+        'time_since_power_on': [TermSpec('time_since_power_on', 'exp_decay', (), float(tau)) for tau in taus],
+        'rate_abs': [TermSpec('rate_abs', 'power', (1,))],
+        'rate_sign': [TermSpec('rate_sign', 'power', (1,))],
+        'rate_change': [TermSpec('rate_change', 'power', (1,))],
+        'angle': [TermSpec('angle', 'harmonic')],
+    }
+    if rows < 2:
+        del out['rate_x_temperature'], out['temperature_lag']   # no temperature terms to lag
+    if not signals.powered_on_at_start:
+        del out['time_since_power_on']
+    out.update({name: [TermSpec(name, 'power', (1,))] for name in signals.extras})
+    return {name: specs for name, specs in out.items() if name not in exclude}
+
+
+def joined(have: TermSpec, new: TermSpec) -> TermSpec | None:
+    """One power term on a signal with both terms' columns, if they share their powers or their rate powers."""
+    if not (have.form == new.form == 'power' and have.time_constant_s == new.time_constant_s
+            and (have.powers == new.powers or have.rate_powers == new.rate_powers)):
+        return None
+    return replace(have, powers=tuple(sorted(set(have.powers) | set(new.powers))),
+                   rate_powers=tuple(sorted(set(have.rate_powers) | set(new.rate_powers))))
 
 
 def _bins(segments: Segments, t: NDArray[np.float64], bin_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -327,7 +364,7 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
                    specs: Sequence[TermSpec] = (), *, folds: int = DEFAULT_FOLDS, draws: int = DEFAULT_DRAWS,
                    alpha: float = DEFAULT_ALPHA, bin_s: float = DEFAULT_BIN_S, materiality_dph: float = 0.0,
                    seed: int = 0, noise_floor_dps: float | None = None,
-                   exclude: Sequence[str] = (), binned: Binned | None = None) -> TraceResult:
+                   exclude: Sequence[str] = (), binned: Binned | None = None, still: bool = False) -> TraceResult:
     """Screen every signal not yet modelled (nor in ``exclude``) against what the model (polynomial + ``specs``) leaves.
 
     ``error`` is ``rate_dps - ref_rate`` per log row; only the steady rows of ``segments``
@@ -347,7 +384,11 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
     screen = Screen(binned, specs)
     rng = np.random.default_rng(seed)
     floor_var = noise_floor_dps ** 2
-    families = candidate_specs(signals, rows, columns, [*exclude, *(s.signal for s in specs)])
+    families = candidate_specs(signals, rows, columns, exclude, still)
+    # One term per signal in a calibration file: a candidate on a signal the model has must join its term.
+    taken = {spec.signal: spec for spec in specs}
+    families = {name: v for name, v in families.items()
+                if v[0].signal not in taken or joined(taken[v[0].signal], v[0]) is not None}
     families = {name: v for name, v in families.items() if np.ptp(binned.candidate_means(v), axis=0).max() > 0.0}
     residual = screen.residual()
     scores = {name: [] for name in families}
@@ -381,10 +422,10 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
 
 def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[CandidateScore]:
     """Mark a log column whose fitted effect is that of a derived signal (one the node computes itself)."""
-    derived = [c for c in candidates if c.signal in DERIVED_SIGNALS and c.significant]
+    derived = [c for c in candidates if c.spec.signal in DERIVED_SIGNALS and c.significant]
     out = []
     for c in candidates:
-        if c.signal not in DERIVED_SIGNALS and derived:
+        if c.spec.signal not in DERIVED_SIGNALS and derived:
             mine = screen.binned.candidate_means([c.spec])[:, 0, :]
             alike = [(_alike(screen, mine, screen.binned.candidate_means([d.spec])[:, 0, :]), d.signal)
                      for d in derived]
@@ -420,21 +461,20 @@ def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[n
 
 
 def _best_variant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
-    """The best variant on all the data; a time constant is refined by golden-section search in log(tau)."""
+    """The best variant on all the data; its time constant, if it has one, refined by golden-section search."""
     sse = [screen.training_sse(v) for v in variants]
-    best = int(np.argmin(sse))
-    if variants[best].form != 'exp_decay':
-        return variants[best]
-    decays = [(s, v) for s, v in zip(sse, variants) if v.form == 'exp_decay']
-    sse = [s for s, _ in decays]
-    variants = [v for _, v in decays]
+    template = variants[int(np.argmin(sse))]
+    shape = replace(template, time_constant_s=0.0)
+    kin = [(e, v) for e, v in zip(sse, variants) if replace(v, time_constant_s=0.0) == shape]
+    if len(kin) < 2:
+        return template
+    sse = [e for e, _ in kin]
     i = int(np.argmin(sse))
-    taus = [v.time_constant_s for v in variants]
+    taus = [v.time_constant_s for _, v in kin]
     lo, hi = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, len(taus) - 1)])
-    template = variants[i]
 
     def cost(log_tau: float) -> float:
-        return screen.training_sse(TermSpec(template.signal, template.form, (), float(np.exp(log_tau))))
+        return screen.training_sse(replace(template, time_constant_s=float(np.exp(log_tau))))
 
     golden = (np.sqrt(5.0) - 1) / 2
     a, b = lo + (1 - golden) * (hi - lo), lo + golden * (hi - lo)
@@ -451,4 +491,4 @@ def _best_variant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
     best = float(np.exp(a if fa < fb else b))
     if min(fa, fb) > sse[i]:
         best = taus[i]
-    return TermSpec(template.signal, template.form, (), best)
+    return replace(template, time_constant_s=best)
