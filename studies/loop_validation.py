@@ -42,6 +42,7 @@ from art_gyro_calibration.analysis.simulate import (ALL_EFFECTS, COIL_LAG_TAU_S,
                                                     SimulatedRun, SimulationSettings, effect_size, lagged,
                                                     same_gyro, simulate_run, warm_restart)
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration  # noqa: E402
+from art_gyro_calibration.compensation import RunStart  # noqa: E402
 from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.signals import compute_signals  # noqa: E402
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES  # noqa: E402
@@ -67,9 +68,13 @@ MIN_TARGET_MAGNITUDE = 0.25
 MAX_ORACLE_RATIO = 1.5
 MIN_DETECTION_RATE = 0.9
 # The effects a term of the first loop can express must be found by their own signal.
-# How the node is told the runs started (analysis.replay's start).
-START_NOTE = ''
-FOUND_BY_SIGNAL = {'shupe': 'temperature_rate', 'warmup': 'time', 'supply_voltage': 'supply_v', 'drift': 'time'}
+# How the node is told each second run started: the cold one at power-on; the warm one left at
+# the node's default (unknown: a warm-up term counts as decayed).
+STARTS = {'cold': RunStart(powered_on_at_start=True), 'warm': RunStart()}
+START_NOTE = ('; told `powered_on_at_start` on the cold run and left at the default (unknown: a warm-up term '
+              'counts as decayed) on the warm one')
+FOUND_BY_SIGNAL = {'shupe': 'temperature_rate', 'warmup': 'time_since_power_on', 'supply_voltage': 'supply_v',
+                   'drift': 'time'}
 
 
 @dataclass(frozen=True)
@@ -153,7 +158,7 @@ def run_case(case: Case) -> dict[str, Any]:
         field[scenario] = {}
         for name, calibration in calibrations.items():
             seen = oracle_log(other, case, calibration)[0] if name == 'oracle' else other
-            field[scenario][name] = replay(seen, calibration, DEFAULT_SAMPLES).field.to_dict()
+            field[scenario][name] = replay(seen, calibration, DEFAULT_SAMPLES, start=STARTS[scenario]).field.to_dict()
     adequacy = getattr(result, 'adequacy', None)
     return {
         'effect': case.effect, 'magnitude': case.magnitude, 'hours': case.hours, 'seed': case.seed,
@@ -394,8 +399,9 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
         + ', '.join(f'{m:g}' for m in MAGNITUDES) + f'; {meta["reps"]} repetitions per effect x magnitude x '
         f'length (budget: {meta["budget_s"]:.0f} s of CPU), {s["null_runs"]} null runs.',
         '- Found: for shupe, warmup, supply_voltage and drift the loop must name the effect\'s signal '
-        '(temperature_rate, time, supply_v, time); for the effects no single-signal term expresses (coil_lag, '
-        'rate_t3, rate_temperature_rate), any term found or the lack-of-fit alarm (`model_adequate: false`) counts.',
+        '(temperature_rate, time_since_power_on, supply_v, time); for the effects no single-signal term of the '
+        'first loop expresses (coil_lag, rate_t3, rate_temperature_rate), any term found or the lack-of-fit alarm '
+        '(`model_adequate: false`) counts, and the table names what was found.',
         '',
         '## Targets', '',
         '| target | measured | |', '|---|---|---|',

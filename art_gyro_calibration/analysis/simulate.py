@@ -55,7 +55,7 @@ EFFECTS: dict[str, tuple[str, str, float, float, float]] = {
     # 0.24 deg/s per degC/s: 0.004 deg/s (14 deg/h) while the chamber ramps at 1 degC/min.
     'shupe': ('temperature_rate', 'power', 0.24, 0.0, 0.0),
     # 0.02 deg/s decaying over 20 minutes after power-on.
-    'warmup': ('time', 'exp_decay', 0.02, 1200.0, 0.0),
+    'warmup': ('time_since_power_on', 'exp_decay', 0.02, 1200.0, 0.0),
     # 0.008 deg/s per volt away from the nominal 24 V, on a supply wandering by about +-0.5 V.
     'supply_voltage': ('supply_v', 'power', 0.008, 0.0, SUPPLY_NOMINAL_V),
 }
