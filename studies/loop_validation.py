@@ -366,7 +366,29 @@ def _yes(ok: bool) -> str:
     return 'holds' if ok else '**fails**'
 
 
-def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[str]) -> str:
+def comparison(summary: dict[str, Any], baseline: dict[str, Any], label: str) -> list[str]:
+    """A section setting this run's main numbers beside a baseline's (another loop, the same study)."""
+    b, s = baseline, summary
+    lines = ['', f'## Against the baseline ({label})', '',
+             f'False alarms: {b["false_alarms"]} of {b["null_runs"]} null runs then, {s["false_alarms"]} of '
+             f'{s["null_runs"]} now; cells at magnitude >= {MIN_TARGET_MAGNITUDE} missing the target: '
+             f'{len(b["failing_cells"])} then, {len(s["failing_cells"])} now. Per cell (then -> now): share of runs '
+             'found, median systematic rms with the bias of the extended calibration on the cold and warm second '
+             'runs (deg/h).', '',
+             '| effect | magnitude | fit log | found | ext. cold | ext. warm |', '|---|---:|---:|---:|---:|---:|']
+    then = {(c['effect'], c['magnitude'], c['hours']): c for c in b['cells']}
+    for c in s['cells']:
+        old = then.get((c['effect'], c['magnitude'], c['hours']))
+        if old is None:
+            continue
+        lines.append(f'| {c["effect"]} | {c["magnitude"]:g} | {c["hours"]:g} h | {old["detection"]:.0%} -> '
+                     f'{c["detection"]:.0%} | {old["extended_cold_dph"]:.2f} -> {c["extended_cold_dph"]:.2f} | '
+                     f'{old["extended_warm_dph"]:.2f} -> {c["extended_warm_dph"]:.2f} |')
+    return lines
+
+
+def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[str],
+             baseline: dict[str, Any] | None = None) -> str:
     """doc/loop-validation.md."""
     s = summary
     lines = [
@@ -440,6 +462,8 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
     if s['failing_cells']:
         lines += ['', 'Cells at magnitude >= 0.25 that miss the target: '
                   + '; '.join(f'{e} x {m:g} on {h:g} h' for e, m, h in s['failing_cells']) + '.']
+    if baseline is not None:
+        lines += comparison(summary, baseline['summary'], baseline['label'])
     lines += ['', '## Figures', '']
     lines += [f'![{n}](figures/{n})' for n in figure_names]
     lines += ['', '## Findings', '', *findings(s)]
@@ -478,16 +502,18 @@ def main() -> int:
     parser.add_argument('--results', type=Path, default=REPO / 'build' / 'loop-validation.json')
     parser.add_argument('--from-results', type=Path, help='rewrite the document and figures from saved results')
     parser.add_argument('--note', help='a paragraph for the top of the document (what loop this measures)')
+    parser.add_argument('--baseline', type=Path, help='saved results of another loop to compare with')
+    parser.add_argument('--baseline-label', default='baseline', help='what the baseline measured')
     args = parser.parse_args()
     if args.from_results:
         saved = json.loads(args.from_results.read_text(encoding='utf-8'))
         meta = {**saved['meta'], **({'note': args.note} if args.note else {})}
-        return write(saved['results'], meta, args.doc, args.results)
+        return write(saved['results'], meta, args.doc, args.results, _baseline(args))
     if args.quick:
         args.null_runs, args.max_reps, args.budget_s = 6, 1, 120.0
         if args.doc == REPO / 'doc' / 'loop-validation.md':
             args.doc = REPO / 'build' / 'loop-validation-quick.md'
-    wall = time.time()
+    wall, commit = time.time(), _commit()   # the code that runs, whatever is committed meanwhile
     nulls, _ = cases_for(args.null_runs, 0)
     null_results = run_all(nulls, args.jobs)
     spent = sum(r['cpu_s'] for r in null_results)
@@ -499,21 +525,29 @@ def main() -> int:
     _, power = cases_for(0, reps)
     results = null_results + run_all(power, args.jobs)
     truth = load_packaged_calibration(SERIAL)
-    meta = {'quick': args.quick, 'commit': _commit(), 'cases': len(results),
+    meta = {'quick': args.quick, 'commit': commit, 'cases': len(results),
             'cpu_s': sum(r['cpu_s'] for r in results), 'wall_s': time.time() - wall, 'jobs': args.jobs,
             'rows': truth.polynomial.rows, 'columns': truth.polynomial.columns, 'reps': reps,
             'budget_s': args.budget_s, 'note': args.note}
-    return write(results, meta, args.doc, args.results)
+    return write(results, meta, args.doc, args.results, _baseline(args))
 
 
-def write(results: list[dict[str, Any]], meta: dict[str, Any], doc: Path, results_path: Path) -> int:
+def _baseline(args: argparse.Namespace) -> dict[str, Any] | None:
+    if args.baseline is None:
+        return None
+    saved = json.loads(args.baseline.read_text(encoding='utf-8'))
+    return {'summary': saved['summary'], 'label': args.baseline_label}   # as judged when it ran
+
+
+def write(results: list[dict[str, Any]], meta: dict[str, Any], doc: Path, results_path: Path,
+          baseline: dict[str, Any] | None = None) -> int:
     """Summarise, save the raw results, draw the figures and write the document."""
     summary = summarise(results)
     results_path.parent.mkdir(parents=True, exist_ok=True)
     results_path.write_text(json.dumps({'meta': meta, 'summary': summary, 'results': results}, indent=1) + '\n',
                             encoding='utf-8')
     names = figures(summary, results, doc.parent / 'figures')
-    doc.write_text(document(summary, meta, names), encoding='utf-8')
+    doc.write_text(document(summary, meta, names, baseline), encoding='utf-8')
     print(f'{doc}: {summary["false_alarms"]} false alarms in {summary["null_runs"]} null runs; '
           f'targets {summary["targets"]}; results in {results_path}')
     return 0
