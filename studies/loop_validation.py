@@ -42,6 +42,7 @@ from art_gyro_calibration.analysis.simulate import (ALL_EFFECTS, COIL_LAG_TAU_S,
                                                     SimulatedRun, SimulationSettings, effect_size, lagged,
                                                     same_gyro, simulate_run, warm_restart)
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration  # noqa: E402
+from art_gyro_calibration.compensation import RunStart  # noqa: E402
 from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.signals import compute_signals  # noqa: E402
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES  # noqa: E402
@@ -67,9 +68,13 @@ MIN_TARGET_MAGNITUDE = 0.25
 MAX_ORACLE_RATIO = 1.5
 MIN_DETECTION_RATE = 0.9
 # The effects a term of the first loop can express must be found by their own signal.
-# How the node is told the runs started (analysis.replay's start).
-START_NOTE = ''
-FOUND_BY_SIGNAL = {'shupe': 'temperature_rate', 'warmup': 'time', 'supply_voltage': 'supply_v', 'drift': 'time'}
+# How the node is told each second run started: the cold one at power-on; the warm one left at
+# the node's default (unknown: a warm-up term counts as decayed).
+STARTS = {'cold': RunStart(powered_on_at_start=True), 'warm': RunStart()}
+START_NOTE = ('; told `powered_on_at_start` on the cold run and left at the default (unknown: a warm-up term '
+              'counts as decayed) on the warm one')
+FOUND_BY_SIGNAL = {'shupe': 'temperature_rate', 'warmup': 'time_since_power_on', 'supply_voltage': 'supply_v',
+                   'drift': 'time'}
 
 
 @dataclass(frozen=True)
@@ -153,7 +158,7 @@ def run_case(case: Case) -> dict[str, Any]:
         field[scenario] = {}
         for name, calibration in calibrations.items():
             seen = oracle_log(other, case, calibration)[0] if name == 'oracle' else other
-            field[scenario][name] = replay(seen, calibration, DEFAULT_SAMPLES).field.to_dict()
+            field[scenario][name] = replay(seen, calibration, DEFAULT_SAMPLES, start=STARTS[scenario]).field.to_dict()
     adequacy = getattr(result, 'adequacy', None)
     return {
         'effect': case.effect, 'magnitude': case.magnitude, 'hours': case.hours, 'seed': case.seed,
@@ -361,7 +366,29 @@ def _yes(ok: bool) -> str:
     return 'holds' if ok else '**fails**'
 
 
-def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[str]) -> str:
+def comparison(summary: dict[str, Any], baseline: dict[str, Any], label: str) -> list[str]:
+    """A section setting this run's main numbers beside a baseline's (another loop, the same study)."""
+    b, s = baseline, summary
+    lines = ['', f'## Against the baseline ({label})', '',
+             f'False alarms: {b["false_alarms"]} of {b["null_runs"]} null runs then, {s["false_alarms"]} of '
+             f'{s["null_runs"]} now; cells at magnitude >= {MIN_TARGET_MAGNITUDE} missing the target: '
+             f'{len(b["failing_cells"])} then, {len(s["failing_cells"])} now. Per cell (then -> now): share of runs '
+             'found, median systematic rms with the bias of the extended calibration on the cold and warm second '
+             'runs (deg/h).', '',
+             '| effect | magnitude | fit log | found | ext. cold | ext. warm |', '|---|---:|---:|---:|---:|---:|']
+    then = {(c['effect'], c['magnitude'], c['hours']): c for c in b['cells']}
+    for c in s['cells']:
+        old = then.get((c['effect'], c['magnitude'], c['hours']))
+        if old is None:
+            continue
+        lines.append(f'| {c["effect"]} | {c["magnitude"]:g} | {c["hours"]:g} h | {old["detection"]:.0%} -> '
+                     f'{c["detection"]:.0%} | {old["extended_cold_dph"]:.2f} -> {c["extended_cold_dph"]:.2f} | '
+                     f'{old["extended_warm_dph"]:.2f} -> {c["extended_warm_dph"]:.2f} |')
+    return lines
+
+
+def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[str],
+             baseline: dict[str, Any] | None = None) -> str:
     """doc/loop-validation.md."""
     s = summary
     lines = [
@@ -394,8 +421,9 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
         + ', '.join(f'{m:g}' for m in MAGNITUDES) + f'; {meta["reps"]} repetitions per effect x magnitude x '
         f'length (budget: {meta["budget_s"]:.0f} s of CPU), {s["null_runs"]} null runs.',
         '- Found: for shupe, warmup, supply_voltage and drift the loop must name the effect\'s signal '
-        '(temperature_rate, time, supply_v, time); for the effects no single-signal term expresses (coil_lag, '
-        'rate_t3, rate_temperature_rate), any term found or the lack-of-fit alarm (`model_adequate: false`) counts.',
+        '(temperature_rate, time_since_power_on, supply_v, time); for the effects no single-signal term of the '
+        'first loop expresses (coil_lag, rate_t3, rate_temperature_rate), any term found or the lack-of-fit alarm '
+        '(`model_adequate: false`) counts, and the table names what was found.',
         '',
         '## Targets', '',
         '| target | measured | |', '|---|---|---|',
@@ -434,6 +462,8 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
     if s['failing_cells']:
         lines += ['', 'Cells at magnitude >= 0.25 that miss the target: '
                   + '; '.join(f'{e} x {m:g} on {h:g} h' for e, m, h in s['failing_cells']) + '.']
+    if baseline is not None:
+        lines += comparison(summary, baseline['summary'], baseline['label'])
     lines += ['', '## Figures', '']
     lines += [f'![{n}](figures/{n})' for n in figure_names]
     lines += ['', '## Findings', '', *findings(s)]
@@ -472,16 +502,18 @@ def main() -> int:
     parser.add_argument('--results', type=Path, default=REPO / 'build' / 'loop-validation.json')
     parser.add_argument('--from-results', type=Path, help='rewrite the document and figures from saved results')
     parser.add_argument('--note', help='a paragraph for the top of the document (what loop this measures)')
+    parser.add_argument('--baseline', type=Path, help='saved results of another loop to compare with')
+    parser.add_argument('--baseline-label', default='baseline', help='what the baseline measured')
     args = parser.parse_args()
     if args.from_results:
         saved = json.loads(args.from_results.read_text(encoding='utf-8'))
         meta = {**saved['meta'], **({'note': args.note} if args.note else {})}
-        return write(saved['results'], meta, args.doc, args.results)
+        return write(saved['results'], meta, args.doc, args.results, _baseline(args))
     if args.quick:
         args.null_runs, args.max_reps, args.budget_s = 6, 1, 120.0
         if args.doc == REPO / 'doc' / 'loop-validation.md':
             args.doc = REPO / 'build' / 'loop-validation-quick.md'
-    wall = time.time()
+    wall, commit = time.time(), _commit()   # the code that runs, whatever is committed meanwhile
     nulls, _ = cases_for(args.null_runs, 0)
     null_results = run_all(nulls, args.jobs)
     spent = sum(r['cpu_s'] for r in null_results)
@@ -493,21 +525,29 @@ def main() -> int:
     _, power = cases_for(0, reps)
     results = null_results + run_all(power, args.jobs)
     truth = load_packaged_calibration(SERIAL)
-    meta = {'quick': args.quick, 'commit': _commit(), 'cases': len(results),
+    meta = {'quick': args.quick, 'commit': commit, 'cases': len(results),
             'cpu_s': sum(r['cpu_s'] for r in results), 'wall_s': time.time() - wall, 'jobs': args.jobs,
             'rows': truth.polynomial.rows, 'columns': truth.polynomial.columns, 'reps': reps,
             'budget_s': args.budget_s, 'note': args.note}
-    return write(results, meta, args.doc, args.results)
+    return write(results, meta, args.doc, args.results, _baseline(args))
 
 
-def write(results: list[dict[str, Any]], meta: dict[str, Any], doc: Path, results_path: Path) -> int:
+def _baseline(args: argparse.Namespace) -> dict[str, Any] | None:
+    if args.baseline is None:
+        return None
+    saved = json.loads(args.baseline.read_text(encoding='utf-8'))
+    return {'summary': saved['summary'], 'label': args.baseline_label}   # as judged when it ran
+
+
+def write(results: list[dict[str, Any]], meta: dict[str, Any], doc: Path, results_path: Path,
+          baseline: dict[str, Any] | None = None) -> int:
     """Summarise, save the raw results, draw the figures and write the document."""
     summary = summarise(results)
     results_path.parent.mkdir(parents=True, exist_ok=True)
     results_path.write_text(json.dumps({'meta': meta, 'summary': summary, 'results': results}, indent=1) + '\n',
                             encoding='utf-8')
     names = figures(summary, results, doc.parent / 'figures')
-    doc.write_text(document(summary, meta, names), encoding='utf-8')
+    doc.write_text(document(summary, meta, names, baseline), encoding='utf-8')
     print(f'{doc}: {summary["false_alarms"]} false alarms in {summary["null_runs"]} null runs; '
           f'targets {summary["targets"]}; results in {results_path}')
     return 0

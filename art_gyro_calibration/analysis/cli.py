@@ -113,7 +113,7 @@ def _validate(args: argparse.Namespace, result: LoopResult, report: dict[str, An
     from art_gyro_calibration.analysis.report import validation_section
     logs = [read_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor) for path in args.validate]
     validation = validate(result, logs, args.bias_samples, args.settle_s,
-                          RunStart(powered_on_at_start=not args.not_from_power_on))
+                          RunStart(powered_on_at_start=args.validate_powered_on_at_start))
     report['validation'] = validation_section(validation, [str(p) for p in args.validate])
     if not validation.dropped:
         return validation.calibration, found
@@ -129,8 +129,9 @@ def _replay(args: argparse.Namespace) -> int:
     log = read_log(args.log, calibration.rate_scale_factor, calibration.temp_scale_factor)
     if args.start_s:
         log = restart(log, args.start_s)
+    start = RunStart(powered_on_at_start=args.powered_on_at_start)
     rows = [(f'{args.log} from {args.start_s:g} s', name,
-             replay(log, c, args.bias_samples, args.settle_s, RunStart(args.powered_on_at_start)).field.to_dict())
+             replay(log, c, args.bias_samples, args.settle_s, start).field.to_dict())
             for name, c in (('art', without_terms(calibration)), ('extended', calibration))]
     print('\n'.join(field_table(rows)))
     return 0
@@ -272,6 +273,9 @@ def build_parser() -> argparse.ArgumentParser:
                         'a term they are better without')
     p.add_argument('--not-from-power-on', action='store_true',
                    help='the log does not start at the gyro\'s power-on: no warm-up is sought')
+    p.add_argument('--validate-powered-on-at-start', action='store_true',
+                   help='the --validate runs began at the gyro\'s power-on (default: unknown, a warm-up term '
+                        'is not applied, as the node does by default)')
     _force_option(p)
     p.set_defaults(run=_fit)
 
@@ -281,7 +285,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--start-s', type=float, default=0.0,
                    help='start the node this many seconds into the log (a warm restart; default %(default)s)')
     p.add_argument('--powered-on-at-start', action='store_true',
-                   help='the gyro was powered on when the replayed run starts (the node\'s parameter of that name)')
+                   help='the gyro was powered on when the replayed run began: a warm-up term applies from there '
+                        '(default: unknown, it is not applied, as the node does by default)')
     p.add_argument('--bias-samples', type=int, default=DEFAULT_SAMPLES,
                    help='rows at rest at the start for the static bias (default %(default)s)')
     p.add_argument('--settle-s', type=float, default=DEFAULT_SETTLE_S,

@@ -3,9 +3,10 @@
 A calibration is good when it makes *another* run better, started in any state: the
 node takes its static bias over the run's first ``bias_samples`` rows (refused if the
 gyro moved), starts its causal signals at the run's first sample, and corrects every
-sample after. :func:`replay` does that through the node's own batch path
-(:func:`compensation.apply_calibration`) and measures the output against the table
-with :func:`metrics.field_errors`: bias included, nothing removed.
+sample after, as told how the run started (:class:`compensation.RunStart`: a warm-up
+applies only after a power-on at the start). :func:`replay` does that through the node's
+own batch path (:func:`compensation.apply_calibration`) and measures the output against
+the table with :func:`metrics.field_errors`: bias included, nothing removed.
 
 :func:`validate` replays the report's calibration (the ART polynomial alone) and the
 extended one on each validation run, and drops from the extended calibration every
@@ -15,7 +16,7 @@ term without which the runs are better (refitting the rest on the fitted log).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,7 +33,7 @@ from art_gyro_calibration.terms import Term
 
 @dataclass(frozen=True)
 class Replay:
-    """One calibration on one run: the node's output, its error against the table, and the field errors."""
+    """One calibration on one run: the node's output, its error against the table (per kept row), field errors."""
 
     applied: Applied
     error_dps: NDArray[np.float64]
@@ -44,14 +45,15 @@ def replay(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_S
     """Apply ``calibration`` to ``log`` as the node does and measure it from the end of the static bias.
 
     ``start``: how the run began, as the node is told (a warm-up applies only from a declared
-    power-on). Raises :class:`static_bias.MotionError` when the run's first ``bias_samples``
-    rows show motion.
+    power-on). The rows the node would drop (:func:`compensation.plausible`) are left out.
+    Raises :class:`static_bias.MotionError` when the run's first ``bias_samples`` rows show motion.
     """
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: a replay measures against the rate table\'s true rate')
     applied = apply_calibration(log, calibration, bias_samples, start=start)
-    error = applied.corrected_dps - log.ref_rate
-    return Replay(applied, error, field_errors(log.t, error, steady_segments(log.t, log.ref_rate, settle_s),
+    seen = log if applied.kept.all() else log.slice(applied.kept)
+    error = applied.corrected_dps - seen.ref_rate
+    return Replay(applied, error, field_errors(seen.t, error, steady_segments(seen.t, seen.ref_rate, settle_s),
                                                bias_samples))
 
 
@@ -96,7 +98,7 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
     Terms are dropped one at a time, the one whose removal helps most first; the rest are
     refitted jointly with the polynomial on the fitted log (the loop's signals, error and
     steady rows) before the next comparison. Calibrations per run: ``art``, ``extended``
-    and, when terms were dropped, ``validated`` (the one to write).
+    and, when terms were dropped, ``validated`` (the one to write). ``start``: how the runs started.
     """
     if not logs:
         raise ValueError('validation needs at least one run')
@@ -130,7 +132,8 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
 
 def _refit(result: LoopResult, terms: Sequence[Term]) -> Calibration:
     """The polynomial and ``terms``' shapes refitted jointly on the loop's log."""
-    specs = [TermSpec(t.signal, t.form, t.powers, t.time_constant_s, t.rate_powers) for t in terms]
+    # A term's shape is its fields less the coefficients: whatever a TermSpec holds.
+    specs = [TermSpec(**{f.name: getattr(t, f.name) for f in fields(TermSpec)}) for t in terms]
     polynomial = result.art.polynomial
     fit = fit_model(result.signals, result.error, polynomial.rows, polynomial.columns, specs, result.segments.rows())
     return replace(result.art, polynomial=fit.model.polynomial, terms=fit.model.terms)
