@@ -193,11 +193,11 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
                              and counter(s, 'frames_implausible_temperature') == 2,
                              'the implausible and the out-of-range frames counted', proc, output)
         errors = [s.message for m in listener.history() for s in m.status
-                  if s.name == 'gyro_node: temperature' and s.level == ERROR]
+                  if s.name == '/gyro_node: temperature' and s.level == ERROR]
         assert any('2 frames since the last report claimed a temperature outside' in e for e in errors), errors
         # The latest temperature is fine again, but the report of the period said what happened.
         warnings = [s.message for m in listener.history() for s in m.status
-                    if s.name == 'gyro_node: temperature' and s.level in (WARN, ERROR)]
+                    if s.name == '/gyro_node: temperature' and s.level in (WARN, ERROR)]
         assert any('were outside the calibrated range 10.0..50.0 degC' in w for w in warnings), warnings
         # A sustained out-of-range temperature shows as WARN with the value.
         fake.simulator.raw_temp = 1100   # 55 degC
