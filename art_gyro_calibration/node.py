@@ -379,8 +379,9 @@ class GyroNode(Node):
         for path, values in self._files.items():
             file_serial = values.get('serial_number')
             if file_serial is not None and serial and str(file_serial) != serial:
-                what = 'calibration in' if 'polynomial.coefficients' in values else 'parameters in'
-                raise ParameterError(f'parameter serial_number is {serial!r} but the {what} {path} is for '
+                what = (f'the calibration in {path} is' if 'polynomial.coefficients' in values
+                        else f'the parameters in {path} are')
+                raise ParameterError(f'parameter serial_number is {serial!r} but {what} for '
                                      f'{str(file_serial)!r}: refusing a calibration of another gyro')
         if given:
             if self.settings.calibration_file:

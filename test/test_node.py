@@ -151,6 +151,27 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
     assert abs(log.t[-1] - time.time()) < 30.0
 
 
+def _calibration_with(tmp_path: Path, extra: str) -> list[str]:
+    (tmp_path / 'cal.yaml').write_text((REPO / 'config' / 'NAVC4058.yaml').read_text() + extra)
+    return ['--params-file', str(tmp_path / 'cal.yaml'), '-p', 'port:=/nonexistent']
+
+
+def _misspelt_key(tmp_path: Path) -> list[str]:
+    return _calibration_with(tmp_path, '    extnded:\n      signals: [time]\n')
+
+
+def _overflowing_term(tmp_path: Path) -> list[str]:
+    return _calibration_with(tmp_path, '    extended:\n      signals: [rate]\n      rate: {form: power, '
+                                       'powers: [400], coefficients: [1.0e-9]}\n')
+
+
+def _alias_bomb(tmp_path: Path) -> list[str]:
+    lines = ['a0: &a0 [x, x, x, x, x, x, x, x, x]']
+    lines += [f'a{i}: &a{i} [' + ', '.join([f'*a{i - 1}'] * 9) + ']' for i in range(1, 12)]
+    (tmp_path / 'bomb.yaml').write_text('/**:\n  ros__parameters:\n' + ''.join(f'    {line}\n' for line in lines))
+    return ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={tmp_path}/bomb.yaml']
+
+
 def _malformed(tmp_path: Path) -> list[str]:
     text = (REPO / 'config' / 'NAVC4058.yaml').read_text().replace('0.00002393343232, ', '')
     (tmp_path / 'bad.yaml').write_text(text)
@@ -165,14 +186,37 @@ def _malformed(tmp_path: Path) -> list[str]:
     (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'baud:=fast'], 'parameter baud must be an integer'),
     (lambda p: ['-p', 'serial_number:=NAVC9999'], 'parameter serial_number: no calibration file NAVC9999.yaml'),
     (lambda p: [], 'parameter serial_number is required'),
-], ids=['malformed', 'other_serial', 'protocol', 'baud_type', 'unknown_serial', 'no_serial'])
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'bais_samples:=5'],
+     "unknown parameter 'bais_samples' (from the command line) (did you mean 'bias_samples'?)"),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'bias_sample:=5'],
+     "unknown parameter 'bias_sample' (from the command line) (did you mean 'bias_samples'?)"),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'yaw_rate_stddev:=1e200'],
+     'parameter yaw_rate_stddev must be in 1e-07..1, got 1e+200'),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'yaw_rate_stddev:=1e-200'],
+     'parameter yaw_rate_stddev must be in 1e-07..1, got 1e-200'),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'bias_samples:=100000000'],
+     'parameter bias_samples must be in 2..1000000, got 100000000'),
+    (lambda p: ['--params-file', str(REPO / 'config' / 'gyro_node.params.yaml'),
+                '--params-file', str(REPO / 'config' / 'NAVC4058.yaml')],
+     "parameter serial_number is 'NAVC4058' but the parameters in {repo}/config/gyro_node.params.yaml are for "
+     "'NAVC3545'"),
+    (_misspelt_key, "unknown parameter 'extnded.signals' (from {tmp}/cal.yaml) (did you mean 'extended.signals'?)"),
+    (_overflowing_term, '{tmp}/cal.yaml): extended.rate: the power term overflows'),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={REPO}/config/NAVC4058.yaml'],
+     "parameter serial_number is 'NAVC3545' but the calibration in {repo}/config/NAVC4058.yaml is for 'NAVC4058'"),
+    (_alias_bomb, '{tmp}/bomb.yaml: not valid YAML: found alias'),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'qos_overrides./imu/data_raw.publisher.reliability:=sometimes'],
+     'QoS override of imu/data_raw:'),
+], ids=['malformed', 'other_serial', 'protocol', 'baud_type', 'unknown_serial', 'no_serial', 'misspelt', 'misspelt2',
+        'stddev_huge', 'stddev_tiny', 'samples_huge', 'two_params_files', 'calibration_key', 'overflow',
+        'calibration_file_serial', 'alias_bomb', 'qos'])
 def test_node_refuses_bad_parameters(tmp_path: Path, args: Callable[[Path], list[str]], message: str) -> None:
     """A bad calibration or parameter: one line naming it, no traceback, and a non-zero exit."""
     output = tmp_path / 'node.log'
     proc = start_node(domain_id(), output, *args(tmp_path))
     assert proc.wait(TIMEOUT_S) != 0
     text = output.read_text()
-    assert text.startswith('gyro_node: error: ') and message.format(repo=REPO) in text, text
+    assert text.startswith('gyro_node: error: ') and message.format(repo=REPO, tmp=tmp_path) in text, text
     assert 'Traceback' not in text
 
 
@@ -182,6 +226,56 @@ def test_example_params_file_sets_every_node_parameter_validly() -> None:
     assert set(params) == set(PARAMETERS)
     values = {name: rclpy.parameter.parameter_value_to_python(p.value) for name, p in params.items()}
     assert check_settings(values).serial_number == 'NAVC3545'
+
+
+def test_help_lists_every_parameter_with_default_and_range() -> None:
+    """gyro_node --help printed nothing useful (issue 9)."""
+    result = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.node', '--help'], cwd=REPO,
+                            capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert result.returncode == 0 and result.stdout.startswith('usage: gyro_node'), result.stdout + result.stderr
+    for name, (default, *_) in PARAMETERS.items():
+        assert f'  {name} ({type(default).__name__}, default {default!r}' in result.stdout, name
+    assert 'bias_samples (int, default 100, 2..1000000)' in result.stdout
+    assert 'yaw_rate_stddev (float, default 0.001, 1e-07..1)' in result.stdout
+
+
+def test_parameters_are_read_only_with_ranges_and_calibration_file_loads(tmp_path: Path, loopback: None) -> None:
+    """calibration_file loads a calibration by path; every parameter, calibration ones too, refuses a change."""
+    from rcl_interfaces.srv import DescribeParameters, SetParameters
+    from rclpy.parameter import Parameter
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    with (FakeRd2100('NAVC4058', profile='0', seed=6) as fake,
+          node_with_listener(domain, output, '-p', f'calibration_file:=file://{REPO}/config/NAVC4058.yaml',
+                             '-p', f'port:={fake.path}', '-p', 'static_bias_on_startup:=false',
+                             '-p', 'qos_overrides./imu/data_raw.publisher.reliability:=best_effort')
+          as (proc, listener)):
+        # A best-effort publisher reaches no reliable subscriber (the listener's): the temperature shows it runs.
+        wait_until(listener.temperatures, 'a temperature message', proc, output)
+        assert listener.count() == 0
+        assert f'calibration loaded: NAVC4058 from {REPO}/config/NAVC4058.yaml' in output.read_text()
+        node = listener.node
+        setter = node.create_client(SetParameters, '/gyro_node/set_parameters')
+        describer = node.create_client(DescribeParameters, '/gyro_node/describe_parameters')
+        wait_until(lambda: setter.service_is_ready() and describer.service_is_ready(), 'the parameter services')
+        names = ['bias_samples', 'yaw_rate_stddev', 'baud', 'polynomial.coefficients', 'rate_scale_factor',
+                 'qos_overrides./imu/data_raw.publisher.reliability']
+        described = describer.call_async(DescribeParameters.Request(names=names))
+        wait_until(described.done, 'the descriptors')
+        d = {n: x for n, x in zip(names, described.result().descriptors)}
+        assert all(x.read_only for x in d.values())
+        assert (d['bias_samples'].integer_range[0].from_value, d['bias_samples'].integer_range[0].to_value) == \
+            (2, 1_000_000)
+        assert d['yaw_rate_stddev'].floating_point_range[0].from_value == 1e-7
+        assert '115200' in d['baud'].additional_constraints
+        request = SetParameters.Request(parameters=[Parameter('bias_samples', value=5).to_parameter_msg(),
+                                                    Parameter('rate_scale_factor', value=1.0).to_parameter_msg()])
+        future = setter.call_async(request)
+        wait_until(future.done, 'the set_parameters reply')
+        assert [r.successful for r in future.result().results] == [False, False]
+        # The QoS override applies: the publisher is best effort.
+        infos = node.get_publishers_info_by_topic('/imu/data_raw')
+        assert infos and infos[0].qos_profile.reliability == rclpy.qos.ReliabilityPolicy.BEST_EFFORT
 
 
 def test_params_files_are_found_among_the_ros_arguments_only() -> None:
