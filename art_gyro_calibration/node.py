@@ -45,6 +45,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu
 from std_msgs.msg import Float64
@@ -79,6 +80,8 @@ TEMPERATURE_WARNING_PERIOD_S = 60.0
 IMPLAUSIBLE_TEMPERATURE = 'implausible_temperature'
 NOT_FINITE = 'not_finite'
 IMU_TOPIC = 'imu/data_raw'
+# Calls to imu/static_bias that can wait for one collection at once (requests and replies are queued this deep).
+SERVICE_QUEUE_DEPTH = 1000
 
 
 class Range(NamedTuple):
@@ -332,7 +335,10 @@ class GyroNode(Node):
         # The reply is deferred: the callback returns at once and the executor sends the reply
         # through send_response, which this node takes over to hold it until the collection ends.
         # (rclpy 7 re-runs a waiting coroutine callback in a busy loop, so an async callback is not used.)
-        self._service = self.create_service(Trigger, 'imu/static_bias', lambda request, response: response)
+        # Deep queues: the replies to every joined call go out at once, and a reliable writer keeping
+        # the default last 10 would drop all but 10 of them.
+        self._service = self.create_service(Trigger, 'imu/static_bias', lambda request, response: response,
+                                            qos_profile=QoSProfile(depth=SERVICE_QUEUE_DEPTH))
         self._send_reply = self._service.send_response
         self._service.send_response = self._defer_reply
         self._replies = self.create_guard_condition(self._send_replies)
