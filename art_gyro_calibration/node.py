@@ -398,7 +398,7 @@ class GyroNode(Node):
             calibration = from_parameters({**given, 'serial_number': serial}, where)
         elif self.settings.calibration_file:
             path = resolve_calibration_url(self.settings.calibration_file)
-            calibration, where = load_calibration(path), str(path)
+            calibration, where = load_calibration(path, expected_serial=serial or None), str(path)
         elif not serial:
             raise ParameterError('parameter serial_number is required: the KVH serial number (such as '
                                  'NAVC3545) of the packaged calibration to load, unless calibration_file is '
@@ -408,10 +408,7 @@ class GyroNode(Node):
                 path = find_calibration_file(serial)
             except CalibrationError as e:
                 raise ParameterError(f'parameter serial_number: {e}') from None
-            calibration, where = load_calibration(path), str(path)
-        if serial and calibration.serial_number != serial:
-            raise ParameterError(f'parameter serial_number is {serial!r} but the calibration in {where} is for '
-                                 f'{calibration.serial_number!r}: refusing a calibration of another gyro')
+            calibration, where = load_calibration(path, expected_serial=serial), str(path)
         for name, value in calibration.to_parameters().items():
             if name != 'serial_number':
                 self.declare_parameter(name, value, ParameterDescriptor(
@@ -664,7 +661,8 @@ class GyroNode(Node):
             return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
         if rate_hz == 0.0:
             return self._status('link', DiagnosticStatus.WARN, 'connected, no frames', values)
-        if any(recent.values()):
+        # An implausible temperature is the temperature status's ERROR; the others would show nowhere else.
+        if any(count for reason, count in recent.items() if reason != IMPLAUSIBLE_TEMPERATURE):
             lost = ', '.join(f'{count} {reason}' for reason, count in recent.items() if count)
             return self._status('link', DiagnosticStatus.ERROR, f'connected, {rate_hz:.1f} Hz; frames not '
                                 f'published since the last report: {lost}', values)

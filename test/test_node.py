@@ -204,7 +204,7 @@ def _malformed(tmp_path: Path) -> list[str]:
     (_misspelt_key, "unknown parameter 'extnded.signals' (from {tmp}/cal.yaml) (did you mean 'extended.signals'?)"),
     (_overflowing_term, '{tmp}/cal.yaml): extended.rate: the power term overflows'),
     (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={REPO}/config/NAVC4058.yaml'],
-     "parameter serial_number is 'NAVC3545' but the calibration in {repo}/config/NAVC4058.yaml is for 'NAVC4058'"),
+     "{repo}/config/NAVC4058.yaml: serial_number is 'NAVC4058', expected 'NAVC3545'"),
     (_alias_bomb, '{tmp}/bomb.yaml: not valid YAML: found alias'),
     (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'qos_overrides./imu/data_raw.publisher.reliability:=sometimes'],
      'QoS override of imu/data_raw:'),
