@@ -278,7 +278,8 @@ class GyroNode(Node):
     def __init__(self, argv: Sequence[str] = ()) -> None:
         super().__init__(NODE_NAME)
         self._files = params_file_values(params_files(argv), self.get_fully_qualified_name())
-        self._check_known_names(lambda name: name in PARAMETERS or is_calibration_key(name)
+        # Known now: the node's own, a calibration's, rclpy's (use_sim_time); QoS overrides once the publisher is made.
+        self._check_known_names(lambda name: name in PARAMETERS or is_calibration_key(name) or self.has_parameter(name)
                                 or name.startswith('qos_overrides.'))
         self.settings = check_settings({name: self._override(name, entry[0]) for name, entry in PARAMETERS.items()})
         for name in PARAMETERS:

@@ -187,7 +187,7 @@ def test_driver_stamps_a_stalled_burst_by_the_period_and_reports_a_clock_step(re
     assert np.median(burst) == pytest.approx(0.02, rel=0.1), burst
     # One backward jump of about 10 s, said once.
     assert np.count_nonzero(steps < 0) == 1 and steps.min() == pytest.approx(-10.0, abs=0.2)
-    assert len([w for w in warnings if 'the clock stepped by -10' in w]) == 1, warnings
+    assert len([w for w in warnings if 'the clock stepped by -' in w]) == 1, warnings
 
 
 @pytest.mark.parametrize('garbage, expected', [

@@ -5,6 +5,7 @@ Each node start-up costs seconds: the checks are grouped per node process.
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -284,3 +285,46 @@ def test_params_files_are_found_among_the_ros_arguments_only() -> None:
     argv = ['gyro_node', '--params-file', 'app.yaml', '--ros-args', '-p', 'a:=1', '--params-file', 'x.yaml',
             '--params-file', 'y.yaml', '--', '--params-file', 'z.yaml']
     assert params_files(argv) == ['x.yaml', 'y.yaml']
+
+
+def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, loopback: None) -> None:
+    """use_sim_time: stamps on /clock; /clock stepped back 10 s: one jump back and a warning, not a freeze."""
+    import threading
+    from builtin_interfaces.msg import Time
+    from rosgraph_msgs.msg import Clock
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    sim_start, offset = 1000.0, [0.0]
+    stop = threading.Event()
+    with (FakeRd2100('NAVC3545', rate_hz=50, profile='0', seed=7) as fake,
+          node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
+                             '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false',
+                             '-p', 'use_sim_time:=true') as (proc, listener)):
+        clock = listener.node.create_publisher(Clock, '/clock', 10)
+        origin = time.monotonic()
+
+        def tick() -> None:
+            while not stop.wait(0.01):
+                t = sim_start + offset[0] + time.monotonic() - origin
+                clock.publish(Clock(clock=Time(sec=int(t), nanosec=int(t % 1 * 1e9))))
+
+        ticker = threading.Thread(target=tick, daemon=True)
+        ticker.start()
+        try:
+            # Before the first /clock the node's time is 0; once it runs, the stamps are on it.
+            wait_until(lambda: (m := listener.imu_since(0)) and m[-1].header.stamp.sec >= int(sim_start),
+                       'stamps on the simulated clock', proc, output)
+            before = listener.count()
+            listener.wait_imu(50, proc, output)
+            offset[0] = -10.0
+            listener.wait_imu(100, proc, output)
+        finally:
+            stop.set()
+            ticker.join()
+        stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in listener.imu_since(before)])
+    assert np.all(stamps < sim_start + 600) and np.all(stamps > sim_start - 600)   # not the wall clock
+    steps = np.diff(stamps)
+    assert np.count_nonzero(steps < 0) == 1 and steps.min() == pytest.approx(-10.0, abs=0.5), steps
+    # Elsewhere the stamps advance at the gyro's period, give or take the 10 ms granularity of /clock.
+    assert np.median(steps[steps > 0]) == pytest.approx(0.02, abs=0.005)
+    assert re.search(r'the clock stepped by -(9\.9\d\d|10\.0\d\d) s', output.read_text())
