@@ -11,8 +11,10 @@ A file is ``/**: ros__parameters: {...}`` so that the node takes it with
 - ``temperature_range_c`` ([min, max], where the calibration is trusted),
 - optional ``filters.temperature_rate_tau_s`` and ``filters.rate_change_tau_s``,
 - optional extended terms: ``extended.signals`` (list, one term per signal) and
-  for each ``extended.<signal>.form``, ``.coefficients``, ``.powers`` (power form),
-  ``.time_constant_s`` (exp_decay form); see :mod:`art_gyro_calibration.terms`.
+  for each ``extended.<signal>.form``, ``.coefficients``, ``.powers`` and optional
+  ``.rate_powers`` (power form), ``.time_constant_s`` (exp_decay form, and the lag of
+  ``temperature_lag``); see :mod:`art_gyro_calibration.terms`. Terms the node would apply
+  wrongly from some start are refused: a heading term, a warm-up counted from the run's start.
 
 Any other key is refused (a misspelt ``extnded:`` would silently drop the fitted terms),
 and so is a model that overflows anywhere in the envelope it is used in (:func:`check_envelope`).
@@ -36,7 +38,7 @@ import yaml
 
 from art_gyro_calibration.frame import INT16_MIN
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
-from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalFilters
+from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, SignalFilters
 from art_gyro_calibration.terms import FORMS, Term
 
 PACKAGE = 'art_gyro_calibration'
@@ -72,7 +74,7 @@ class Calibration:
     @property
     def model(self) -> ErrorModel:
         """The error model: polynomial and extended terms."""
-        return ErrorModel(self.polynomial, self.terms)
+        return ErrorModel(self.polynomial, self.terms, self.temperature_range_c)
 
     def to_parameters(self) -> dict[str, Any]:
         """Flat dotted parameters, the inverse of :func:`from_parameters`."""
@@ -95,7 +97,9 @@ class Calibration:
             params[prefix + 'coefficients'] = [float(c) for c in t.coefficients]
             if t.form == 'power':
                 params[prefix + 'powers'] = list(t.powers)
-            if t.form == 'exp_decay':
+            if t.rate_powers != (0,):
+                params[prefix + 'rate_powers'] = list(t.rate_powers)
+            if t.form == 'exp_decay' or t.signal == LAGGED_SIGNAL:
                 params[prefix + 'time_constant_s'] = t.time_constant_s
         return params
 
@@ -106,8 +110,11 @@ def _key_sets() -> tuple[frozenset[str], frozenset[str]]:
     Taken from a calibration with one term of every form, so a field added to ``to_parameters``
     is known here without a second list to keep in step.
     """
-    terms = tuple(Term(signal=f'signal_{form}', form=form, coefficients=(0.0,) * Term.width(form, (1,)),
-                       powers=(1,) if form == 'power' else (), time_constant_s=1.0) for form in FORMS)
+    # Every optional field set: a power term with rate powers on the lagged signal (which carries a time constant).
+    shapes = {'power': ((1,), (0, 1)), 'exp_decay': ((), (0,)), 'harmonic': ((), (0,))}
+    terms = tuple(Term(signal=LAGGED_SIGNAL if form == 'power' else f'signal_{form}', form=form,
+                       coefficients=(0.0,) * Term.width(form, *shapes[form]), powers=shapes[form][0],
+                       rate_powers=shapes[form][1], time_constant_s=1.0) for form in FORMS)
     sample = Calibration('SAMPLE', 1.0, ArtPolynomial([[0.0]]), (0.0, 1.0), terms=terms)
     fixed, fields = set(), set()
     for key in sample.to_parameters():
@@ -229,7 +236,8 @@ def signal_envelope(calibration: Calibration, signal: str) -> tuple[float, float
     span_c = (high_c - low_c) / filters.temperature_rate_tau_s
     change = 2.0 * full_scale / filters.rate_change_tau_s
     return {
-        'temperature': (low_c, high_c), 'temperature_rate': (-span_c, span_c), 'time': (0.0, TIME_HORIZON_S),
+        'temperature': (low_c, high_c), 'temperature_lag': (low_c, high_c), 'temperature_rate': (-span_c, span_c),
+        'time': (0.0, TIME_HORIZON_S), 'time_since_power_on': (0.0, TIME_HORIZON_S),
         'rate': (-full_scale, full_scale), 'rate_abs': (0.0, full_scale), 'rate_sign': (-1.0, 1.0),
         'rate_change': (-change, change), 'angle': (-full_scale * TIME_HORIZON_S, full_scale * TIME_HORIZON_S),
     }.get(signal)
@@ -259,8 +267,10 @@ def check_envelope(calibration: Calibration, where: str) -> None:
         low, high = envelope
         c = np.abs(np.asarray(term.coefficients, dtype=float))
         with np.errstate(over='ignore', invalid='ignore'):
-            if term.form == 'power':
-                bound = float(np.sum(c * max(abs(low), abs(high)) ** np.asarray(term.powers, dtype=float)))
+            if term.form == 'power':   # c[j * len(q) + k] multiplies x**p[j] * rate**q[k]
+                monomials = np.outer(max(abs(low), abs(high)) ** np.asarray(term.powers, dtype=float),
+                                     rate_max ** np.asarray(term.rate_powers, dtype=float))
+                bound = float(np.sum(c * monomials.ravel()))
             elif term.form == 'exp_decay':
                 bound = float(c[0] * np.exp(-low / term.time_constant_s))
             else:
@@ -281,20 +291,40 @@ def _terms(params: Mapping[str, Any], where: str) -> tuple[Term, ...]:
     for signal in signals:
         prefix = f'extended.{signal}.'
         form = _get(params, prefix + 'form', where)
-        powers = _list(params.get(prefix + 'powers', []), prefix + 'powers', where, 'whole numbers')
-        if not all(isinstance(p, int) and not isinstance(p, bool) for p in powers):
-            raise CalibrationError(f'{where}: {prefix}powers must be whole numbers, got {powers!r}')
+        powers = _whole_numbers(params.get(prefix + 'powers', []), prefix + 'powers', where)
+        rate_powers = _whole_numbers(params.get(prefix + 'rate_powers', [0]), prefix + 'rate_powers', where)
         try:
-            terms.append(Term(
+            term = Term(
                 signal=signal, form=form,
                 coefficients=tuple(_numbers(_get(params, prefix + 'coefficients', where),
                                             prefix + 'coefficients', where)),
                 powers=tuple(powers),
                 time_constant_s=_number(params.get(prefix + 'time_constant_s', 0.0),
-                                        prefix + 'time_constant_s', where)))
+                                        prefix + 'time_constant_s', where),
+                rate_powers=tuple(rate_powers))
         except ValueError as e:
             raise CalibrationError(f'{where}: {e}') from None
+        _check_start_up_safe(term, prefix, where)
+        terms.append(term)
     return tuple(terms)
+
+
+def _whole_numbers(value: Any, key: str, where: str) -> list[int]:
+    numbers = _list(value, key, where, 'whole numbers')
+    if not all(isinstance(p, int) and not isinstance(p, bool) for p in numbers):
+        raise CalibrationError(f'{where}: {key} must be whole numbers, got {numbers!r}')
+    return numbers
+
+
+def _check_start_up_safe(term: Term, prefix: str, where: str) -> None:
+    """Refuse a term the node would apply wrongly from whatever state it starts in."""
+    if term.form == 'harmonic' or term.signal == 'angle':
+        raise CalibrationError(f'{where}: {prefix}form: a term of the heading needs an absolute heading, which '
+                               'the node does not have (calibrate fit reports such an effect, it does not write it)')
+    if term.form == 'exp_decay' and term.signal == 'time':
+        raise CalibrationError(f'{where}: {prefix}form: a warm-up decays from the gyro\'s power-on, not from the '
+                               'node\'s start: use the signal time_since_power_on (the node applies it when '
+                               'told powered_on_at_start)')
 
 
 def flatten(tree: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:

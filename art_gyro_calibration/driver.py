@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import serial
 
-from art_gyro_calibration.frame import RawSample, make_parser
+from art_gyro_calibration.frame import KvhFogConfig, RawSample, make_parser
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 # A read returns after this long without data: bounds how late stop() and an unplug are seen.
@@ -63,6 +63,7 @@ class DriverStats:
     connected: bool
     last_error: str
     port: str
+    lost_frames: int = 0   # numbered by the gyro but never received whole (kvh_fog sequence gaps)
 
 
 class WireStamper:
@@ -149,7 +150,7 @@ class Rd2100Driver:
 
     def __init__(self, port: str, baud: int, protocol: str, on_frame: Callable[[Frame], None], *,
                  clock_ns: Callable[[], int] = time.time_ns, reopen_period_s: float = 0.5,
-                 on_link: Callable[[bool, str], None] | None = None,
+                 on_link: Callable[[bool, str], None] | None = None, kvh_fog: KvhFogConfig | None = None,
                  on_warning: Callable[[str], None] | None = None,
                  monotonic_ns: Callable[[], int] = time.monotonic_ns) -> None:
         """``clock_ns`` is the stamps' clock; ``on_warning`` hears of clock steps and of no frames after an open."""
@@ -159,7 +160,7 @@ class Rd2100Driver:
             raise ValueError(f'baud {baud!r} is not a standard rate: one of {", ".join(map(str, STANDARD_BAUDS))}')
         if not (isinstance(reopen_period_s, (int, float)) and math.isfinite(reopen_period_s) and reopen_period_s > 0):
             raise ValueError(f'reopen_period_s must be a positive number of seconds, got {reopen_period_s!r}')
-        self._parser = make_parser(protocol)
+        self._parser = make_parser(protocol, kvh_fog)
         self.port = port
         self.baud = baud
         self.protocol = protocol
@@ -188,7 +189,7 @@ class Rd2100Driver:
         p = self._parser.stats
         return DriverStats(frames=p.frames, rejected=p.rejected, rejected_by_reason=dict(p.rejected_by_reason),
                            bytes_skipped=p.bytes_skipped, reopens=self._reopens, connected=self._connected,
-                           last_error=self._last_error, port=self.port)
+                           last_error=self._last_error, port=self.port, lost_frames=p.lost_frames)
 
     def start(self) -> None:
         """Start the reader thread; returns at once, even if the port is missing (it retries)."""

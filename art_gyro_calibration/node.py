@@ -54,9 +54,9 @@ from std_srvs.srv import Trigger
 from art_gyro_calibration.calibration import (CALIBRATION_KEYS, Calibration, CalibrationError, closest,
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
                                               load_calibration, read_yaml, resolve_calibration_url)
-from art_gyro_calibration.compensation import Compensator
+from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, Compensator, RunStart, plausible
 from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver
-from art_gyro_calibration.frame import PROTOCOLS
+from art_gyro_calibration.frame import AXIS_INVALID, KVH_FOG, PROTOCOLS, KvhFogConfig
 from art_gyro_calibration.log import RawLogWriter
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES,
                                               MotionError, StaticBias, StaticBiasCollector)
@@ -68,10 +68,6 @@ UNMEASURED_VARIANCE = 1.0e6
 DIAGNOSTICS_PERIOD_S = 1.0
 # A static bias collection with no frame for this long has lost its gyro: it is abandoned.
 COLLECTION_STALL_S = 5.0
-# A frame claiming a temperature outside what any electronics survives is corrupt (its 8-bit
-# checksum passed by luck) or the temperature field is not where this package assumes it: at
-# +-1600 degC the polynomial alone would add 70-80 deg/s, so such a frame is dropped and counted.
-PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
 # A raw log that failed (full disk, deleted) is reopened this often; frames meanwhile are not logged.
 LOG_RETRY_S = 5.0
 # An out-of-range temperature is said on the console at most this often.
@@ -116,13 +112,41 @@ PARAMETERS: dict[str, tuple[Any, ...]] = {
                                 Range(1e-6, 10.0)),
     'yaw_rate_stddev': (0.001, 'Standard deviation of the compensated yaw rate (rad/s); its square is '
                                'angular_velocity_covariance[8].', Range(1e-7, 1.0)),
+    'powered_on_at_start': (False, 'The gyro was switched on with the node (a cold start): a warm-up term of the '
+                                   'calibration then decays from the node\'s first frame. Otherwise (the default, '
+                                   'safe on a warm restart) a warm-up term counts as decayed.'),
     'log_path': ('', 'If set, every received frame is appended as t,raw_rate,raw_temp: a file to create '
                      '(must not exist) or a directory, where <serial>_<UTC time>.csv is created.'),
 }
 
+# --- protocol kvh_fog (KVH DSP-1750/1760, 1725/1750/1775) ------------------------------------------
+# What the unit is set to send, which its messages do not say: name: (default, description). Declared
+# and checked at startup whatever the protocol; read by the kvh_fog parser only. Defaults: the manuals'.
+_KVH_FOG_DESCRIPTIONS = {
+    'message_format': 'kvh_fog message format (=OUTPUTFMT): A (36 bytes, the default), B (40) or C (38).',
+    'yaw_axis': 'kvh_fog axis that points up on the robot: x, y or z, or -x, -y, -z if it points down.',
+    'rotation': 'kvh_fog rotation output (=ROTFMT): delta_angle (the default) or rate.',
+    'angle_units': 'kvh_fog angle units (=ROTUNITS): rad (the default) or deg.',
+    'output_rate_hz': 'kvh_fog messages per second (=DR); a delta angle times it is the rate.',
+    'temperature_units': 'kvh_fog temperature units (=TEMPUNITS): C (the default), C_100, F or F_100.',
+}
+KVH_FOG_PARAMETERS: dict[str, tuple[Any, str]] = {
+    f'kvh_fog.{name}': (getattr(KvhFogConfig(), name), description)
+    for name, description in _KVH_FOG_DESCRIPTIONS.items()}
+
 
 class ParameterError(ValueError):
     """A node parameter that cannot be used, named in the message."""
+
+
+def check_kvh_fog_calibration(calibration: Calibration, source: str) -> None:
+    """Refuse for protocol kvh_fog a calibration whose scale factors are not 1.0 (its samples are deg/s, degC)."""
+    if calibration.rate_scale_factor != 1.0 or calibration.temp_scale_factor != 1.0:
+        raise ParameterError(
+            f'parameter protocol is {KVH_FOG}, whose samples are deg/s and degC, but the calibration of '
+            f'{calibration.serial_number} from {source} has rate_scale_factor {calibration.rate_scale_factor} and '
+            f'temp_scale_factor {calibration.temp_scale_factor}: both must be 1.0 '
+            '(config/KVH_DSP1760_EXAMPLE.yaml is an example)')
 
 
 @dataclass(frozen=True)
@@ -140,6 +164,7 @@ class Settings:
     static_bias_max_mean_dps: float
     static_bias_max_std_dps: float
     yaw_rate_stddev: float
+    powered_on_at_start: bool
     log_path: str
 
 
@@ -279,14 +304,18 @@ class GyroNode(Node):
         super().__init__(NODE_NAME)
         self._files = params_file_values(params_files(argv), self.get_fully_qualified_name())
         # Known now: the node's own, a calibration's, rclpy's (use_sim_time); QoS overrides once the publisher is made.
-        self._check_known_names(lambda name: name in PARAMETERS or is_calibration_key(name) or self.has_parameter(name)
+        self._check_known_names(lambda name: name in PARAMETERS or name in KVH_FOG_PARAMETERS
+                                or is_calibration_key(name) or self.has_parameter(name)
                                 or name.startswith('qos_overrides.'))
         self.settings = check_settings({name: self._override(name, entry[0]) for name, entry in PARAMETERS.items()})
         for name in PARAMETERS:
             # Read-only: the node reads them once at startup, so a later change is refused, not ignored.
             self.declare_parameter(name, getattr(self.settings, name), descriptor(name), ignore_override=True)
+        self.kvh_fog = self._kvh_fog_config()
         self.calibration, self.calibration_source = self._load_calibration()
-        self._compensator = Compensator(self.calibration)
+        if self.settings.protocol == KVH_FOG:
+            check_kvh_fog_calibration(self.calibration, self.calibration_source)
+        self._compensator = Compensator(self.calibration, RunStart(self.settings.powered_on_at_start))
         self._lock = threading.Lock()
         self._closing = threading.Event()
         self._collection: _Collection | None = None
@@ -306,6 +335,7 @@ class GyroNode(Node):
         self._implausible_reported = 0
         self._last_drop_error = ''
         self._rate_window = (time.monotonic(), 0)
+        self._lost_reported = self._invalid_reported = 0   # kvh_fog: as of the last diagnostics
         self._log_lock = threading.Lock()
         self._log: RawLogWriter | None = None
         self._log_stream: Any = None
@@ -355,7 +385,7 @@ class GyroNode(Node):
             f'reading {self.settings.port} at {self.settings.baud} baud ({self.settings.protocol})')
         self._driver = Rd2100Driver(self.settings.port, self.settings.baud, self.settings.protocol,
                                     self._on_frame, on_link=self._on_link, on_warning=self._on_driver_warning,
-                                    clock_ns=lambda: self.get_clock().now().nanoseconds)
+                                    clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog)
         self._driver.start()
 
     # --- startup -------------------------------------------------------------------------
@@ -367,7 +397,7 @@ class GyroNode(Node):
 
     def _check_known_names(self, known: Any) -> None:
         """Refuse a parameter given to the node that nothing reads, naming the closest valid name."""
-        names = set(PARAMETERS) | set(CALIBRATION_KEYS) | set(self._parameters)
+        names = set(PARAMETERS) | set(KVH_FOG_PARAMETERS) | set(CALIBRATION_KEYS) | set(self._parameters)
         for name in self._parameter_overrides:
             if not known(name):
                 raise ParameterError(f'unknown parameter {name!r} (from {self._where(name)}){closest(name, names)}')
@@ -376,6 +406,18 @@ class GyroNode(Node):
         if name not in self._parameter_overrides:
             return default
         return _coerce(name, self._parameter_overrides[name].value, default)
+
+    def _kvh_fog_config(self) -> KvhFogConfig:
+        values = {}
+        for name, (default, description) in KVH_FOG_PARAMETERS.items():
+            value = self._override(name, default)
+            self.declare_parameter(name, value, ParameterDescriptor(description=description, read_only=True),
+                                   ignore_override=True)
+            values[name.removeprefix('kvh_fog.')] = value
+        try:
+            return KvhFogConfig(**values)
+        except ValueError as e:
+            raise ParameterError(f'parameter {e}') from None
 
     def _load_calibration(self) -> tuple[Calibration, str]:
         serial = self.settings.serial_number
@@ -502,7 +544,7 @@ class GyroNode(Node):
     def _publish(self, raw_rate: int, raw_temp: int, stamp_ns: int, t: float) -> None:
         compensator = self._compensator
         rate_dps, temp_c = compensator.scale(raw_rate, raw_temp)
-        if not PLAUSIBLE_TEMPERATURE_C[0] <= temp_c <= PLAUSIBLE_TEMPERATURE_C[1]:
+        if not plausible(temp_c):
             self._dropped[IMPLAUSIBLE_TEMPERATURE] += 1
             return
         try:
@@ -517,7 +559,7 @@ class GyroNode(Node):
         collection = self._collection
         if collection is not None:
             collection.last_sample = time.monotonic()
-            if collection.collector.add(rate_dps, error_dps):
+            if collection.collector.add(rate_dps, error_dps, t, temp_c, compensator.last_causal_dps):
                 self._finish_collection(collection)
         imu = self._imu
         imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
@@ -530,7 +572,7 @@ class GyroNode(Node):
         if not low <= temp_c <= high:
             self._outside_range += 1
             self.get_logger().warning(f'gyro temperature {temp_c:.2f} degC is outside the calibrated range '
-                                      f'{low:g}..{high:g} degC: the compensation is extrapolated',
+                                      f'{low:g}..{high:g} degC: compensated as at the nearest end of it',
                                       throttle_duration_sec=TEMPERATURE_WARNING_PERIOD_S)
         self._published += 1
 
@@ -550,7 +592,7 @@ class GyroNode(Node):
             if self._collection is None:
                 self._collection = _Collection(StaticBiasCollector(
                     self.settings.bias_samples, self.settings.static_bias_max_mean_dps,
-                    self.settings.static_bias_max_std_dps))
+                    self.settings.static_bias_max_std_dps, keep_window=self._compensator.refinable))
                 self.get_logger().info(f'static bias: collecting {self.settings.bias_samples} samples; '
                                        'keep the gyro still')
             return self._collection
@@ -634,7 +676,8 @@ class GyroNode(Node):
     def _status(self, name: str, level: bytes, message: str, values: dict[str, Any]) -> DiagnosticStatus:
         # The fully qualified name: two gyros in two namespaces report apart.
         return DiagnosticStatus(level=level, name=f'{self.get_fully_qualified_name()}: {name}', message=message,
-                                hardware_id=f'KVH RD2100 {self.calibration.serial_number}',
+                                hardware_id=f'KVH {"FOG" if self.settings.protocol == KVH_FOG else "RD2100"} '
+                                            f'{self.calibration.serial_number}',
                                 values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
 
     def _link_status(self) -> DiagnosticStatus:
@@ -646,7 +689,8 @@ class GyroNode(Node):
         values: dict[str, Any] = {
             'port': stats.port, 'connected': stats.connected, 'reopens': stats.reopens,
             'last_error': stats.last_error, 'frame_rate_hz': f'{rate_hz:.2f}', 'frames': stats.frames,
-            'rejected': stats.rejected, 'bytes_skipped': stats.bytes_skipped, 'published': self._published}
+            'rejected': stats.rejected, 'bytes_skipped': stats.bytes_skipped, 'published': self._published,
+            'lost_frames': stats.lost_frames}
         for reason, count in stats.rejected_by_reason.items():
             values[f'rejected_{reason}'] = count
         # Frames read but not published, per reason: since the last report, and in all.
@@ -658,15 +702,23 @@ class GyroNode(Node):
             values[f'dropped_{reason}'] = count
         if dropped[NOT_FINITE]:
             values['last_not_finite_error'] = self._last_drop_error or 'a non-finite compensated rate'
+        # kvh_fog: frames the gyro numbered but that never came, and frames it flagged invalid, since the last report.
+        invalid = stats.rejected_by_reason.get(AXIS_INVALID, 0)
+        lost, self._lost_reported = stats.lost_frames - self._lost_reported, stats.lost_frames
+        flagged, self._invalid_reported = invalid - self._invalid_reported, invalid
         if not stats.connected:
             return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
         if rate_hz == 0.0:
             return self._status('link', DiagnosticStatus.WARN, 'connected, no frames', values)
         # An implausible temperature is the temperature status's ERROR; the others would show nowhere else.
         if any(count for reason, count in recent.items() if reason != IMPLAUSIBLE_TEMPERATURE):
-            lost = ', '.join(f'{count} {reason}' for reason, count in recent.items() if count)
+            not_published = ', '.join(f'{count} {reason}' for reason, count in recent.items() if count)
             return self._status('link', DiagnosticStatus.ERROR, f'connected, {rate_hz:.1f} Hz; frames not '
-                                f'published since the last report: {lost}', values)
+                                f'published since the last report: {not_published}', values)
+        if lost or flagged:
+            return self._status('link', DiagnosticStatus.WARN,
+                                f'connected, {rate_hz:.1f} Hz; since the last report {lost} frames lost (sequence '
+                                f'gaps), {flagged} flagged invalid by the gyro', values)
         return self._status('link', DiagnosticStatus.OK, f'connected, {rate_hz:.1f} Hz', values)
 
     def _log_status(self) -> DiagnosticStatus:
@@ -722,7 +774,9 @@ class GyroNode(Node):
             level = DiagnosticStatus.ERROR
             parts.append(f'{dropped} frames since the last report claimed a temperature outside '
                          f'{PLAUSIBLE_TEMPERATURE_C[0]:g}..{PLAUSIBLE_TEMPERATURE_C[1]:g} degC and were dropped: '
-                         'corrupt frames, or the temperature field is not m[3]:m[4] on this unit')
+                         'corrupt frames, or ' + ('kvh_fog.temperature_units is not what the unit sends'
+                                                  if self.settings.protocol == KVH_FOG
+                                                  else 'the temperature field is not m[3]:m[4] on this unit'))
         return self._status('temperature', level, '; '.join(parts), values)
 
     # --- shutdown ------------------------------------------------------------------------

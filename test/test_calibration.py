@@ -58,9 +58,10 @@ def test_files_are_ros2_parameter_files(serial: str) -> None:
 def test_round_trip_with_extended_terms(tmp_path: Path) -> None:
     base = load_packaged_calibration('NAVC4058')
     cal = Calibration(base.serial_number, base.rate_scale_factor, base.polynomial, base.temperature_range_c,
-                      terms=(Term('temperature_rate', 'power', (12.5,), (1,)),
-                             Term('time', 'exp_decay', (0.02,), (), 900.0),
-                             Term('angle', 'harmonic', (0.001, -0.002)),
+                      terms=(Term('temperature_rate', 'power', (12.5, 0.01), (1,), rate_powers=(0, 1)),
+                             Term('time_since_power_on', 'exp_decay', (0.02,), (), 900.0),
+                             Term('time', 'power', (1e-7,), (1,)),
+                             Term('temperature_lag', 'power', (1e-3, 2e-5), (1, 2), 600.0),
                              Term('supply_v', 'power', (0.003,), (1,))))
     path = tmp_path / 'cal.yaml'
     write_calibration(path, cal, header='fitted by a test')
@@ -85,8 +86,19 @@ def _params(serial: str = 'NAVC3545') -> dict:
     ({'temperature_range_c': [50.0, 10.0]}, 'min < max'),
     ({'serial_number': 'NAVC 3545'}, 'serial_number must be'),
     ({'extended.signals': ['time']}, "missing parameter 'extended.time.form'"),
-    ({'extended.signals': ['time'], 'extended.time.form': 'exp_decay', 'extended.time.coefficients': [0.1]},
+    ({'extended.signals': ['time_since_power_on'], 'extended.time_since_power_on.form': 'exp_decay',
+      'extended.time_since_power_on.coefficients': [0.1]}, 'time_constant_s must be positive'),
+    # Terms the node would apply wrongly from some start: a warm-up counted from the node's start, a heading term.
+    ({'extended.signals': ['time'], 'extended.time.form': 'exp_decay', 'extended.time.coefficients': [0.1],
+      'extended.time.time_constant_s': 600.0}, "extended.time.form: a warm-up decays from the gyro's power-on"),
+    ({'extended.signals': ['angle'], 'extended.angle.form': 'harmonic', 'extended.angle.coefficients': [0.1, 0.2]},
+     'extended.angle.form: a term of the heading needs an absolute heading'),
+    ({'extended.signals': ['temperature_lag'], 'extended.temperature_lag.form': 'power',
+      'extended.temperature_lag.coefficients': [0.1], 'extended.temperature_lag.powers': [1]},
      'time_constant_s must be positive'),
+    ({'extended.signals': ['temperature_rate'], 'extended.temperature_rate.form': 'power',
+      'extended.temperature_rate.coefficients': [0.1], 'extended.temperature_rate.powers': [1],
+      'extended.temperature_rate.rate_powers': [0, 1]}, 'needs 2 coefficients'),
     ({'extended.signals': ['rate'], 'extended.rate.form': 'spline', 'extended.rate.coefficients': [0.1]},
      "form 'spline' is not one of"),
     ({'filters.temperature_rate_tau_s': 0.0}, 'temperature_rate_tau_s must be a positive'),
@@ -181,11 +193,13 @@ def test_terms_that_overflow_in_the_envelope_are_refused(tmp_path: Path, extende
 
 
 def test_terms_finite_in_the_envelope_are_kept(tmp_path: Path) -> None:
-    """A 1 ms warm-up on time decays to 0 (time is never negative); a bounded harmonic on the angle."""
+    """A 1 ms warm-up decays to 0 (the time since power-on is never negative); a rate cross term."""
     path = tmp_path / 'cal.yaml'
-    path.write_text(_cal_text('    extended: {signals: [time, angle], time: {form: exp_decay, time_constant_s: 0.001, '
-                              'coefficients: [0.01]}, angle: {form: harmonic, coefficients: [0.1, 0.2]}}\n'))
-    assert [t.signal for t in load_calibration(path).terms] == ['time', 'angle']
+    path.write_text(_cal_text('    extended: {signals: [time_since_power_on, temperature_lag], time_since_power_on: '
+                              '{form: exp_decay, time_constant_s: 0.001, coefficients: [0.01]}, temperature_lag: '
+                              '{form: power, powers: [2], rate_powers: [0, 3], time_constant_s: 60.0, '
+                              'coefficients: [0.1, 0.2]}}\n'))
+    assert [t.signal for t in load_calibration(path).terms] == ['time_since_power_on', 'temperature_lag']
 
 
 def test_polynomial_that_overflows_is_refused() -> None:
@@ -227,7 +241,7 @@ def test_known_keys_follow_to_parameters() -> None:
     """The known keys are what to_parameters writes, for terms of every form."""
     from art_gyro_calibration.calibration import CALIBRATION_KEYS, TERM_FIELDS, is_calibration_key
     assert set(_params()) <= CALIBRATION_KEYS
-    assert TERM_FIELDS == {'form', 'coefficients', 'powers', 'time_constant_s'}
+    assert TERM_FIELDS == {'form', 'coefficients', 'powers', 'rate_powers', 'time_constant_s'}
     assert is_calibration_key('extended.supply_v.powers') and not is_calibration_key('extnded.signals')
 
 

@@ -202,6 +202,7 @@ def test_no_frames_after_opening_is_warned_once(garbage, expected, tmp_path):
         driver = Rd2100Driver(silent.path, 9600, 'binary', lambda f: None, on_warning=warnings.append)
         driver.start()
         try:
+            assert wait_for(lambda: driver.stats.connected)
             silent.inject(garbage)
             assert wait_for(lambda: warnings)
             time.sleep(0.3)

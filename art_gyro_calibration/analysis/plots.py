@@ -105,7 +105,7 @@ def _residual(result: LoopResult, i: int, path: Path) -> Path:
     effect = result.effects[i]
     without = ErrorModel(model.polynomial, model.terms[:i] + model.terms[i + 1:])
     rows = result.segments.rows()
-    x = result.signals.get(effect.signal)[rows]
+    x = result.signals.for_term(effect.term)[rows]
     partial = (result.error - without.error(result.signals))[rows]
     order = np.argsort(x, kind='stable')
     chunks = np.array_split(order, min(60, len(order)))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,7 @@ from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.analysis.loop import LoopResult
 from art_gyro_calibration.analysis.metrics import error_metrics
+from art_gyro_calibration.analysis.replay import Validation
 from art_gyro_calibration.static_bias import static_bias
 
 STAGES = ('uncalibrated', 'art', 'extended')
@@ -107,7 +109,45 @@ def markdown_summary(report: dict[str, Any]) -> str:
         for e in report['effects']:
             lines.append(f'- **{e["signal"]}**: {e["description"]}; {e["held_out_rms_without_dps"]:.5f} -> '
                          f'{e["held_out_rms_with_dps"]:.5f} deg/s')
+    if 'validation' in report:
+        lines += validation_markdown(report['validation'])
     return '\n'.join(lines) + '\n'
+
+
+def validation_section(validation: Validation, sources: Sequence[str]) -> dict[str, Any]:
+    """REPORT.json's ``validation``: per run and calibration the field errors (deg/s, deg/h, deg), and the drops."""
+    return {
+        'runs': [{'source': source, 'calibrations': {name: e.to_dict() for name, e in run.items()}}
+                 for source, run in zip(sources, validation.runs)],
+        'dropped': [{'signal': d.term.signal, 'description': d.term.describe(), 'reason': d.reason}
+                    for d in validation.dropped],
+    }
+
+
+def field_table(rows: Sequence[tuple[str, str, dict[str, Any]]]) -> list[str]:
+    """Markdown table of field errors: one row per (run, calibration, ``FieldErrors.to_dict()``)."""
+    def number(value: float | None, digits: int) -> str:
+        return 'n/a' if value is None else f'{value:.{digits}f}'
+
+    lines = ['| run | calibration | mean bias (deg/h) | systematic rms with bias (deg/h) | '
+             'heading after 10 min (deg) | heading after 1 h (deg) |', '|---|---|---:|---:|---:|---:|']
+    for run, name, e in rows:
+        lines.append(f'| {run} | {name} | {number(e["mean_bias_dph"], 2)} | {number(e["systematic_rms_dph"], 2)} | '
+                     f'{number(e["heading_10min_deg"], 3)} | {number(e["heading_1h_deg"], 3)} |')
+    return lines
+
+
+def validation_markdown(validation: dict[str, Any]) -> list[str]:
+    """REPORT.md's lines on the validation runs."""
+    lines = ['', '## Field replay on other runs', '',
+             'Each calibration applied to another run as the node applies it (static bias over its first rows, '
+             'signals from its first sample), errors from the end of the static bias on, the bias included.', '']
+    lines += field_table([(run['source'], name, e) for run in validation['runs']
+                          for name, e in run['calibrations'].items()])
+    if validation['dropped']:
+        lines += ['', 'Dropped from the written calibration:', '']
+        lines += [f'- **{d["signal"]}** ({d["description"]}): {d["reason"]}' for d in validation['dropped']]
+    return lines
 
 
 def write_report(path: str | os.PathLike[str], report: dict[str, Any]) -> Path:
