@@ -253,3 +253,21 @@ def test_calibration_urls_resolve(tmp_path: Path) -> None:
     assert resolve_calibration_url(str(tmp_path / 'y.yaml')) == tmp_path / 'y.yaml'
     with pytest.raises(CalibrationError, match='no config/NAVC0000.yaml in'):
         resolve_calibration_url('package://art_gyro_calibration/config/NAVC0000.yaml')
+
+
+def test_calibrate_apply_refuses_what_the_node_refuses(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The same check in calibrate apply: a misspelt key and an overflowing term, file and key named."""
+    pytest.importorskip('scipy')
+    from art_gyro_calibration.analysis.cli import main
+    log = tmp_path / 'LOG.csv'
+    log.write_text('t,raw_rate,raw_temp\n' + ''.join(f'{i * 0.1:.6f},3,500\n' for i in range(200)))
+    for name, extra, message in (
+            ('misspelt.yaml', '    extnded:\n      signals: [time]\n', "unknown key 'extnded.signals'"),
+            ('overflow.yaml', '    extended: {signals: [rate], rate: {form: power, powers: [400], '
+                              'coefficients: [1.0e-9]}}\n', 'extended.rate: the power term overflows')):
+        path = tmp_path / name
+        path.write_text(_cal_text(extra))
+        assert main(['apply', str(log), '--calibration', str(path), '--out', str(tmp_path / f'{name}.csv')]) == 1
+        err = capsys.readouterr().err
+        assert f'{path}: {message}' in err, err
+        assert not (tmp_path / f'{name}.csv').exists()
