@@ -14,6 +14,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml'))),
+        ('share/' + PACKAGE + '/launch', sorted(glob('launch/*.launch.py'))),
     ],
     python_requires='>=3.10',
     # The runtime a robot installs (the node, the driver, the fake gyro) needs only these;
