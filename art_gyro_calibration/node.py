@@ -328,8 +328,7 @@ class GyroNode(Node):
         self._last_temp_c = math.nan
         self._temp_range = self.calibration.temperature_range_c
         # Frames outside the calibrated range: the latest temperature alone would hide a glitch.
-        self._outside_range = 0
-        self._outside_range_reported = 0   # as of the last diagnostics
+        self._outside_range_reported = 0   # frames clamped (Compensator.clamped) as of the last diagnostics
         self._dropped = {IMPLAUSIBLE_TEMPERATURE: 0, NOT_FINITE: 0}
         self._dropped_reported = dict(self._dropped)
         self._implausible_reported = 0
@@ -549,11 +548,10 @@ class GyroNode(Node):
             return
         try:
             error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals
-            corrected = compensator.correct(rate_dps, error_dps)
         except ArithmeticError as e:
-            error_dps = corrected = math.nan
+            error_dps = math.nan
             self._last_drop_error = f'{type(e).__name__}: {e}'
-        if not math.isfinite(corrected):
+        if not math.isfinite(error_dps):
             self._dropped[NOT_FINITE] += 1
             return
         collection = self._collection
@@ -561,6 +559,9 @@ class GyroNode(Node):
             collection.last_sample = time.monotonic()
             if collection.collector.add(rate_dps, error_dps, t, temp_c, compensator.last_causal_dps):
                 self._finish_collection(collection)
+        # After the collection: the frame that completes a static bias is the first corrected with it,
+        # as calibrate apply corrects it.
+        corrected = compensator.correct(rate_dps, error_dps)
         imu = self._imu
         imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         imu.angular_velocity.z = math.radians(corrected)
@@ -569,8 +570,7 @@ class GyroNode(Node):
         self._temp_pub.publish(self._temperature)
         self._last_temp_c = temp_c
         low, high = self._temp_range
-        if not low <= temp_c <= high:
-            self._outside_range += 1
+        if not low <= temp_c <= high:   # the Compensator clamped it and counted it
             self.get_logger().warning(f'gyro temperature {temp_c:.2f} degC is outside the calibrated range '
                                       f'{low:g}..{high:g} degC: compensated as at the nearest end of it',
                                       throttle_duration_sec=TEMPERATURE_WARNING_PERIOD_S)
@@ -739,6 +739,9 @@ class GyroNode(Node):
             'calc_static_bias_drift_dps': f'{bias.calc_static_bias_drift_dps:.6f}',
             'samples': bias.samples, 'rate_std_dps': f'{bias.rate_std_dps:.6f}',
             'age_s': f'{time.monotonic() - bias_time:.0f}' if bias.samples else 'none',
+            # The temperature-rate refinement: pending while the bias window is kept, then its change.
+            'refinement': ('pending' if bias.window is not None and self._compensator.refinable
+                           else f'{bias.refined_dps:+.6f} dps' if bias.refined_dps else 'none'),
             'last_refusal': refusal}
         if collection is not None:
             progress = f'{collection.collector.count}/{self.settings.bias_samples}'
@@ -755,7 +758,7 @@ class GyroNode(Node):
     def _temperature_status(self) -> DiagnosticStatus:
         temp = self._last_temp_c
         low, high = self._temp_range
-        outside = self._outside_range
+        outside = self._compensator.clamped
         recent, self._outside_range_reported = outside - self._outside_range_reported, outside
         implausible = self._dropped[IMPLAUSIBLE_TEMPERATURE]
         dropped, self._implausible_reported = implausible - self._implausible_reported, implausible
@@ -769,7 +772,8 @@ class GyroNode(Node):
             parts = [f'{temp:.2f} degC is outside the calibrated range {low}..{high} degC']
         elif recent:
             level = DiagnosticStatus.WARN
-            parts.append(f'{recent} frames since the last report were outside the calibrated range {low}..{high} degC')
+            parts.append(f'{recent} frames since the last report were outside the calibrated range {low}..{high} degC '
+                         '(compensated at its edge)')
         if dropped:
             level = DiagnosticStatus.ERROR
             parts.append(f'{dropped} frames since the last report claimed a temperature outside '

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.calibration import TEMP_SCALE_FACTOR, Calibration
+from art_gyro_calibration.compensation import RunStart
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.analysis.metrics import (DEFAULT_SETTLE_S, Segments, correlation_time_s, noise_floor,
@@ -94,6 +95,7 @@ class LoopResult:
     bias_instability_dph: float = 0.0
     adequacy: Adequacy | None = None
     findings: tuple[Effect, ...] = ()   # effects found but not written (heading: the node has no absolute heading)
+    start: RunStart = RunStart(powered_on_at_start=True)   # how the fitted log began, for replaying it
 
 
 def _one_blas_thread(function: Callable[..., LoopResult]) -> Callable[..., LoopResult]:
@@ -216,7 +218,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         held_out_rms_art_dps=held_out_rms(every_row),
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
-        adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading))
+        adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading),
+        start=RunStart(powered_on_at_start=from_power_on))
 
 
 def held_out_rms(rows: Binned, specs: Sequence[TermSpec] = ()) -> float:

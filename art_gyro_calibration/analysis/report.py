@@ -31,7 +31,7 @@ STAGES = ('uncalibrated', 'art', 'extended')
 
 
 def stage_errors(log: GyroLog, result: LoopResult, bias_samples: int) -> dict[str, NDArray[np.float64]]:
-    """Corrected rate minus table rate, per row, for each stage."""
+    """Corrected rate minus table rate, per row, for each stage, the log started as the loop took it."""
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: errors need the rate table\'s true rate')
     n = bias_samples
@@ -40,8 +40,8 @@ def stage_errors(log: GyroLog, result: LoopResult, bias_samples: int) -> dict[st
     bias = static_bias(log.rate_dps[:n], np.zeros(n))
     return {
         'uncalibrated': log.rate_dps - bias.static_bias_drift_dps - log.ref_rate,
-        'art': apply_calibration(log, result.art, n).corrected_dps - log.ref_rate,
-        'extended': apply_calibration(log, result.extended, n).corrected_dps - log.ref_rate,
+        'art': apply_calibration(log, result.art, n, start=result.start).corrected_dps - log.ref_rate,
+        'extended': apply_calibration(log, result.extended, n, start=result.start).corrected_dps - log.ref_rate,
     }
 
 

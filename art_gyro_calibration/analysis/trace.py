@@ -51,9 +51,10 @@ DEFAULT_BIN_S = 1.0
 # Held-out blocks of time: several times the bias instability's correlation time.
 DEFAULT_BLOCK_S = 900.0
 DEG_PER_H_PER_DPS = 3600.0
-# A significant candidate whose fitted effect a simpler significant one's explains to this R^2 stands for it:
-# the simpler one goes in first, and the next round tests what the richer one adds beyond it.
+# A log column whose fitted effect a derived signal's explains to this R^2 stands for that signal.
 STANDS_FOR_CORRELATION = 0.9
+# A richer form goes after a simpler significant one that explains this share of its effect (R^2).
+SIMPLER_FIRST = 0.5
 TIME_CONSTANT_GRID_SIZE = 8
 MAX_TIME_CONSTANT_RUNS = 4.0
 MIN_TIME_CONSTANT_S = 30.0
@@ -457,25 +458,33 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
 
 
 def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[CandidateScore]:
-    """Mark a significant candidate whose fitted effect a simpler significant one gives as well.
+    """Mark a significant candidate that a simpler significant one should go before.
 
-    Simpler: a derived signal (one the node computes) for a log column, or fewer columns (or
-    no time constant): a lagged temperature's terms can mimic the Shupe term, a long decay a
-    drift. The effect is then named by the simpler one (:attr:`TraceResult.best`), and the
-    next round asks whether the richer form adds anything beyond it.
+    A log column gives way to a derived signal (one the node computes) that explains its
+    fitted effect (R^2 >= :data:`STANDS_FOR_CORRELATION` beyond the base); a richer form to a
+    simpler one (fewer columns, or no time constant) that explains at least
+    :data:`SIMPLER_FIRST` of it: a lagged temperature's terms contain the Shupe term, a long
+    decay looks like a drift. The simpler one is named (:attr:`TraceResult.best`), and the
+    next round asks what the richer form adds beyond it.
     """
     found = [c for c in candidates if c.significant]
     out = []
     for c in candidates:
-        simpler = [d for d in found if d is not c and (
-            (c.spec.signal not in DERIVED_SIGNALS and d.spec.signal in DERIVED_SIGNALS)
-            or _complexity(d.spec) < _complexity(c.spec))]
-        if c.significant and simpler:
+        if c.significant:
             mine = screen.binned.candidate_means([c.spec])[:, 0, :]
-            likeness, name = max((_alike(screen, mine, screen.binned.candidate_means([d.spec])[:, 0, :]), d.signal)
-                                 for d in simpler)
-            if likeness >= STANDS_FOR_CORRELATION:
-                c = replace(c, stands_for=name)
+            alike = []
+            for d in found:
+                if c.spec.signal not in DERIVED_SIGNALS and d.spec.signal in DERIVED_SIGNALS:
+                    needed = STANDS_FOR_CORRELATION
+                elif d is not c and _complexity(d.spec) < _complexity(c.spec):
+                    needed = SIMPLER_FIRST
+                else:
+                    continue
+                likeness = _alike(screen, mine, screen.binned.candidate_means([d.spec])[:, 0, :])
+                if likeness >= needed:
+                    alike.append((likeness, d.signal))
+            if alike:
+                c = replace(c, stands_for=max(alike)[1])
         out.append(c)
     return out
 
