@@ -3,6 +3,11 @@
 A steady segment is a run of constant table rate (``ref_rate``) less its first
 ``settle_s`` seconds, where the table accelerates and the log's time stamps of the
 table and the gyro may disagree.
+
+Field errors (:func:`field_errors`) judge a calibration the way a robot uses it: the
+error of the node's output (static bias included, nothing removed) from the end of the
+static-bias window on, as a mean bias, the rms of the steady segments' mean errors, and
+the heading error integrated over 10 minutes and 1 hour.
 """
 
 from __future__ import annotations
@@ -13,6 +18,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 DEFAULT_SETTLE_S = 1.0
+SECONDS_PER_HOUR = 3600.0
+# Heading horizons of the field errors: a short mission and a long one (s).
+HEADING_HORIZONS_S = (600.0, 3600.0)
 
 
 @dataclass(frozen=True)
@@ -136,3 +144,57 @@ def error_metrics(error: ArrayLike, segments: Segments) -> ErrorMetrics:
         rms_dps=float(np.sqrt(np.mean(e[rows] ** 2))),
         systematic_rms_dps=float(np.sqrt(np.mean(segments.means(e) ** 2))),
         heading_360_deg_max=float(np.max(np.abs(heading))) if heading.size else 0.0)
+
+
+def heading_error_deg(t: ArrayLike, error: ArrayLike, start: int, horizons_s: ArrayLike) -> NDArray[np.float64]:
+    """Heading error (deg): ``error`` (deg/s) integrated from row ``start`` over each horizon (s).
+
+    Trapezoids between samples, so gaps count with their length, interpolated at
+    ``t[start] + horizon``; NaN for a horizon beyond the end of the log.
+    """
+    tt = np.asarray(t, dtype=float)[start:]
+    e = np.asarray(error, dtype=float)[start:]
+    if tt.size == 0:
+        raise ValueError(f'row {start} is beyond the {start + tt.size} rows of the log')
+    heading = np.concatenate([[0.0], np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(tt))])
+    h = np.asarray(horizons_s, dtype=float)
+    return np.where(h <= tt[-1] - tt[0], np.interp(tt[0] + h, tt, heading), np.nan)
+
+
+@dataclass(frozen=True)
+class FieldErrors:
+    """Errors of the node's output on a run (deg/s, deg), bias included, from the end of the static bias on."""
+
+    mean_bias_dps: float
+    systematic_rms_dps: float
+    heading_10min_deg: float
+    heading_1h_deg: float
+
+    def to_dict(self) -> dict[str, float | None]:
+        """Plain dict for JSON: deg/s values also in deg/h; a heading the log is too short for is None."""
+        d: dict[str, float | None] = asdict(self)
+        d['mean_bias_dph'] = self.mean_bias_dps * SECONDS_PER_HOUR
+        d['systematic_rms_dph'] = self.systematic_rms_dps * SECONDS_PER_HOUR
+        return {k: (None if v is not None and not np.isfinite(v) else v) for k, v in d.items()}
+
+
+def field_errors(t: ArrayLike, error: ArrayLike, segments: Segments, start: int) -> FieldErrors:
+    """Field errors of ``error`` (output - table rate, deg/s) from row ``start`` (the first after the static bias).
+
+    The mean bias is the mean error over the steady rows from ``start`` on (what a
+    heading integrates); the systematic rms is the rms of those segments' mean errors,
+    their common bias included; the headings are :func:`heading_error_deg` at
+    :data:`HEADING_HORIZONS_S`. Segments that begin before ``start`` count from ``start``.
+    """
+    e = np.asarray(error, dtype=float)
+    starts = np.maximum(segments.starts, start)
+    keep = segments.stops - starts >= 1
+    later = Segments(starts[keep], segments.stops[keep], segments.rate[keep])
+    if not len(later):
+        raise ValueError(f'the log has no steady segment after row {start} to measure field errors on')
+    means = later.means(e)
+    heading = heading_error_deg(t, e, start, HEADING_HORIZONS_S)
+    return FieldErrors(
+        mean_bias_dps=float(np.average(means, weights=later.counts)),
+        systematic_rms_dps=float(np.sqrt(np.mean(means ** 2))),
+        heading_10min_deg=float(heading[0]), heading_1h_deg=float(heading[1]))
