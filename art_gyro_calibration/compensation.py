@@ -1,8 +1,9 @@
 """The report's sample program: scale, compensate, and correct with the static bias.
 
 :class:`Compensator` does it one sample at a time (the node); :func:`apply_calibration`
-over a whole log (``calibrate apply``). Both give
-``CompRate = GyroRate - StaticBiasDrift - comp + CalcStaticBiasDrift``.
+over a whole log or chunk after chunk of one (``calibrate apply``). Both give
+``CompRate = GyroRate - StaticBiasDrift - comp + CalcStaticBiasDrift``, and both drop the
+samples :func:`plausible` refuses.
 """
 
 from __future__ import annotations
@@ -14,9 +15,21 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.calibration import Calibration, check_signals_available
 from art_gyro_calibration.log import GyroLog
-from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalTracker, compute_signals
-from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS,
+from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalState, SignalTracker, compute_signals
+from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS, Rate,
                                               StaticBias, static_bias)
+
+
+# A frame claiming a temperature outside what any electronics survives is corrupt (its 8-bit
+# checksum passed by luck) or the temperature field is not where this package assumes it: at
+# +-1600 degC the polynomial alone would add 70-80 deg/s, so such a frame is dropped and counted.
+PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
+
+
+def plausible(temp_c: Rate) -> Rate:
+    """Whether a sample (or each of an array of them) is kept: its temperature is physically possible."""
+    low, high = PLAUSIBLE_TEMPERATURE_C
+    return (low <= temp_c) & (temp_c <= high)
 
 
 class Compensator:
@@ -49,21 +62,35 @@ class Compensator:
 
 @dataclass(frozen=True)
 class Applied:
-    """A log after compensation."""
+    """A log (or one chunk of it) after compensation: the kept samples' values, and what was dropped."""
 
     comp_dps: NDArray[np.float64]
     corrected_dps: NDArray[np.float64]
     bias: StaticBias
+    kept: NDArray[np.bool_]     # per row of the log: plausible, so compensated (the node drops the rest)
+    state: SignalState          # the signals after the last kept sample: where the next chunk continues
 
 
 def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
                       max_mean_dps: float = DEFAULT_MAX_MEAN_DPS,
-                      max_std_dps: float = DEFAULT_MAX_STD_DPS) -> Applied:
-    """Static bias over the first ``bias_samples`` rows, then compensation of every row."""
-    if not 2 <= bias_samples <= len(log):
-        raise ValueError(f'bias_samples must be between 2 and the {len(log)} rows of the log, got {bias_samples}')
-    check_signals_available(calibration, DERIVED_SIGNALS + tuple(log.extras))
-    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, calibration.filters)
+                      max_std_dps: float = DEFAULT_MAX_STD_DPS, *, after: Applied | None = None) -> Applied:
+    """Static bias over the first ``bias_samples`` kept rows, then compensation of every kept row.
+
+    Rows :func:`plausible` refuses are dropped, as the node drops their frames. A log read in
+    chunks passes each chunk with ``after`` = the previous chunk's result (the first chunk
+    holding at least ``bias_samples`` kept rows): its signals continue, and its bias is kept.
+    """
+    kept = plausible(log.temp_c)
+    if not kept.all():
+        log = log.slice(kept)
+    if after is None:
+        if not 2 <= bias_samples <= len(log):
+            raise ValueError(f'bias_samples must be between 2 and the {len(log)} plausible rows of the log, '
+                             f'got {bias_samples}')
+        check_signals_available(calibration, DERIVED_SIGNALS + tuple(log.extras))
+    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, calibration.filters,
+                              None if after is None else after.state)
     comp = calibration.model.error(signals)
-    bias = static_bias(log.rate_dps[:bias_samples], comp[:bias_samples], max_mean_dps, max_std_dps)
-    return Applied(comp, bias.correct(log.rate_dps, comp), bias)
+    bias = static_bias(log.rate_dps[:bias_samples], comp[:bias_samples], max_mean_dps, max_std_dps) \
+        if after is None else after.bias
+    return Applied(comp, bias.correct(log.rate_dps, comp), bias, kept, signals.end_state())

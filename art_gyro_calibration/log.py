@@ -11,17 +11,16 @@ A log has a header row and one row per sample:
 
 from __future__ import annotations
 
-import io
+import functools
 import math
 import os
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import IO
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 RAW_HEADER = ('t', 'raw_rate', 'raw_temp')
 _KNOWN = {'t', 'raw_rate', 'raw_temp', 'rate_dps', 'temp_c', 'ref_rate'}
@@ -51,88 +50,287 @@ class GyroLog:
                        {k: v[index] for k, v in self.extras.items()})
 
 
+# Rows per chunk of :func:`read_log_chunks`: a few MB of text, so memory stays bounded and numpy stays fast.
+CHUNK_ROWS = 1 << 16
+# A header longer than this is not a log's (a binary file without line breaks).
+_MAX_HEADER_CHARS = 1 << 16
+# Decimals written: ``t`` to the microsecond at any epoch, the rest to 1e-9 of its unit.
+TIME_DECIMALS = 6
+VALUE_DECIMALS = 9
+
+
 def read_log(path: str | os.PathLike[str], rate_scale_factor: float | None = None,
              temp_scale_factor: float | None = None) -> GyroLog:
     """Read a CSV log; raw counts need the calibration's scale factors."""
+    return concatenate(list(read_log_chunks(path, rate_scale_factor, temp_scale_factor)))
+
+
+def concatenate(chunks: Sequence[GyroLog]) -> GyroLog:
+    """One log of consecutive chunks of it."""
+    if len(chunks) == 1:
+        return chunks[0]
+    first = chunks[0]
+    ref = None if first.ref_rate is None else np.concatenate([c.ref_rate for c in chunks])
+    return GyroLog(np.concatenate([c.t for c in chunks]), np.concatenate([c.rate_dps for c in chunks]),
+                   np.concatenate([c.temp_c for c in chunks]), ref,
+                   {k: np.concatenate([c.extras[k] for c in chunks]) for k in first.extras})
+
+
+def read_log_chunks(path: str | os.PathLike[str], rate_scale_factor: float | None = None,
+                    temp_scale_factor: float | None = None, chunk_rows: int = CHUNK_ROWS) -> Iterator[GyroLog]:
+    """Read a CSV log in chunks of about ``chunk_rows`` rows, each checked as :func:`read_log` checks the whole.
+
+    Memory stays bounded whatever the log's length. A UTF-8 byte order mark, quoted
+    header names and CRLF line ends are accepted; anything refused raises :class:`LogError`
+    naming the file, the line, the row (1 = the first after the header) and the column.
+    """
     where = str(path)
     try:
-        with open(path, encoding='utf-8') as f:
-            header_line = f.readline()
-            header = [h.strip() for h in header_line.strip().split(',')]
-            if not header_line.strip() or len(set(header)) != len(header) or '' in header:
-                raise LogError(f'{where}:1: header must name each column once, got {header_line.strip()!r}')
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter('ignore', UserWarning)  # an empty log is refused below
-                    data = np.loadtxt(f, delimiter=',', dtype=float, ndmin=2)
-            except ValueError as e:
-                # numpy counts rows from 0 in one message and from 1 in another: find the row again.
-                raise LogError(f'{where}: {_bad_row(path, header) or e}') from None
+        with open(path, encoding='utf-8-sig') as f:
+            header = _header(f, where)
+            convert = _converter(header, where, rate_scale_factor, temp_scale_factor)
+            rows = 0        # data rows before this chunk
+            lines_read = 1  # lines before this chunk (the header)
+            last_t = -math.inf
+            hint = max(1, chunk_rows) * 8 * (len(header) + 1)   # readlines() counts characters
+            while True:
+                try:
+                    lines = f.readlines(hint)
+                except UnicodeDecodeError as e:
+                    raise LogError(f'{where}: not UTF-8 text after line {lines_read} (row {rows}): '
+                                   f'{e.reason} at byte 0x{e.object[e.start]:02x}; is this a CSV log?') from None
+                if not lines:
+                    break
+                data = _parse(lines, header, where, lines_read, rows)
+                if data.shape[0]:
+                    chunk = convert(data, last_t, lines, lines_read, rows)
+                    last_t = float(chunk.t[-1])
+                    rows += data.shape[0]
+                    yield chunk
+                lines_read += len(lines)
     except OSError as e:
         raise LogError(f'{where}: cannot read: {e.strerror}') from None
-    if data.size == 0:
+    if not rows:
         raise LogError(f'{where}: no samples after the header')
-    if data.shape[1] != len(header):
-        raise LogError(f'{where}: {data.shape[1]} values per row but {len(header)} header names')
-    cols = {name: data[:, i] for i, name in enumerate(header)}
-    if 't' not in cols:
-        raise LogError(f'{where}: no column t')
-    t = cols['t']
-    if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
-        raise LogError(f'{where}: column t must be finite and non-decreasing '
-                       f'(first bad row {_first_bad_time(t) + 1})')
-    if 'rate_dps' in cols and 'temp_c' in cols:
-        rate, temp = cols['rate_dps'], cols['temp_c']
-    elif 'raw_rate' in cols and 'raw_temp' in cols:
+
+
+def _header(f: IO[str], where: str) -> list[str]:
+    """Column names of the header line; quotes around a name are dropped."""
+    try:
+        line = f.readline(_MAX_HEADER_CHARS)
+    except UnicodeDecodeError as e:
+        raise LogError(f'{where}:1: header is not UTF-8 text ({e.reason} at byte 0x{e.object[e.start]:02x}); '
+                       'is this a CSV log?') from None
+    if len(line) >= _MAX_HEADER_CHARS and not line.endswith('\n'):
+        raise LogError(f'{where}:1: no line break in the first {_MAX_HEADER_CHARS} characters; is this a CSV log?')
+    header = [_unquote(h.strip()) for h in line.strip().split(',')]
+    if not line.strip() or len(set(header)) != len(header) or '' in header:
+        raise LogError(f'{where}:1: header must name each column once, got {_shown(line.strip())}')
+    return header
+
+
+def _unquote(name: str) -> str:
+    return name[1:-1].strip() if len(name) >= 2 and name[0] == name[-1] and name[0] in '"\'' else name
+
+
+def _shown(text: str, limit: int = 120) -> str:
+    """``text`` for an error message, cut to a readable length."""
+    return repr(text) if len(text) <= limit else f'{text[:limit]!r}... ({len(text)} characters)'
+
+
+def _converter(header: list[str], where: str, rate_scale_factor: float | None,
+               temp_scale_factor: float | None) -> Callable[..., GyroLog]:
+    """The function turning a chunk's columns into a checked :class:`GyroLog` in deg/s and degC."""
+    index = {name: i for i, name in enumerate(header)}
+    if 't' not in index:
+        raise LogError(f'{where}:1: no column t (columns: {_shown(", ".join(header))})')
+    if 'rate_dps' in index and 'temp_c' in index:
+        rate_col, temp_col, rate_scale, temp_scale = index['rate_dps'], index['temp_c'], None, None
+    elif 'raw_rate' in index and 'raw_temp' in index:
         if rate_scale_factor is None or temp_scale_factor is None:
             raise LogError(f'{where}: raw counts need a calibration for their scale factors')
-        rate, temp = cols['raw_rate'] * rate_scale_factor, cols['raw_temp'] * temp_scale_factor
+        rate_col, temp_col = index['raw_rate'], index['raw_temp']
+        rate_scale, temp_scale = rate_scale_factor, temp_scale_factor
     else:
-        raise LogError(f'{where}: needs columns rate_dps and temp_c, or raw_rate and raw_temp; '
-                       f'has {", ".join(header)}')
-    for name, values in (('rate', rate), ('temperature', temp)):
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            raise LogError(f'{where}: {name} is not a finite number at row {bad[0] + 1}')
-    extras = {k: v for k, v in cols.items() if k not in _KNOWN}
-    return GyroLog(t, rate, temp, cols.get('ref_rate'), extras)
+        raise LogError(f'{where}:1: needs columns rate_dps and temp_c, or raw_rate and raw_temp; '
+                       f'has {_shown(", ".join(header))}')
+    extras = [name for name in header if name not in _KNOWN]
+
+    def convert(data: NDArray[np.float64], last_t: float, lines: list[str], first_line: int,
+                rows: int) -> GyroLog:
+        def refuse(k: int, column: str, why: str) -> LogError:
+            return LogError(f'{where}:{_line_of(lines, k) + first_line + 1}: row {rows + k + 1}, column {column}: '
+                            f'{why}')
+
+        t = data[:, index['t']]
+        bad = ~np.isfinite(t)
+        bad[1:] |= t[1:] < t[:-1]
+        bad[0] |= t[0] < last_t
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise refuse(k, 't', f'{float(t[k])!r} after {float(t[k - 1] if k else last_t)!r}: '
+                                 'time must be finite and non-decreasing')
+        rate, temp = data[:, rate_col], data[:, temp_col]
+        if rate_scale is not None:
+            rate, temp = rate * rate_scale, temp * temp_scale
+        for column, values in ((header[rate_col], rate), (header[temp_col], temp)):
+            bad = np.flatnonzero(~np.isfinite(values))
+            if bad.size:
+                raise refuse(int(bad[0]), column, f'{float(values[bad[0]])!r} is not a finite number')
+        return GyroLog(t, rate, temp, data[:, index['ref_rate']] if 'ref_rate' in index else None,
+                       {name: data[:, index[name]] for name in extras})
+    return convert
 
 
-def _bad_row(path: str | os.PathLike[str], header: list[str]) -> str:
-    """The first data row ``np.loadtxt`` refuses, as ``row N: why`` (row 1 is the first after the header)."""
-    with open(path, encoding='utf-8') as f:
-        f.readline()
-        row = 0
-        for line in f:
-            text = line.split('#', 1)[0].strip()
-            if not text:
-                continue   # loadtxt skips blank and comment lines
-            row += 1
+def _data_lines(lines: list[str]) -> Iterator[tuple[int, str]]:
+    """(index in ``lines``, text) of each line holding a row: ``np.loadtxt`` skips blank and ``#`` lines."""
+    for i, line in enumerate(lines):
+        text = line.split('#', 1)[0].strip()
+        if text:
+            yield i, text
+
+
+def _line_of(lines: list[str], k: int) -> int:
+    """Index in ``lines`` of the ``k``-th row (0-based)."""
+    for n, (i, _) in enumerate(_data_lines(lines)):
+        if n == k:
+            return i
+    raise IndexError(k)
+
+
+def _parse(lines: list[str], header: list[str], where: str, first_line: int, rows: int) -> NDArray[np.float64]:
+    """The rows of ``lines`` as an array (rows x columns); a bad value is named by line, row and column."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', UserWarning)  # lines without rows: the caller counts rows
+            data = np.loadtxt(lines, delimiter=',', dtype=float, ndmin=2)
+    except ValueError as e:
+        # numpy names neither the file nor the column: find the row again.
+        for n, (i, text) in enumerate(_data_lines(lines)):
+            at = f'{where}:{first_line + i + 1}: row {rows + n + 1}'
             fields = text.split(',')
             if len(fields) != len(header):
-                return f'row {row}: {len(fields)} values but {len(header)} header names'
+                raise LogError(f'{at}: {len(fields)} values but {len(header)} header names') from None
             for name, value in zip(header, fields):
                 try:
                     float(value)
                 except ValueError:
-                    return f'row {row}: {name} is {value.strip()!r}, not a number'
-    return ''
-
-
-def _first_bad_time(t: NDArray[np.float64]) -> int:
-    bad = ~np.isfinite(t)
-    bad[1:] |= np.diff(t) < 0
-    return int(np.flatnonzero(bad)[0])
+                    raise LogError(f'{at}, column {name}: {_shown(value.strip())} is not a number') from None
+        raise LogError(f'{where}: after line {first_line}: {e}') from None
+    if data.size and data.shape[1] != len(header):
+        raise LogError(f'{where}:{first_line + 1}: {data.shape[1]} values per row but {len(header)} header names')
+    return data
 
 
 def write_columns(path: str | os.PathLike[str], columns: Mapping[str, NDArray[np.float64]],
-                  precision: int = 9) -> None:
-    """Write equally long arrays as a CSV log with a header."""
-    names = list(columns)
-    data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
-    buf = io.StringIO()
-    np.savetxt(buf, data, delimiter=',', fmt=f'%.{precision}g', header=','.join(names), comments='')
-    Path(path).write_text(buf.getvalue(), encoding='utf-8')
+                  precision: int = VALUE_DECIMALS) -> None:
+    """Write equally long arrays as a CSV log with a header.
+
+    ``t`` is written to the microsecond, the other columns to ``precision`` decimals.
+    """
+    with open(path, 'wb') as stream:
+        writer = CsvWriter(stream, list(columns), precision)
+        writer.write(columns)
+
+
+class CsvWriter:
+    """Writes a CSV log chunk by chunk: ``t`` to the microsecond at any epoch, other columns to fixed decimals.
+
+    Numbers are formatted by :func:`format_fixed` with numpy (millions of rows a second),
+    trailing zeros dropped.
+    """
+
+    def __init__(self, stream: IO[bytes], names: Sequence[str], decimals: int = VALUE_DECIMALS) -> None:
+        self._stream = stream
+        self.names = tuple(names)
+        self._decimals = tuple(TIME_DECIMALS if n == 't' else decimals for n in self.names)
+        stream.write((','.join(self.names) + '\n').encode())
+
+    def write(self, columns: Mapping[str, ArrayLike]) -> None:
+        """Append the rows of equally long arrays, one per name."""
+        values = [np.asarray(columns[n], dtype=float) for n in self.names]
+        rows = len(values[0])
+        if not rows:
+            return
+        units: list[NDArray[np.uint32]] = []
+        for v, d in zip(values, self._decimals):
+            units += format_fixed(v, d)
+            units.append(np.full(rows, _COMMA))
+        units[-1] = np.full(rows, _NEWLINE)
+        text = np.stack(units, axis=1).view(np.uint8).ravel()   # row after row
+        self._stream.write(text[text != 0].tobytes())
+
+
+def _as_units(texts: Sequence[str]) -> NDArray[np.uint32]:
+    """Each text (at most 4 ASCII characters) as one 4-byte unit, padded with zero bytes."""
+    return np.frombuffer(b''.join(t.encode().ljust(4, b'\0') for t in texts), np.uint32).copy()
+
+
+_ZERO, _POINT, _MINUS, _COMMA, _NEWLINE = _as_units(['\0\0\0' '0', '.', '-', ',', '\n'])
+
+
+@functools.cache
+def _digit_tables() -> tuple[NDArray[np.uint32], NDArray[np.uint32], NDArray[np.uint32]]:
+    """Four digits per unit: all of them, without leading zeros, without trailing zeros (built on first use)."""
+    return (_as_units([f'{i:04d}' for i in range(10000)]),
+            _as_units([f'{i:4d}'.replace(' ', '\0') if i else '' for i in range(10000)]),
+            _as_units([f'{i:04d}'.rstrip('0') for i in range(10000)]))
+
+
+def format_fixed(x: NDArray[np.float64], decimals: int) -> list[NDArray[np.uint32]]:
+    """``x`` as ``%.{decimals}f`` without trailing zeros (nor a ``.`` for whole numbers).
+
+    The text of ``x[i]`` is row ``i`` of the returned columns of 4-byte units read in
+    order, less its zero bytes. Digits come four at a time from tables (a value too large
+    for int64 fixed point, or not finite, is formatted by Python instead).
+    """
+    scale = 10 ** decimals
+    a = np.abs(x)
+    if not np.all(a < 2.0 ** 62 / scale):
+        text = [_fixed(v, decimals).encode() for v in x.tolist()]
+        width = -(-max(map(len, text)) // 4) * 4
+        matrix = np.frombuffer(b''.join(t.ljust(width, b'\0') for t in text), np.uint32).reshape(len(text), -1)
+        return list(matrix.T)
+    digits, leading, trailing = _digit_tables()
+    whole = np.floor(a)
+    frac = np.rint((a - whole) * scale).astype(np.int64)   # a - floor(a) is exact
+    whole = whole.astype(np.int64)
+    carry = frac >= scale
+    whole[carry] += 1
+    frac[carry] -= scale
+    units = [np.where((x < 0) & ((whole > 0) | (frac > 0)), _MINUS, 0).astype(np.uint32)]
+    groups = []                                  # four digits each, least significant first
+    for _ in range(max(1, -(-len(str(int(whole.max(initial=0)))) // 4))):
+        whole, group = np.divmod(whole, 10000)
+        groups.append(group)
+    above = np.ones(len(x), bool)                # every group above this one is zero
+    for i, group in enumerate(reversed(groups)):
+        lead = leading[group]
+        if i == len(groups) - 1:
+            lead = np.where(group == 0, _ZERO, lead)   # the units digit is always written
+        units.append(np.where(above, lead, digits[group]))
+        above &= group == 0
+    fraction_groups = -(-decimals // 4)
+    if fraction_groups:
+        frac *= 10 ** (4 * fraction_groups - decimals)
+        units.append(np.where(frac != 0, _POINT, 0).astype(np.uint32))
+        tail = []
+        below = np.ones(len(x), bool)            # every group below this one is zero
+        for _ in range(fraction_groups):
+            frac, group = np.divmod(frac, 10000)
+            tail.append(np.where(below, trailing[group], digits[group]))
+            below &= group == 0
+        units += reversed(tail)
+    return units
+
+
+def _fixed(value: float, decimals: int) -> str:
+    """One value as :func:`format_fixed` spells it."""
+    if not math.isfinite(value):
+        return repr(value)
+    text = f'{value + 0.0:.{decimals}f}'
+    text = text.rstrip('0').rstrip('.') if '.' in text else text
+    return '0' if text == '-0' else text
 
 
 class RawLogWriter:
@@ -148,7 +346,8 @@ class RawLogWriter:
         """Add one sample; flushed in batches so a crash loses at most ``flush_every`` rows."""
         if not math.isfinite(t):
             raise ValueError(f'log time must be finite, got {t!r}')
-        self._stream.write(f'{t:.6f},{raw_rate},{raw_temp}\n')
+        # repr: the shortest text that reads back as this very float, so offline tools see the node's times.
+        self._stream.write(f'{t!r},{raw_rate},{raw_temp}\n')
         self._pending += 1
         if self._pending >= self._flush_every:
             self._stream.flush()

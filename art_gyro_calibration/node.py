@@ -46,7 +46,7 @@ from std_srvs.srv import Trigger
 
 from art_gyro_calibration.calibration import (Calibration, CalibrationError, find_calibration_file,
                                               from_parameters, load_calibration)
-from art_gyro_calibration.compensation import Compensator
+from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, Compensator, plausible
 from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver
 from art_gyro_calibration.frame import PROTOCOLS
 from art_gyro_calibration.log import RawLogWriter
@@ -60,10 +60,6 @@ UNMEASURED_VARIANCE = 1.0e6
 DIAGNOSTICS_PERIOD_S = 1.0
 # A static bias collection with no frame for this long has lost its gyro: it is abandoned.
 COLLECTION_STALL_S = 5.0
-# A frame claiming a temperature outside what any electronics survives is corrupt (its 8-bit
-# checksum passed by luck) or the temperature field is not where this package assumes it: at
-# +-1600 degC the polynomial alone would add 70-80 deg/s, so such a frame is dropped and counted.
-PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
 # Parameters whose presence means the calibration comes in as parameters (--params-file).
 CALIBRATION_KEYS = ('rate_scale_factor', 'polynomial.rows', 'polynomial.columns', 'polynomial.coefficients')
 
@@ -307,7 +303,7 @@ class GyroNode(Node):
         t = stamp_ns * 1e-9
         if self._log is not None:
             self._log.write(t, sample.raw_rate, sample.raw_temp)   # the log keeps what the wire said
-        if not PLAUSIBLE_TEMPERATURE_C[0] <= temp_c <= PLAUSIBLE_TEMPERATURE_C[1]:
+        if not plausible(temp_c):
             self._implausible += 1
             return
         error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals

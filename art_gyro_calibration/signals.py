@@ -2,7 +2,9 @@
 
 The node computes them sample by sample (:class:`SignalTracker`) and the offline tools
 over a whole log (:func:`compute_signals`); both run the same recursions, so a term
-fitted offline corrects the node's output the same way.
+fitted offline corrects the node's output the same way. A log too long for memory is
+computed chunk by chunk: each chunk starts from the :class:`SignalState` the previous
+one ended in (:meth:`Signals.end_state`), and gives the same values as the whole log.
 """
 
 from __future__ import annotations
@@ -41,11 +43,25 @@ class SignalFilters:
 
 
 @dataclass(frozen=True)
+class SignalState:
+    """Where the causal recursions stand after one sample: all a chunk needs from the log before it."""
+
+    t0: float                   # time of the log's first sample (``time`` counts from it)
+    t: float                    # the sample's time, rate and temperature
+    rate: float
+    temperature: float
+    angle: float                # angle turned up to the sample, degrees
+    temperature_level: float    # level of the temperature_rate filter (smoothed temperature)
+    rate_level: float           # level of the rate_change filter (smoothed rate)
+
+
+@dataclass(frozen=True)
 class Signals:
-    """Every signal of a log, one array each, aligned with its samples.
+    """Every signal of a log or of one chunk of it, one array each, aligned with its samples.
 
     The derived signals are computed on first use, so a model without extended
-    terms costs no filtering.
+    terms costs no filtering. ``previous`` is the state after the sample before
+    ``t[0]`` (None: ``t[0]`` is the log's first sample).
     """
 
     t: NDArray[np.float64]
@@ -53,29 +69,73 @@ class Signals:
     temperature: NDArray[np.float64]
     extras: Mapping[str, NDArray[np.float64]] = field(default_factory=dict)
     filters: SignalFilters = field(default_factory=SignalFilters)
+    previous: SignalState | None = None
 
     @cached_property
     def temperature_rate(self) -> NDArray[np.float64]:
         """Filtered temperature rate of change, degC/s."""
-        return _derivative(self.t, self.temperature, self.filters.temperature_rate_tau_s)
+        return (self.temperature - self._temperature_level) / self.filters.temperature_rate_tau_s
 
     @cached_property
     def rate_change(self) -> NDArray[np.float64]:
         """Filtered rate of change of the measured rate, deg/s^2."""
-        return _derivative(self.t, self.rate, self.filters.rate_change_tau_s)
+        return (self.rate - self._rate_level) / self.filters.rate_change_tau_s
+
+    @cached_property
+    def _temperature_level(self) -> NDArray[np.float64]:
+        level = None if self.previous is None else self.previous.temperature_level
+        return self._smoothed(self.temperature, level, self.filters.temperature_rate_tau_s)
+
+    @cached_property
+    def _rate_level(self) -> NDArray[np.float64]:
+        level = None if self.previous is None else self.previous.rate_level
+        return self._smoothed(self.rate, level, self.filters.rate_change_tau_s)
+
+    def _smoothed(self, x: NDArray[np.float64], level: float | None, tau_s: float) -> NDArray[np.float64]:
+        """Level of the first-order filter of ``x`` at each sample, continuing from ``level``.
+
+        A derivative is ``(x - level) / tau`` (the batch twin of ``_Derivative``); at a
+        log's first sample the level is the sample itself, so the derivative is 0.
+        """
+        if level is None:
+            if len(x) < 2:
+                return x.copy()
+            decay = -np.maximum(np.diff(self.t), 0.0) / tau_s   # log of each step's decay factor
+            return np.concatenate((x[:1], first_order_smooth(x, decay)))
+        if not len(x):
+            return x.copy()
+        decay = -np.maximum(np.diff(self.t, prepend=self.previous.t), 0.0) / tau_s
+        return first_order_smooth(np.concatenate(([level], x)), decay)
 
     @cached_property
     def angle(self) -> NDArray[np.float64]:
         """Angle turned in degrees, trapezoidal integral of the measured rate."""
-        out = np.zeros(len(self.rate))
-        if len(self.rate) > 1:
-            out[1:] = np.cumsum(0.5 * (self.rate[1:] + self.rate[:-1]) * np.diff(self.t))
-        return out
+        if self.previous is None:
+            if not len(self.rate):
+                return np.zeros(0)
+            start, t, rate = 0.0, self.t, self.rate
+        else:
+            start = self.previous.angle
+            t, rate = np.concatenate(([self.previous.t], self.t)), np.concatenate(([self.previous.rate], self.rate))
+        # One running sum from the start value, so a chunked log adds in the same order as a whole one.
+        out = np.cumsum(np.concatenate(([start], 0.5 * (rate[1:] + rate[:-1]) * np.diff(t))))
+        return out if self.previous is None else out[1:]
 
     @property
     def time(self) -> NDArray[np.float64]:
         """Seconds since the first sample (power-on, as far as the log knows)."""
-        return self.t - self.t[0]
+        return self.t - (self.t[0] if self.previous is None else self.previous.t0)
+
+    def end_state(self) -> SignalState:
+        """The state after the last sample: pass it to :func:`compute_signals` for the next chunk."""
+        if not len(self.t):
+            if self.previous is None:
+                raise ValueError('signals of no samples have no state')
+            return self.previous
+        return SignalState(t0=float(self.t[0]) if self.previous is None else self.previous.t0,
+                           t=float(self.t[-1]), rate=float(self.rate[-1]), temperature=float(self.temperature[-1]),
+                           angle=float(self.angle[-1]), temperature_level=float(self._temperature_level[-1]),
+                           rate_level=float(self._rate_level[-1]))
 
     @property
     def rate_abs(self) -> NDArray[np.float64]:
@@ -105,15 +165,6 @@ class Signals:
         return len(self.t)
 
 
-def _derivative(t: NDArray[np.float64], x: NDArray[np.float64], tau_s: float) -> NDArray[np.float64]:
-    """Causal first-order derivative ``(x - ema(x)) / tau``, the batch twin of ``_Derivative``."""
-    out = np.zeros(len(x))
-    if len(x) > 1:
-        decay = -np.maximum(np.diff(t), 0.0) / tau_s   # log of each step's decay factor
-        out[1:] = (x[1:] - first_order_smooth(x, decay)) / tau_s
-    return out
-
-
 # Span of log-decay one chunk of :func:`first_order_smooth` covers: exp(500) stays far from overflow.
 _CHUNK_LOG_DECAY = 500.0
 _CHUNK_ROWS = 1 << 16
@@ -122,10 +173,10 @@ _CHUNK_ROWS = 1 << 16
 def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64]) -> NDArray[np.float64]:
     """``s[i] = s[i-1] + (1 - exp(log_decay[i-1])) * (x[i] - s[i-1])`` from ``s[0] = x[0]``, for i >= 1.
 
-    The recursion in closed form, ``s_i = D_i (s_0 + sum_j a_j x_j / D_j)`` with ``D`` the
+    The recursion in closed form, ``s_i = s_0 + D_i sum_j a_j (x_j - s_0) / D_j`` with ``D`` the
     cumulative decay, vectorised over chunks short enough that ``1 / D`` stays finite. Each
     rounding error decays with the filter, so the result matches the per-sample loop to
-    a few ulps of ``x / a``. Runs with numpy alone (the node's runtime has no scipy).
+    a few ulps of ``(x - s_0) / a``. Runs with numpy alone (the node's runtime has no scipy).
     """
     n = len(log_decay)
     # A step decaying by more than exp(-500) forgets the past: its gain is 1.0 either way.
@@ -138,8 +189,9 @@ def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64]) -
         span = np.cumsum(log_decay[start:start + _CHUNK_ROWS])
         stop = start + max(1, int(np.searchsorted(-span, _CHUNK_LOG_DECAY, side='right')))
         cumulative = span[:stop - start]
-        weights = gain[start:stop] * x[start + 1:stop + 1] * np.exp(-cumulative)
-        out[start:stop] = np.exp(cumulative) * (level + np.cumsum(weights))
+        # On x less the level the chunk starts from: the sum's rounding scales with |x - level|, not |x|.
+        weights = gain[start:stop] * (x[start + 1:stop + 1] - level) * np.exp(-cumulative)
+        out[start:stop] = level + np.exp(cumulative) * np.cumsum(weights)
         level = float(out[stop - 1])
         start = stop
     return out
@@ -147,15 +199,20 @@ def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64]) -
 
 def compute_signals(t: ArrayLike, rate_dps: ArrayLike, temp_c: ArrayLike,
                     extras: Mapping[str, ArrayLike] | None = None,
-                    filters: SignalFilters = SignalFilters()) -> Signals:
-    """Signals of a log, each computed causally (a sample sees only the past)."""
+                    filters: SignalFilters = SignalFilters(), state: SignalState | None = None) -> Signals:
+    """Signals of a log, each computed causally (a sample sees only the past).
+
+    For a log read in chunks, ``state`` is the previous chunk's :meth:`Signals.end_state`
+    (None for the first chunk); the chunks' signals then equal the whole log's.
+    """
     return Signals(t=np.asarray(t, dtype=float), rate=np.asarray(rate_dps, dtype=float),
                    temperature=np.asarray(temp_c, dtype=float),
-                   extras={k: np.asarray(v, dtype=float) for k, v in (extras or {}).items()}, filters=filters)
+                   extras={k: np.asarray(v, dtype=float) for k, v in (extras or {}).items()}, filters=filters,
+                   previous=state)
 
 
 class _Derivative:
-    """Per-sample twin of ``_derivative``."""
+    """Per-sample twin of the derivatives of :class:`Signals`."""
 
     __slots__ = ('tau_s', 'smooth', 'value')
 

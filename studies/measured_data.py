@@ -31,7 +31,6 @@ from art_gyro_calibration.analysis.importers import (StaticRecord, read_cats_net
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, LoopResult, close_loop
 from art_gyro_calibration.analysis.report import STAGES
-from art_gyro_calibration.analysis.trace import DEFAULT_MATERIALITY
 from art_gyro_calibration.signals import Signals, compute_signals
 from art_gyro_calibration.static_bias import static_bias
 
@@ -197,17 +196,14 @@ def run_axis(log: GyroLog, held: NDArray[np.bool_], held_name: str, axis: str,
              materiality: float | None = None, max_effects: int = DEFAULT_MAX_EFFECTS) -> AxisResult:
     """Run ``calibrate fit``'s loop on the rows not ``held`` out and measure every stage on the held-out ones.
 
-    ``materiality`` (of the loop) defaults to the bias instability relative to the
-    white noise, both from the Allan deviation of the training rows: an effect must
-    remove more than the gyro's own bias instability to count.
+    ``materiality`` (deg/h, of the loop) defaults to the loop's own: the bias instability of
+    what the ART polynomial leaves on the training rows.
     """
     train = log.slice(~held)
     run = segment_labels(train.t, RUN_GAP_S)
     adev = allan_deviation(train.rate_dps, SAMPLE_RATE_HZ, run)
     floor = float(np.min(adev.adev))
-    if materiality is None:
-        materiality = (floor / float(adev.adev[0])) ** 2
-    loop = close_loop(train, ROWS, COLUMNS, serial_number=f'CATS_gyro_{axis}', materiality=materiality,
+    loop = close_loop(train, ROWS, COLUMNS, serial_number=f'CATS_gyro_{axis}', materiality_dph=materiality,
                       max_effects=max_effects)
     # The node would have run since power-on, the record's start: signals over the whole record.
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, loop.extended.filters)
@@ -221,7 +217,8 @@ def run_axis(log: GyroLog, held: NDArray[np.bool_], held_name: str, axis: str,
         errors[stage] = bias.correct(measured, comp)
         summaries[stage] = summarize(t_held, errors[stage])
         allan[stage] = allan_deviation(errors[stage], SAMPLE_RATE_HZ, run_held)
-    return AxisResult(axis, log, held, held_name, loop, materiality, floor, signals, errors, summaries, allan)
+    return AxisResult(axis, log, held, held_name, loop, loop.materiality_dph, floor, signals, errors, summaries,
+                      allan)
 
 
 # --- figures and the document --------------------------------------------------------------
@@ -377,8 +374,7 @@ def effect_lines(result: AxisResult) -> list[str]:
 def near_misses(result: AxisResult, count: int = 3) -> str:
     """The first screen's best candidates, with their score against chance and the materiality."""
     first = result.loop.rounds[0].candidates[:count]
-    return ', '.join(f'{c.signal} ({c.fraction_of_floor:.4f} of the noise variance, '
-                     f'{"beats" if c.improvement_dps2 > c.null_max_dps2 else "within"} chance)' for c in first)
+    return ', '.join(f'{c.signal} ({c.effect_dph:.2f} deg/h, chance p = {c.p_value:.3f})' for c in first)
 
 
 def markdown(record: StaticRecord, still: NDArray[np.bool_], names: Sequence[str],
@@ -386,8 +382,7 @@ def markdown(record: StaticRecord, still: NDArray[np.bool_], names: Sequence[str
     """The text of doc/measured-data.md."""
     hours = float(still.sum()) / SAMPLE_RATE_HZ / HOUR
     every = [r for fold in folds for r in fold]
-    noise = [r.loop.noise_floor_dps for r in every]
-    ratio = [np.sqrt(DEFAULT_MATERIALITY) * r.loop.noise_floor_dps / r.bias_instability_dps for r in every]
+    materiality = [r.materiality for r in every]
     lines = [
         '# A real gyro\'s log: a CATS tag\'s MEMS IMU lying still for three days',
         '',
@@ -424,13 +419,9 @@ def markdown(record: StaticRecord, still: NDArray[np.bool_], names: Sequence[str
         'screening holds out blocks of them as long as what the model leaves stays correlated (hours here, '
         'given per fold below): with shorter blocks, neighbouring blocks share the slow bias wander and a slow '
         'signal such as the depth seems to predict it on the training days, then fails on the held-out day.',
-        f'- **Materiality**: `calibrate fit`\'s default counts an effect only if it removes '
-        f'{DEFAULT_MATERIALITY:.0%} of the per-sample white-noise variance, which for this gyro '
-        f'({min(noise):.2f}-{max(noise):.2f} deg/s per 1 Hz sample) means an effect of '
-        f'{np.sqrt(DEFAULT_MATERIALITY) * min(noise):.3f}-{np.sqrt(DEFAULT_MATERIALITY) * max(noise):.3f} deg/s rms, '
-        f'{min(ratio):.1f} to {max(ratio):.1f} times its bias instability. Here an effect counts if it removes more '
-        'than the gyro\'s own bias instability: materiality = (floor of the training days\' Allan deviation / '
-        'its value at 1 s)^2, given per fold below.',
+        f'- **Materiality**: `calibrate fit`\'s default counts an effect only if its fitted size over the logged '
+        'envelope reaches the bias instability of what the ART polynomial leaves on the training days (here '
+        f'{min(materiality):.1f}-{max(materiality):.1f} deg/h, given per fold below).',
         '- **Errors on the held-out day**, the way the node uses a calibration: a static bias over the day\'s '
         f'first {BIAS_SAMPLES / SAMPLE_RATE_HZ / 60:.0f} min, then each model with signals running since the '
         'record started. *static bias only* is the gyro without a model, *ART* the report\'s temperature '
@@ -456,7 +447,7 @@ def markdown(record: StaticRecord, still: NDArray[np.bool_], names: Sequence[str
         for fold in folds:
             r = fold[i]
             found = effect_lines(r)
-            lines.append(f'- {r.held_name} held out (materiality {r.materiality:.4f}, '
+            lines.append(f'- {r.held_name} held out (materiality {r.materiality:.2f} deg/h, '
                          f'held-out blocks of {r.loop.held_out_block_s / HOUR:.1f} h): '
                          + ('effects found: ' + '; '.join(found) if found else
                             'no effect beyond the ART polynomial; best candidates: ' + near_misses(r)) + '.')

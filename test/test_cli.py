@@ -12,7 +12,7 @@ import pytest
 from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration
 from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.compensation import Compensator, apply_calibration
-from art_gyro_calibration.log import read_log
+from art_gyro_calibration.log import RawLogWriter, read_log
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -142,3 +142,169 @@ def test_record_without_a_gyro_fails(tmp_path, capsys):
     assert main(['record', '--port', str(tmp_path / 'nothing'), '--out', str(tmp_path / 'r.csv'),
                  '--duration', '0.3']) == 1
     assert 'calibrate record: error: no frames from' in capsys.readouterr().err
+
+
+def _raw_log(path: Path, n: int, t0: float = 1.7e9, rate_hz: float = 1000.0, bad_temp_rows: tuple[int, ...] = ()):
+    """A raw log of a still, then turning gyro as the node writes it; rows ``bad_temp_rows`` claim 200 degC."""
+    rng = np.random.default_rng(7)
+    t = t0 + np.arange(n) / rate_hz + rng.uniform(0, 0.2 / rate_hz, n)
+    raw_rate = np.where(np.arange(n) < 300, 0, 9000) + rng.integers(-3, 4, n)
+    raw_temp = 400 + np.arange(n) // 500
+    raw_temp[list(bad_temp_rows)] = 4000
+    with open(path, 'w', encoding='utf-8') as stream:
+        writer = RawLogWriter(stream)
+        for row in zip(t.tolist(), raw_rate.tolist(), raw_temp.tolist()):
+            writer.write(*row)
+        writer.close()
+    return t
+
+
+def test_apply_keeps_epoch_time_to_the_microsecond(fitted, tmp_path):
+    """A node log in epoch seconds at 1 kHz: every output time is the input's, to the microsecond."""
+    t = _raw_log(tmp_path / 'epoch.csv', 3000)
+    out = tmp_path / 'out.csv'
+    assert main(['apply', str(tmp_path / 'epoch.csv'), '--calibration', str(fitted / 'CAL.yaml'),
+                 '--out', str(out)]) == 0
+    written = read_log(out).t
+    assert len(np.unique(written)) == len(t)
+    assert np.max(np.abs(written - t)) <= 0.5e-6 + np.spacing(t[-1])
+
+
+def test_apply_streams_chunks_equal_to_the_whole_log(fitted, tmp_path, capsys):
+    """Chunked apply (the static bias spanning chunks, implausible rows dropped) equals the in-memory path."""
+    from art_gyro_calibration.analysis.streaming import apply_to_csv
+    _raw_log(tmp_path / 'log.csv', 5000, bad_temp_rows=(3, 150, 151, 4000))
+    cal = load_calibration(fitted / 'CAL.yaml')
+    assert [t.signal for t in cal.terms] == ['temperature_rate']
+    log = read_log(tmp_path / 'log.csv', cal.rate_scale_factor, cal.temp_scale_factor)
+    whole = apply_calibration(log, cal, 250)
+    assert np.count_nonzero(~whole.kept) == 4 and len(whole.corrected_dps) == 4996
+    with open(tmp_path / 'chunked.csv', 'wb') as out:
+        done = apply_to_csv(tmp_path / 'log.csv', cal, 250, out, chunk_rows=97)
+    assert (done.rows, done.dropped, done.bias) == (5000, 4, whole.bias)
+    data = np.loadtxt(tmp_path / 'chunked.csv', delimiter=',', skiprows=1)
+    np.testing.assert_allclose(data[:, 0], log.t[whole.kept], rtol=0, atol=0.5e-6 + np.spacing(log.t[-1]))
+    np.testing.assert_allclose(data[:, 3], whole.comp_dps, rtol=0, atol=0.5e-9 + 1e-12)
+    np.testing.assert_allclose(data[:, 4], whole.corrected_dps, rtol=0, atol=0.5e-9 + 1e-12)
+    assert main(['apply', str(tmp_path / 'log.csv'), '--calibration', str(fitted / 'CAL.yaml'),
+                 '--out', str(tmp_path / 'cli.csv'), '--bias-samples', '250']) == 0
+    assert (tmp_path / 'cli.csv').read_bytes() == (tmp_path / 'chunked.csv').read_bytes()
+    assert '4996 of 5000 rows; 4 dropped as the node drops them' in capsys.readouterr().out
+
+
+def _leftovers(d: Path) -> list[str]:
+    return sorted(p.name for p in d.iterdir() if p.name.startswith('.calibrate-'))
+
+
+def test_apply_never_overwrites_its_input_and_asks_before_replacing(fitted, tmp_path, capsys):
+    log = tmp_path / 'log.csv'
+    _raw_log(log, 1000)
+    original = log.read_bytes()
+    (tmp_path / 'link.csv').symlink_to(log)
+    (tmp_path / 'sub').mkdir()
+    cal = str(fitted / 'CAL.yaml')
+    for out in (log, tmp_path / 'link.csv', tmp_path / 'sub' / '..' / 'log.csv', cal):
+        for force in ([], ['--force']):
+            assert main(['apply', str(log), '--calibration', cal, '--out', str(out), *force]) == 1
+            assert 'is the input' in capsys.readouterr().err
+    assert log.read_bytes() == original
+    out = tmp_path / 'out.csv'
+    out.write_text('precious\n')
+    assert main(['apply', str(log), '--calibration', cal, '--out', str(out)]) == 1
+    assert 'exists; pass --force to replace it' in capsys.readouterr().err
+    assert out.read_text() == 'precious\n'
+    assert main(['apply', str(log), '--calibration', cal, '--out', str(out), '--force']) == 0
+    assert out.read_text().startswith('t,rate_dps,temp_c,comp_dps,corrected_dps\n')
+    assert _leftovers(tmp_path) == []
+
+
+def test_a_failing_apply_leaves_no_partial_output(fitted, tmp_path, capsys):
+    """A bad row far into the log (after chunks were written): no output, and a replaced one intact."""
+    log = tmp_path / 'log.csv'
+    _raw_log(log, 150_000)
+    lines = log.read_text().splitlines(keepends=True)
+    lines[140_001] = lines[140_001].replace(',', ',?', 1)
+    log.write_text(''.join(lines))
+    out = tmp_path / 'out.csv'
+    assert main(['apply', str(log), '--calibration', str(fitted / 'CAL.yaml'), '--out', str(out)]) == 1
+    assert 'log.csv:140002: row 140001, column raw_rate' in capsys.readouterr().err
+    assert not out.exists() and _leftovers(tmp_path) == []
+    out.write_text('previous result\n')
+    assert main(['apply', str(log), '--calibration', str(fitted / 'CAL.yaml'), '--out', str(out), '--force']) == 1
+    assert out.read_text() == 'previous result\n' and _leftovers(tmp_path) == []
+
+
+def test_fit_checks_its_outputs_before_fitting(fitted, tmp_path, monkeypatch, capsys):
+    import art_gyro_calibration.analysis.cli as cli
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError('the fit ran before its outputs were checked')
+    monkeypatch.setattr(cli, 'close_loop', no_fit)
+    log = str(fitted / 'LOG.csv')
+    (tmp_path / 'CAL.yaml').write_text('keep me\n')
+    (tmp_path / 'REPORT.md').write_text('keep me\n')
+    (tmp_path / 'plots').mkdir()
+    (tmp_path / 'plots' / 'sim-heading-360.png').write_bytes(b'keep me')
+    fit = ['fit', log, '--rows', '3', '--columns', '2']
+    for args, message in (
+            (['--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'new.json')], 'CAL.yaml: exists'),
+            (['--out', str(tmp_path / 'new.yaml'), '--report', str(tmp_path / 'REPORT.json')], 'REPORT.md: exists'),
+            (['--out', log, '--report', str(tmp_path / 'new.json'), '--force'], 'is the input'),
+            (['--out', str(tmp_path / 'new.yaml'), '--report', str(tmp_path / 'new.json'),
+              '--plots', str(tmp_path / 'plots'), '--plot-prefix', 'sim-'], 'already holds sim-heading-360.png'),
+            (['--out', str(tmp_path / 'new.yaml'), '--report', str(tmp_path / 'no' / 'new.json')], 'does not exist')):
+        assert main(fit + args) == 1
+        assert message in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['CAL.yaml', 'REPORT.md', 'plots']
+    assert (tmp_path / 'CAL.yaml').read_text() == 'keep me\n'
+
+
+def test_a_failing_fit_writes_nothing(fitted, tmp_path, monkeypatch, capsys):
+    """The plots fail after the calibration and report were written: none of them appears."""
+    import art_gyro_calibration.analysis.plots as plots
+
+    def broken(*args, **kwargs):
+        raise OSError('disk full')
+    monkeypatch.setattr(plots, 'plot_all', broken)
+    assert main(['fit', str(fitted / 'LOG.csv'), '--rows', '3', '--columns', '2', '--serial', 'NAVC4058',
+                 '--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'REPORT.json'),
+                 '--plots', str(tmp_path / 'plots')]) == 1
+    assert 'disk full' in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_simulate_refuses_to_replace_a_log(tmp_path, capsys):
+    out = tmp_path / 'sim.csv'
+    (tmp_path / 'sim.truth.json').write_text('{}')
+    args = ['simulate', '--serial', 'NAVC3545', '--hours', '0.01', '--out', str(out)]
+    assert main(args) == 1
+    assert 'sim.truth.json: exists; pass --force' in capsys.readouterr().err
+    assert not out.exists()
+    assert main(args + ['--force']) == 0
+    assert read_log(out, 0.00305, 0.05).t.size == 360 and (tmp_path / 'sim.truth.json').read_text() != '{}'
+
+
+def test_record_with_a_wrong_port_leaves_an_existing_log_alone(tmp_path, capsys):
+    out = tmp_path / 'field.csv'
+    out.write_text('t,raw_rate,raw_temp\n1.0,2,500\n')
+    assert main(['record', '--port', str(tmp_path / 'nothing'), '--out', str(out), '--duration', '0.3']) == 1
+    assert 'exists; pass --force' in capsys.readouterr().err
+    assert main(['record', '--port', str(tmp_path / 'nothing'), '--out', str(out), '--duration', '1.3',
+                 '--force']) == 1
+    err = capsys.readouterr().err
+    assert f'nothing from {tmp_path / "nothing"} for 1 s (cannot open' in err, err
+    assert 'error: no frames from' in err and 'field.csv not written' in err
+    assert out.read_text() == 't,raw_rate,raw_temp\n1.0,2,500\n' and _leftovers(tmp_path) == []
+    assert main(['record', '--port', str(out), '--out', str(out), '--force']) == 1
+    assert 'is the input' in capsys.readouterr().err
+
+
+def test_record_says_when_an_open_port_is_silent(tmp_path, capsys):
+    from art_gyro_calibration.fake_rd2100 import FakeRd2100
+    fake = FakeRd2100('NAVC3545', rate_hz=100)   # a pty, never started: open, and quiet
+    try:
+        assert main(['record', '--port', fake.path, '--out', str(tmp_path / 'r.csv'), '--duration', '1.3']) == 1
+    finally:
+        fake.stop()
+    assert 'for 1 s (port open, no frames); still waiting' in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

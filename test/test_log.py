@@ -1,12 +1,13 @@
 """CSV logs: both unit conventions, extra columns, and clear refusals."""
 
 import io
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from art_gyro_calibration.log import LogError, RawLogWriter, read_log, write_columns
+from art_gyro_calibration.log import CsvWriter, LogError, RawLogWriter, read_log, read_log_chunks, write_columns
 
 
 def test_raw_counts_and_extras(tmp_path: Path) -> None:
@@ -40,14 +41,15 @@ def test_physical_units_round_trip(tmp_path: Path) -> None:
     ('', 'header must name each column once'),
     ('t,t\n1,2\n', 'header must name each column once'),
     ('t,rate_dps,temp_c\n', 'no samples'),
-    ('t,rate_dps,temp_c\n0,1,2\n1,x,2\n', "row 2: rate_dps is 'x', not a number"),
-    ('t,rate_dps,temp_c\n0,1,2\n\n1,2,y\n', "row 2: temp_c is 'y', not a number"),
-    ('t,rate_dps,temp_c\n0,1,2\n1,1,2\n2,1\n', 'row 3: 2 values but 3 header names'),
-    ('t,rate_dps,temp_c\n0,1\n', 'values per row|row 1: 2 values but 3 header names'),
-    ('t,rate_dps,temp_c\n1,1,2\n0,1,2\n', 'non-decreasing .first bad row 2'),
-    ('t,rate_dps,temp_c\n0,nan,2\n', 'rate is not a finite number at row 1'),
+    ('t,rate_dps,temp_c\n0,1,2\n1,x,2\n', ":3: row 2, column rate_dps: 'x' is not a number"),
+    ('t,rate_dps,temp_c\n0,1,2\n\n1,2,y\n', ":4: row 2, column temp_c: 'y' is not a number"),
+    ('t,rate_dps,temp_c\n0,1,2\n1,1,2\n2,1\n', ':4: row 3: 2 values but 3 header names'),
+    ('t,rate_dps,temp_c\n0,1\n', ':2: row 1: 2 values but 3 header names|:2: 2 values per row'),
+    ('t,rate_dps,temp_c\n1,1,2\n0,1,2\n', ':3: row 2, column t: 0.0 after 1.0: time must be finite and non-decreasing'),
+    ('t,rate_dps,temp_c\n0,nan,2\n', ':2: row 1, column rate_dps: nan is not a finite number'),
     ('t,gyro,temp_c\n0,1,2\n', 'needs columns rate_dps and temp_c'),
     ('time,rate_dps,temp_c\n0,1,2\n', 'no column t'),
+    ('\ufeff"t";"rate_dps";"temp_c"\n0;1;2\n', 'no column t'),     # semicolons: not this CSV
 ])
 def test_bad_logs(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / 'bad.csv'
@@ -55,3 +57,85 @@ def test_bad_logs(tmp_path: Path, text: str, message: str) -> None:
     with pytest.raises(LogError, match=message) as info:
         read_log(path)
     assert str(info.value).startswith(str(path))
+
+
+def test_bom_quoted_header_and_crlf(tmp_path: Path) -> None:
+    """What spreadsheets and Windows loggers write: a byte order mark, quoted names, CRLF line ends."""
+    path = tmp_path / 'excel.csv'
+    path.write_bytes(b'\xef\xbb\xbf"t", "rate_dps",\'temp_c\',"supply_v"\r\n0.5,1.25,20,12\r\n1.5,-1,20.5,12.1\r\n')
+    log = read_log(path)
+    np.testing.assert_array_equal(log.t, [0.5, 1.5])
+    np.testing.assert_array_equal(log.rate_dps, [1.25, -1.0])
+    assert list(log.extras) == ['supply_v']
+
+
+@pytest.mark.parametrize('data', [
+    b'\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xd0\xff' * 100,        # a binary file with a first line
+    b't,rate_dps,temp_c\n0,1,2\n' + bytes(range(128, 256)) * 50,   # text, then binary
+    b'\xd0' * 200000,                                                # no line break at all
+])
+def test_binary_file_is_named(tmp_path: Path, data: bytes) -> None:
+    path = tmp_path / 'gyro.bin'
+    path.write_bytes(data)
+    with pytest.raises(LogError) as info:
+        read_log(path)
+    message = str(info.value)
+    assert message.startswith(str(path)) and len(message) < 400, message
+    assert 'codec' not in message or 'CSV' in message
+
+
+def _log_text(n: int, t0: float, rate_hz: float) -> tuple[str, np.ndarray]:
+    t = t0 + np.arange(n) / rate_hz
+    rows = ''.join(f'{x:.6f},{k % 7 - 3},{500 + k % 3}\n' for k, x in enumerate(t.tolist()))
+    return 't,raw_rate,raw_temp\n' + rows, t
+
+
+def test_chunks_equal_the_whole_and_errors_name_the_line(tmp_path: Path) -> None:
+    text, t = _log_text(1000, 1.7e9, 1000.0)
+    path = tmp_path / 'log.csv'
+    path.write_text(text.replace('\n', '\n\n', 3))   # blank lines do not count as rows
+    whole = read_log(path, 0.00305, 0.05)
+    chunks = list(read_log_chunks(path, 0.00305, 0.05, chunk_rows=37))
+    assert len(chunks) > 10
+    np.testing.assert_array_equal(np.concatenate([c.t for c in chunks]), whole.t)
+    np.testing.assert_array_equal(np.concatenate([c.rate_dps for c in chunks]), whole.rate_dps)
+    lines = text.splitlines(keepends=True)   # line i + 1 holds row i
+    lines.insert(500, lines[499])              # a repeated time is fine: rows 500 and 501 share it
+    bad = list(lines)
+    bad[901] = bad[901].replace(',', ',x', 1)
+    path.write_text(''.join(bad))
+    with pytest.raises(LogError, match=r'log.csv:902: row 901, column raw_rate: .x-?\d. is not a number'):
+        list(read_log_chunks(path, 0.00305, 0.05, chunk_rows=37))
+    bad = list(lines)
+    bad[901] = bad[899]                         # time going back is not
+    path.write_text(''.join(bad))
+    with pytest.raises(LogError, match=r'log.csv:902: row 901, column t: .* time must be finite and non-decreasing'):
+        list(read_log_chunks(path, 0.00305, 0.05, chunk_rows=37))
+
+
+@pytest.mark.parametrize('t0', [0.0, 1.7e9, 4.1e9])
+def test_time_is_kept_to_the_microsecond_at_any_epoch(tmp_path: Path, t0: float) -> None:
+    """Epoch-second logs at 1 kHz: every written time reads back within half a microsecond."""
+    rng = np.random.default_rng(1)
+    t = t0 + np.cumsum(rng.uniform(0.0009, 0.0011, 5000))
+    cols = {'t': t, 'rate_dps': rng.normal(0, 50, t.size), 'temp_c': rng.uniform(-40, 85, t.size)}
+    path = tmp_path / 'out.csv'
+    write_columns(path, cols)
+    log = read_log(path)
+    assert len(np.unique(log.t)) == t.size
+    assert np.max(np.abs(log.t - t)) <= 0.5e-6 + 4 * np.spacing(t[-1])
+    np.testing.assert_allclose(log.rate_dps, cols['rate_dps'], rtol=0, atol=0.5e-9 + 1e-13)
+    text = path.read_text().splitlines()[1]
+    assert text.split(',')[0] == f'{t[0]:.6f}'.rstrip('0').rstrip('.')
+
+
+def test_writer_in_chunks_and_awkward_values(tmp_path: Path) -> None:
+    x = np.array([0.0, -0.0, -1e-12, 0.1, -2.5, 1e-9, 123456.0, 1e15, math.nan, math.inf])
+    buf = io.BytesIO()
+    writer = CsvWriter(buf, ['t', 'v'])
+    writer.write({'t': np.arange(4.0), 'v': x[:4]})     # formatted by numpy
+    writer.write({'t': np.arange(4.0, 10.0), 'v': x[4:]})   # too large or not finite: by Python
+    writer.write({'t': [], 'v': []})
+    assert buf.getvalue().decode().split('\n') == [
+        't,v', '0,0', '1,0', '2,0', '3,0.1', '4,-2.5', '5,0.000000001', '6,123456', '7,1000000000000000', '8,nan',
+        '9,inf', '']

@@ -63,7 +63,7 @@ def test_the_loop_on_the_real_record(record_slice, tmp_path):
     # y follows temperature strongly: the polynomial fitted on 9 h must halve the held-out systematic error.
     assert y.summaries['art'].block_rms_dps < 0.6 * y.summaries['uncalibrated'].block_rms_dps
     for r in results:
-        assert 0 < r.materiality < 0.03
+        assert r.materiality == r.loop.materiality_dph > 0
         for stage in measured.STAGES:
             assert len(r.errors[stage]) == np.count_nonzero(r.held) > 2.9 * HOUR
             # White noise at 1 s of a MEMS gyro resampled to 1 Hz: about 0.1 deg/s.

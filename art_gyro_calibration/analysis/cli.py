@@ -6,33 +6,43 @@
 - ``calibrate record --port P --out LOG.csv [--protocol binary] [--baud 9600] [--serial SN] [--duration S]``
 
 Errors in the input (a bad log, a bad calibration, a gyro that moved during the
-static bias) are reported on stderr with a non-zero exit status.
+static bias) are reported on stderr with a non-zero exit status. Outputs are checked
+before the work starts and written whole or not at all (:mod:`.outputs`): an existing
+one is replaced only with ``--force``, an input never.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import queue
+import signal
 import sys
-import threading
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from art_gyro_calibration.calibration import (TEMP_SCALE_FACTOR, CalibrationError, find_calibration_file,
                                               load_calibration, write_calibration)
-from art_gyro_calibration.compensation import apply_calibration
-from art_gyro_calibration.log import LogError, RawLogWriter, read_log, write_columns
+from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C
+from art_gyro_calibration.log import LogError, RawLogWriter, read_log
 from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RATE_SCALE_FACTOR, DEFAULT_SERIAL,
                                                 close_loop)
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
-from art_gyro_calibration.analysis.trace import DEFAULT_BLOCK_S
+from art_gyro_calibration.analysis.outputs import Outputs
+from art_gyro_calibration.analysis.trace import DEFAULT_BLOCK_S, DEFAULT_DRAWS
 
 
 def _apply(args: argparse.Namespace) -> int:
-    calibration = load_calibration(args.calibration)
-    log = read_log(args.log, calibration.rate_scale_factor, calibration.temp_scale_factor)
-    applied = apply_calibration(log, calibration, args.bias_samples)
-    write_columns(args.out, {'t': log.t, 'rate_dps': log.rate_dps, 'temp_c': log.temp_c,
-                             'comp_dps': applied.comp_dps, 'corrected_dps': applied.corrected_dps})
-    print(f'{args.out}: {len(log)} rows; {applied.bias.describe()}')
+    from art_gyro_calibration.analysis.streaming import apply_to_csv
+    with Outputs([args.log, args.calibration], args.force) as outputs:
+        out = outputs.claim(args.out)
+        calibration = load_calibration(args.calibration)
+        with open(out, 'wb') as stream:
+            done = apply_to_csv(args.log, calibration, args.bias_samples, stream)
+    low, high = PLAUSIBLE_TEMPERATURE_C
+    print(f'{args.out}: {done.rows - done.dropped} of {done.rows} rows; {done.dropped} dropped as the node drops '
+          f'them (temperature outside {low:g}..{high:g} degC); {done.bias.describe()}')
     return 0
 
 
@@ -59,68 +69,109 @@ def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
 
 def _fit(args: argparse.Namespace) -> int:
     from art_gyro_calibration.analysis.report import build_report, write_report
-    rate_scale, temp_scale = _scale_factors(args)
-    log = read_log(args.log, rate_scale, temp_scale)
-    result = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
-                        rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
-                        settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
-                        exclude=args.exclude, block_s=args.block_s)
-    report = build_report(log, result, args.bias_samples, source=str(args.log))
-    found = ', '.join(e.signal for e in result.effects) or 'nothing'
-    write_calibration(args.out, result.extended,
-                      f'Fitted by calibrate fit from {args.log}: ART polynomial {args.rows} x {args.columns}, '
-                      f'effects beyond it: {found}.')
-    summary = write_report(args.report, report)
-    if args.plots:
-        from art_gyro_calibration.analysis.plots import plot_all
-        plot_all(log, result, args.bias_samples, args.plots, args.plot_prefix)
-    print(summary.read_text(encoding='utf-8'), end='')
+    with Outputs([args.log], args.force) as outputs:
+        out = outputs.claim(args.out)
+        report_path = outputs.claim(args.report, beside=[Path(args.report).with_suffix('.md')])
+        plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
+        rate_scale, temp_scale = _scale_factors(args)
+        log = read_log(args.log, rate_scale, temp_scale)
+        result = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
+                            rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
+                            settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
+                            exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
+                            draws=args.draws)
+        report = build_report(log, result, args.bias_samples, source=str(args.log))
+        found = ', '.join(e.signal for e in result.effects) or 'nothing'
+        write_calibration(out, result.extended,
+                          f'Fitted by calibrate fit from {args.log}: ART polynomial {args.rows} x {args.columns}, '
+                          f'effects beyond it: {found}.')
+        summary = write_report(report_path, report).read_text(encoding='utf-8')
+        if plots is not None:
+            from art_gyro_calibration.analysis.plots import plot_all
+            plot_all(log, result, args.bias_samples, plots, args.plot_prefix)
+    print(summary, end='')
     return 0
 
 
 def _simulate(args: argparse.Namespace) -> int:
     from art_gyro_calibration.calibration import load_packaged_calibration
-    from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
-    calibration = load_packaged_calibration(args.serial)
-    settings = SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=tuple(args.effect),
-                                  seed=args.seed)
-    run = simulate_run(calibration, settings)
-    side = write_run(args.out, run)
+    from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, truth_path, write_run
+    with Outputs([], args.force) as outputs:
+        out = outputs.claim(args.out, beside=[truth_path(args.out)])
+        calibration = load_packaged_calibration(args.serial)
+        settings = SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=tuple(args.effect),
+                                      seed=args.seed)
+        run = simulate_run(calibration, settings)
+        write_run(out, run)
     print(f'{args.out}: {len(run.columns["t"])} rows of {args.serial} '
-          f'(effects: {", ".join(args.effect) or "none"}); truth in {side}')
+          f'(effects: {", ".join(args.effect) or "none"}); truth in {truth_path(args.out)}')
     return 0
+
+
+# Silence after which ``calibrate record`` says that nothing arrives (and why, as far as the driver knows).
+RECORD_SILENCE_S = 1.0
 
 
 def _record(args: argparse.Namespace) -> int:
-    from art_gyro_calibration.driver import Frame, Rd2100Driver
+    from art_gyro_calibration.driver import Rd2100Driver
     if args.serial:
         load_calibration(find_calibration_file(args.serial), expected_serial=args.serial)
-    with open(args.out, 'w', encoding='utf-8') as stream:
-        writer = RawLogWriter(stream)
-        count = [0]
-
-        def on_frame(frame: Frame) -> None:
-            # Runs on the driver's reader thread, the only writer of the log.
-            writer.write(frame.stamp_ns * 1e-9, frame.sample.raw_rate, frame.sample.raw_temp)
-            count[0] += 1
-
-        driver = Rd2100Driver(args.port, args.baud, args.protocol, on_frame)
-        stop = threading.Event()
-        driver.start()
+    with Outputs([args.port], args.force) as outputs:
+        out = outputs.claim(args.out)
+        frames: queue.SimpleQueue[tuple[int, int, int]] = queue.SimpleQueue()
+        driver = Rd2100Driver(args.port, args.baud, args.protocol,
+                              lambda f: frames.put((f.stamp_ns, f.sample.raw_rate, f.sample.raw_temp)))
+        previous = signal.signal(signal.SIGTERM, _interrupt)   # end as on Ctrl-C: keep what was recorded
+        driver.start()   # opens the port on its thread; the log is created at the first frame
         try:
-            stop.wait(args.duration)  # None: until Ctrl-C
-        except KeyboardInterrupt:
-            pass
+            count = _record_frames(frames, out, args.port, args.duration, lambda: driver.stats.last_error)
         finally:
             driver.stop()
-            stream.flush()
+            signal.signal(signal.SIGTERM, previous)
         stats = driver.stats
-    if not count[0]:
-        print(f'calibrate record: error: no frames from {args.port} '
-              f'({stats.last_error or "nothing received"})', file=sys.stderr)
-        return 1
-    print(f'{args.out}: {count[0]} frames from {args.port} ({stats.rejected} rejected, {stats.reopens} reopens)')
+        if not count:
+            raise OSError(f'no frames from {args.port} ({stats.last_error or "nothing received"}); '
+                          f'{args.out} not written')
+    print(f'{args.out}: {count} frames from {args.port} ({stats.rejected} rejected, {stats.reopens} reopens)')
     return 0
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _record_frames(frames: queue.SimpleQueue[tuple[int, int, int]], out: Path, port: str,
+                   duration_s: float | None, last_error: Callable[[], str]) -> int:
+    """Write frames to ``out`` until ``duration_s`` or Ctrl-C; says on stderr when none arrive for a second."""
+    last = time.monotonic()
+    end = math.inf if duration_s is None else last + duration_s
+    silent = False
+    count = 0
+    writer = None
+    try:
+        while (now := time.monotonic()) < end:
+            try:
+                stamp_ns, raw_rate, raw_temp = frames.get(timeout=max(0.0, min(end, last + RECORD_SILENCE_S) - now))
+            except queue.Empty:
+                if not silent and time.monotonic() - last >= RECORD_SILENCE_S:
+                    silent = True
+                    print(f'calibrate record: nothing from {port} for {RECORD_SILENCE_S:g} s '
+                          f'({last_error() or "port open, no frames"}); still waiting', file=sys.stderr, flush=True)
+                continue
+            if writer is None:
+                writer = RawLogWriter(open(out, 'x', encoding='utf-8'))
+            writer.write(stamp_ns * 1e-9, raw_rate, raw_temp)
+            count += 1
+            last = time.monotonic()
+            if silent:
+                silent = False
+                print(f'calibrate record: frames from {port} again', file=sys.stderr, flush=True)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if writer is not None:
+            writer.close()
+    return count
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -137,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', required=True, help='CSV to write: t,rate_dps,temp_c,comp_dps,corrected_dps')
     p.add_argument('--bias-samples', type=int, default=DEFAULT_SAMPLES,
                    help='rows at rest at the start of the log for the static bias (default %(default)s)')
+    _force_option(p)
     p.set_defaults(run=_apply)
 
     p = sub.add_parser('fit', help='fit the ART polynomial to a rate-table log and trace what it leaves')
@@ -157,12 +209,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help='seconds skipped after each change of table rate (default %(default)s)')
     p.add_argument('--max-effects', type=int, default=DEFAULT_MAX_EFFECTS,
                    help='most effects to add (default %(default)s)')
-    p.add_argument('--seed', type=int, default=0, help='seed of the chance (shifted) scores')
+    p.add_argument('--seed', type=int, default=0, help='seed of the chance scores (phase-randomised residuals)')
+    p.add_argument('--draws', type=_positive_int, default=DEFAULT_DRAWS,
+                   help='chance draws per screen (default %(default)s)')
+    p.add_argument('--materiality', type=float, metavar='DEG_PER_H',
+                   help='smallest effect worth adding, worst case over the logged envelope, deg/h '
+                        '(default: the bias instability of what the ART polynomial leaves)')
     p.add_argument('--exclude', action='append', default=[], metavar='SIGNAL',
                    help='never use this signal or log column as an effect (e.g. one the node will not have); repeat')
     p.add_argument('--block-s', type=float, default=DEFAULT_BLOCK_S,
                    help='shortest held-out block of time (s); each screen lengthens it to the correlation time '
                         'of what the model leaves (default %(default)s)')
+    _force_option(p)
     p.set_defaults(run=_fit)
 
     p = sub.add_parser('simulate', help='write a simulated rate-table and thermal-chamber run')
@@ -173,6 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help='switch an effect on (repeat for several)')
     p.add_argument('--rate-hz', type=float, default=10.0, help='samples per second (default %(default)s)')
     p.add_argument('--seed', type=int, default=0)
+    _force_option(p)
     p.set_defaults(run=_simulate)
 
     p = sub.add_parser('record', help='record a gyro through the node\'s driver into a raw log')
@@ -182,8 +241,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--baud', type=int, default=9600)
     p.add_argument('--serial', help='check that a calibration of this gyro is packaged')
     p.add_argument('--duration', type=float, help='seconds to record (default: until Ctrl-C)')
+    _force_option(p)
     p.set_defaults(run=_record)
     return parser
+
+
+def _force_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--force', action='store_true',
+                   help='replace outputs that exist (an input is never overwritten)')
 
 
 def _positive_int(text: str) -> int:

@@ -7,49 +7,54 @@ into blocks of time (15 minutes, which :func:`loop.close_loop` lengthens to the 
 correlation time), dealt in turn to ``folds`` folds; for each fold the base model plus the
 candidate is fitted on the other folds and predicts this one.
 
-Chance is measured on the data itself: the same score with the candidate circularly
-shifted by ``shifts`` large random offsets, which keeps the candidate's own slowness and
-the residual's (bias instability) but breaks their alignment; offsets where the shifted
-candidate still correlates with itself (a periodic temperature cycle shifted by a
-period, or by half of one, which flips its sign) are not drawn. A candidate is an
-effect only if its score beats every shifted score (chance below 1 / (shifts + 1)) and
-if it removes at least ``materiality`` of the white-noise variance estimated from the
-data: below that, an effect is not told apart from the gyro's own bias instability.
-Several unmodelled effects inflate each other's chance level, so material candidates
-are scored again with the other material ones (and, if still nothing beats chance,
-with every other candidate) in the base.
+Chance is measured on the data itself, keeping the candidate and randomising the
+residual: ``draws`` phase-randomised copies of what the base model leaves keep its
+spectrum (a bias that wanders for hours stays slow) but lose any alignment with a
+candidate. Every candidate scores every copy; the best chance score of the round, over
+all candidates, is one draw of the null of "nothing here", so one quantile of it tests
+the whole round at level ``alpha`` however many candidates there are (a maximum
+statistic). A candidate is an effect only if it beats that quantile and if its fitted
+size over the logged envelope (half its range, deg/h) reaches the materiality, by
+default the data's own bias instability: an effect smaller than the gyro's wander does
+not matter to a robot, whatever the log's length or sample rate. Candidates are scored
+against the base alone, never conditioned on each other, so two columns carrying the
+same information cannot explain each other away; a log column that stands for a derived
+signal (one the node computes itself) gives way to it.
 
 Speed: the screen works on bin means (``bin_s`` of one steady segment per bin, weighted
 by the square root of their row count, so a bin mean's noise is that of one sample)
-and on per-fold Gram matrices: the held-out error of every fold, every shift and every
-time constant then follows from small matrices without touching the rows again.
+and on per-fold Gram matrices: the held-out error of every fold, every chance draw and
+every time constant then follows from small matrices and one product with the bins.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.analysis.fit import Design, TermSpec, centred, fit_model, solve_normal
 from art_gyro_calibration.analysis.metrics import Segments, noise_floor
-from art_gyro_calibration.signals import Signals
+from art_gyro_calibration.signals import DERIVED_SIGNALS, Signals
 
 DEFAULT_FOLDS = 6
-DEFAULT_SHIFTS = 39
+# Fewer folds than this leave too little to fit on; a short log gets this many, not shorter blocks.
+MIN_FOLDS = 3
+DEFAULT_DRAWS = 200
+DEFAULT_ALPHA = 0.05
+# Chance draws scored at once: bounds the memory of the target matrix (bins x batch).
+SURROGATE_BATCH = 50
 DEFAULT_BIN_S = 1.0
 # Held-out blocks of time: several times the bias instability's correlation time.
 DEFAULT_BLOCK_S = 900.0
-DEFAULT_MATERIALITY = 0.03
-# A shift is a fair draw of chance only if the shifted candidate does not resemble the
-# candidate itself (or its negative): a periodic chamber cycle would otherwise shift onto itself.
-MAX_SELF_CORRELATION = 0.3
+DEG_PER_H_PER_DPS = 3600.0
+# A log column whose fitted effect a derived signal's explains to this R^2 stands for that signal.
+STANDS_FOR_CORRELATION = 0.9
 TIME_CONSTANT_GRID_SIZE = 8
 MAX_TIME_CONSTANT_RUNS = 4.0
-# Self-correlation of a candidate is judged on at most this many block means (cheap FFTs).
-SELF_CORRELATION_POINTS = 4096
 MIN_TIME_CONSTANT_S = 30.0
 
 
@@ -100,26 +105,30 @@ def _bins(segments: Segments, t: NDArray[np.float64], bin_s: float) -> tuple[NDA
     return np.concatenate(starts), np.concatenate(counts)
 
 
-def _held_out(gram: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Held-out and training SSE per fold from per-fold Grams ``(..., K, q, q)`` of ``[X, e]``."""
-    train = gram.sum(axis=-3, keepdims=True) - gram
-    a = train[..., :-1, :-1]
-    b = train[..., :-1, -1]
-    diag = np.einsum('...ii->...i', a)
-    ridge = 1e-12 * diag.mean(axis=-1)[..., None, None] * np.eye(a.shape[-1])
-    beta = np.linalg.solve(a + ridge, b[..., None])[..., 0]
-    held = (gram[..., -1, -1] - 2 * np.einsum('...i,...i->...', beta, gram[..., :-1, -1])
-            + np.einsum('...i,...ij,...j->...', beta, gram[..., :-1, :-1], beta))
-    trained = train[..., -1, -1] - np.einsum('...i,...i->...', beta, b)
+def _cv_sse(gram: NDArray[np.float64], cross: NDArray[np.float64],
+            yy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Held-out and training SSE, shape (K, T), of a least-squares fit per fold and target.
+
+    ``gram`` (K, q, q) holds each fold's ``X'X``, ``cross`` (K, q, T) its ``X'y`` for T
+    targets and ``yy`` (K, T) its ``y'y``: fold k is predicted from the fit to the others.
+    """
+    train = gram.sum(axis=0) - gram
+    train_cross = cross.sum(axis=0) - cross
+    diag = np.einsum('kii->ki', train)
+    ridge = 1e-12 * diag.mean(axis=-1)[:, None, None] * np.eye(gram.shape[-1])
+    beta = np.linalg.solve(train + ridge, train_cross)
+    held = yy - 2 * np.einsum('kqt,kqt->kt', beta, cross) + np.einsum('kqt,kqt->kt', beta, gram @ beta)
+    trained = yy.sum(axis=0) - yy - np.einsum('kqt,kqt->kt', beta, train_cross)
     return held, trained
 
 
 class Binned:
     """Steady rows of a log in bins, with the polynomial's columns and the error binned once.
 
-    Folds: the bins are grouped into blocks of ``block_s`` of time, dealt to the
-    ``folds`` in turn, so every fold holds whole blocks of time from the whole run (a
-    warm-up in the first hour or a temperature extreme is then in several folds).
+    Folds: the bins are grouped into blocks of ``block_s`` of time, dealt to the folds in
+    turn, so every fold holds whole blocks of time from the whole run (a warm-up in the
+    first hour or a temperature extreme is then in several folds). A short log gets fewer
+    folds (down to :data:`MIN_FOLDS`) rather than blocks shorter than asked for.
     """
 
     def __init__(self, signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
@@ -127,26 +136,30 @@ class Binned:
         self.signals = signals
         self.index = segments.rows()
         self.starts, counts = _bins(segments, signals.t, bin_s)
-        if len(counts) < 4 * folds:
-            raise ValueError(f'{len(counts)} bins of steady data are too few for {folds} folds')
+        if len(counts) < 4 * MIN_FOLDS:
+            raise ValueError(f'{len(counts)} bins of steady data are too few for {MIN_FOLDS} folds')
         self.sqrt_counts = np.sqrt(counts)
         self.rows_total = int(counts.sum())
         poly = Design(signals, rows, columns, (), self.index).matrix
         self.base = self._bin(np.column_stack([poly, np.asarray(error, dtype=float)[self.index]]))
         self._t_bin = signals.t[self.index[self.starts]]
+        self.max_folds = folds
         self.n_folds = folds
         self.block_s = 0.0
         self.folds: list[NDArray[np.int64]] = []
         self.refold(block_s)
         self._means: dict[TermSpec, NDArray[np.float64]] = {}
 
-    def refold(self, block_s: float) -> None:
-        """Deal blocks of ``block_s`` (at most a ``2 * folds``-th of the run) to the folds in turn."""
+    def refold(self, block_s: float, n_folds: int | None = None) -> None:
+        """Deal blocks of ``block_s`` to the folds in turn, at least two blocks per fold."""
         t_bin = self._t_bin
-        duration = float(t_bin[-1] - t_bin[0])
-        self.block_s = min(block_s, max(duration / (2 * self.n_folds), 1e-9))
-        fold = np.floor((t_bin - t_bin[0]) / self.block_s).astype(np.int64) % self.n_folds
-        self.folds = [np.flatnonzero(fold == k) for k in range(self.n_folds)]
+        duration = max(float(t_bin[-1] - t_bin[0]), 1e-9)
+        if n_folds is None:
+            n_folds = int(np.clip(duration // (2 * block_s), MIN_FOLDS, self.max_folds))
+        self.n_folds = n_folds
+        self.block_s = min(block_s, duration / (2 * n_folds))
+        fold = np.floor((t_bin - t_bin[0]) / self.block_s).astype(np.int64) % n_folds
+        self.folds = [np.flatnonzero(fold == k) for k in range(n_folds)]
 
     def _bin(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
         """Bin sums of steady-row ``values`` divided by sqrt(count): a mean weighted to unit noise."""
@@ -162,6 +175,14 @@ class Binned:
             cols.append(self._means[spec])
         return np.stack(cols, axis=1)
 
+    def bin_times(self) -> NDArray[np.float64]:
+        """Time (s) of each bin's first row."""
+        return self._t_bin
+
+    def fold_sums(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per fold ``a_k' b_k`` over the bins of fold k, shape (K, a columns, b columns)."""
+        return np.stack([a[k].T @ b[k] for k in self.folds])
+
 
 class Screen:
     """The base model (polynomial + ``specs``) on binned rows, with per-fold Grams, ready to score candidates."""
@@ -171,67 +192,99 @@ class Screen:
         self.sqrt_counts = binned.sqrt_counts
         self.rows_total = binned.rows_total
         parts = [binned.base[:, :-1]]
-        parts += [binned.candidate_means([spec])[:, 0, :] * self.sqrt_counts[:, None] for spec in specs]
-        self.xe = np.column_stack([*parts, binned.base[:, -1]])
-        self.width = self.xe.shape[1] - 1
-        self.gram = np.stack([self.xe[k].T @ self.xe[k] for k in binned.folds])
+        parts += [self.weighted(spec) for spec in specs]
+        self.x = np.column_stack(parts)
+        self.e = binned.base[:, -1]
+        self.width = self.x.shape[1]
+        self.gram = binned.fold_sums(self.x, self.x)
         self._base_sse: float | None = None
 
-    def candidate_means(self, variants: Sequence[TermSpec]) -> NDArray[np.float64]:
-        """Bin means of the scaled candidate bases, shape (bins, variants, width)."""
-        return self.binned.candidate_means(variants)
+    def weighted(self, spec: TermSpec) -> NDArray[np.float64]:
+        """The candidate's columns as the screen fits them: bin means weighted to unit noise."""
+        return self.binned.candidate_means([spec])[:, 0, :] * self.sqrt_counts[:, None]
 
     def base_sse(self) -> float:
         """Held-out SSE of the base model over all folds."""
         if self._base_sse is None:
-            self._base_sse = float(_held_out(self.gram)[0].sum())
+            held, _ = _cv_sse(self.gram, self.binned.fold_sums(self.x, self.e[:, None]),
+                              self.binned.fold_sums(self.e[:, None], self.e[:, None])[:, 0])
+            self._base_sse = float(held.sum())
         return self._base_sse
 
-    def scores(self, means: NDArray[np.float64], shifts: NDArray[np.int64]) -> NDArray[np.float64]:
-        """Held-out SSE with the candidate for each circular shift (0 = as logged).
+    def residual(self) -> NDArray[np.float64]:
+        """What the base model fitted to every bin leaves, weighted as the bins are."""
+        return self.e - self.x @ solve_normal(self.gram.sum(axis=0), self.x.T @ self.e)
 
-        With several variants (time constants), each fold picks the variant that fits its
-        training blocks best, so the choice itself is held out.
-        """
-        n, n_var, w = means.shape
-        p = self.width
-        n_ver = len(shifts) * n_var
-        q = p + w + 1
-        gram = np.zeros((n_ver, len(self.binned.folds), q, q))
-        for k, rows in enumerate(self.binned.folds):
-            # Shifted copies fold by fold: memory stays at one fold's worth.
-            rolled = means[(rows[:, None] - shifts[None, :]) % n]  # (rows, shifts, variants, w)
-            ck = (rolled * self.sqrt_counts[rows, None, None, None]).reshape(len(rows), n_ver, w)
-            cx = (ck.reshape(len(rows), n_ver * w).T @ self.xe[rows]).reshape(n_ver, w, p + 1)
-            gram[:, k, :p, :p] = self.gram[k, :p, :p]
-            gram[:, k, :p, -1] = gram[:, k, -1, :p] = self.gram[k, :p, -1]
-            gram[:, k, -1, -1] = self.gram[k, -1, -1]
-            gram[:, k, p:p + w, :p] = cx[:, :, :p]
-            gram[:, k, :p, p:p + w] = np.swapaxes(cx[:, :, :p], 1, 2)
-            gram[:, k, p:p + w, -1] = gram[:, k, -1, p:p + w] = cx[:, :, p]
-            gram[:, k, p:p + w, p:p + w] = np.einsum('njw,njv->jwv', ck, ck)
-        held, trained = _held_out(gram)
-        held = held.reshape(len(shifts), n_var, -1)
-        trained = trained.reshape(len(shifts), n_var, -1)
-        pick = np.argmin(trained, axis=1)[:, None, :]
-        return np.take_along_axis(held, pick, axis=1)[:, 0, :].sum(axis=-1)
+    def fit_with(self, spec: TermSpec) -> tuple[float, NDArray[np.float64]]:
+        """SSE over all bins of the base plus ``spec``, and the candidate's coefficients (scaled basis)."""
+        c = self.weighted(spec)
+        design = np.column_stack([self.x, c])
+        beta = solve_normal(design.T @ design, design.T @ self.e)
+        r = self.e - design @ beta
+        return float(r @ r), beta[self.width:]
 
     def training_sse(self, spec: TermSpec) -> float:
         """SSE of the base model plus ``spec`` fitted to all folds (for choosing a time constant)."""
-        c = self.candidate_means([spec])[:, 0, :] * self.sqrt_counts[:, None]
-        base = self.gram.sum(axis=0)
-        cx = c.T @ self.xe
+        return self.fit_with(spec)[0]
+
+    def effect_dph(self, spec: TermSpec) -> float:
+        """Worst-case size of the fitted candidate over the logged envelope: half its range of bin means, deg/h."""
+        _, beta = self.fit_with(spec)
+        contribution = self.binned.candidate_means([spec])[:, 0, :] @ beta
+        return float(0.5 * np.ptp(contribution) * DEG_PER_H_PER_DPS)
+
+    def held_out_improvements(self, families: dict[str, Sequence[TermSpec]],
+                              targets: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
+        """Per family, how much it lowers the held-out MSE (deg^2/s^2 per row) of each target column.
+
+        Each fold picks the family's variant (a time constant) that fits its training blocks
+        best, for each target apart, so the choice itself is held out.
+        """
+        fold_sums = self.binned.fold_sums
+        cross_x = fold_sums(self.x, targets)
+        yy = np.stack([np.einsum('nt,nt->t', targets[k], targets[k]) for k in self.binned.folds])
+        base_held, _ = _cv_sse(self.gram, cross_x, yy)
         p = self.width
-        g = np.block([[base[:p, :p], cx[:, :p].T, base[:p, p:]],
-                      [cx[:, :p], c.T @ c, cx[:, p:]],
-                      [base[p:, :p], cx[:, p:].T, base[p:, p:]]])
-        beta = solve_normal(g[:-1, :-1], g[:-1, -1])
-        return float(g[-1, -1] - beta @ g[:-1, -1])
+        out = {}
+        for name, variants in families.items():
+            held = []
+            trained = []
+            for spec in variants:
+                c = self.weighted(spec)
+                w = c.shape[1]
+                gram = np.empty((len(self.binned.folds), p + w, p + w))
+                gram[:, :p, :p] = self.gram
+                gram[:, p:, :p] = fold_sums(c, self.x)
+                gram[:, :p, p:] = np.swapaxes(gram[:, p:, :p], 1, 2)
+                gram[:, p:, p:] = fold_sums(c, c)
+                h, tr = _cv_sse(gram, np.concatenate([cross_x, fold_sums(c, targets)], axis=1), yy)
+                held.append(h)
+                trained.append(tr)
+            pick = np.argmin(np.stack(trained), axis=0)[None]
+            chosen = np.take_along_axis(np.stack(held), pick, axis=0)[0]
+            out[name] = (base_held - chosen).sum(axis=0) / self.rows_total
+        return out
+
+
+def phase_surrogates(x: NDArray[np.float64], count: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """``count`` series with the amplitude spectrum of ``x`` and random phases, shape (len(x), count).
+
+    A slow bias wander keeps its slowness (its spectrum), but loses any alignment with a
+    candidate: the null of "the candidate explains nothing", with the residual's own memory.
+    The series is mirrored before the transform: a wander that ends far from where it
+    began is then no jump at the wrap, and the surrogates keep its trends.
+    """
+    n = len(x)
+    spectrum = np.fft.rfft(np.concatenate([x, x[::-1]]) - x.mean())
+    phases = rng.uniform(0.0, 2.0 * np.pi, (len(spectrum), count))
+    phases[0] = 0.0
+    phases[-1] = 0.0   # the Nyquist term of the (even) mirrored length stays real
+    return np.fft.irfft(spectrum[:, None] * np.exp(1j * phases), 2 * n, axis=0)[:n]
 
 
 @dataclass(frozen=True)
 class CandidateScore:
-    """One candidate signal's held-out score against its chance level (per-sample deg^2/s^2)."""
+    """One candidate's held-out score against chance (per-sample deg^2/s^2) and its size (deg/h)."""
 
     signal: str
     spec: TermSpec
@@ -241,33 +294,48 @@ class CandidateScore:
     null_max_dps2: float
     fraction_of_floor: float
     significant: bool
+    p_value: float = 1.0
+    effect_dph: float = 0.0
+    stands_for: str = ''
 
 
 @dataclass(frozen=True)
 class TraceResult:
-    """What one screen found: every candidate's score, best first."""
+    """What one screen found: every candidate's score, best first, and the round's chance level."""
 
     noise_floor_dps: float
     base_held_out_mse_dps2: float
     candidates: tuple[CandidateScore, ...]
+    threshold_dps2: float = math.inf
+    draws: int = 0
+    materiality_dph: float = 0.0
 
     @property
     def best(self) -> CandidateScore | None:
-        """The significant candidate that removes most error, or None: nothing found."""
+        """The significant candidate that removes most error, or None: nothing found.
+
+        A log column the node cannot read loses to a derived signal it stands for.
+        """
         found = [c for c in self.candidates if c.significant]
-        return found[0] if found else None
+        if not found:
+            return None
+        named = {c.signal: c for c in found}
+        return named.get(found[0].stands_for, found[0])
 
 
 def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
-                   specs: Sequence[TermSpec] = (), *, folds: int = DEFAULT_FOLDS, shifts: int = DEFAULT_SHIFTS,
-                   bin_s: float = DEFAULT_BIN_S, materiality: float = DEFAULT_MATERIALITY,
+                   specs: Sequence[TermSpec] = (), *, folds: int = DEFAULT_FOLDS, draws: int = DEFAULT_DRAWS,
+                   alpha: float = DEFAULT_ALPHA, bin_s: float = DEFAULT_BIN_S, materiality_dph: float = 0.0,
                    seed: int = 0, noise_floor_dps: float | None = None,
                    exclude: Sequence[str] = (), binned: Binned | None = None) -> TraceResult:
     """Screen every signal not yet modelled (nor in ``exclude``) against what the model (polynomial + ``specs``) leaves.
 
     ``error`` is ``rate_dps - ref_rate`` per log row; only the steady rows of ``segments``
-    are used. The noise floor is estimated from the base fit's residual unless given;
-    ``binned`` (the same log, rows and columns) saves binning it again in a loop.
+    are used. Chance: ``draws`` phase-randomised copies of the base model's residual, each
+    scored by every candidate; a candidate is significant if its score beats the ``1 -
+    alpha`` quantile of the best chance score of any candidate (one test for the whole
+    round, whatever the number of candidates) and its fitted size reaches
+    ``materiality_dph`` over the logged envelope.
     """
     if noise_floor_dps is None:
         base = fit_model(signals, error, rows, columns, specs, segments.rows())
@@ -280,82 +348,75 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
     rng = np.random.default_rng(seed)
     floor_var = noise_floor_dps ** 2
     families = candidate_specs(signals, rows, columns, [*exclude, *(s.signal for s in specs)])
-    scores = [score for signal, variants in families.items()
-              if (score := _score(screen, signal, variants, shifts, rng, floor_var, materiality)) is not None]
-    # Several unmodelled effects inflate each other's chance level (a slow residual makes any
-    # slow candidate look useful). Score each material candidate again with the other
-    # material ones in the base, so that its chance level is measured on what they leave.
-    material = [c for c in scores if c.fraction_of_floor > materiality]
-    if len(material) > 1:
-        scores = _rescore(scores, material, material, binned, specs, families, shifts, rng, floor_var, materiality)
-    # Still nothing beats chance although something matters: the unmodelled rest may hide in
-    # candidates whose own score the others spoil; condition on every other candidate.
-    if not any(c.significant for c in scores):
-        material = [c for c in scores if c.fraction_of_floor > materiality]
-        scores = _rescore(scores, material, scores, binned, specs, families, shifts, rng, floor_var, materiality)
-    scores.sort(key=lambda c: c.improvement_dps2, reverse=True)
-    return TraceResult(noise_floor_dps, screen.base_sse() / screen.rows_total, tuple(scores))
+    families = {name: v for name, v in families.items() if np.ptp(binned.candidate_means(v), axis=0).max() > 0.0}
+    residual = screen.residual()
+    scores = {name: [] for name in families}
+    for start in range(0, draws + 1, SURROGATE_BATCH):
+        count = min(SURROGATE_BATCH, draws + 1 - start)
+        targets = phase_surrogates(residual, count, rng)
+        if start == 0:
+            targets[:, 0] = residual   # column 0: the residual as logged
+        for name, improvement in screen.held_out_improvements(families, targets).items():
+            scores[name].append(improvement)
+    if not families:
+        return TraceResult(noise_floor_dps, screen.base_sse() / screen.rows_total, (), math.inf, draws,
+                           materiality_dph)
+    table = {name: np.concatenate(parts) for name, parts in scores.items()}
+    best_chance = np.max(np.stack([v[1:] for v in table.values()]), axis=0)
+    threshold = float(np.quantile(best_chance, 1.0 - alpha, method='higher'))
+    candidates = []
+    for name, values in table.items():
+        real, null = float(values[0]), values[1:]
+        spec = families[name][0] if len(families[name]) == 1 else _best_variant(screen, families[name])
+        size = screen.effect_dph(spec)
+        candidates.append(CandidateScore(
+            name, spec, real, float(null.mean()), float(null.std()), float(null.max()), real / floor_var,
+            bool(real > threshold and size >= materiality_dph), float((1 + np.sum(best_chance >= real)) / (draws + 1)),
+            size))
+    candidates = _stand_ins(screen, candidates)
+    candidates.sort(key=lambda c: c.improvement_dps2, reverse=True)
+    return TraceResult(noise_floor_dps, screen.base_sse() / screen.rows_total, tuple(candidates), threshold, draws,
+                       materiality_dph)
 
 
-def _rescore(scores: list[CandidateScore], material: list[CandidateScore], given: list[CandidateScore],
-             binned: Binned, specs: Sequence[TermSpec], families: dict[str, list[TermSpec]], shifts: int,
-             rng: np.random.Generator, floor_var: float, materiality: float) -> list[CandidateScore]:
-    """Scores with each ``material`` candidate scored again with the other ``given`` ones in the base."""
-    rescored = []
-    for c in material:
-        others = [o.spec for o in given if o.signal != c.signal]
-        conditional = Screen(binned, [*specs, *others])
-        rescored.append(_score(conditional, c.signal, families[c.signal], shifts, rng, floor_var, materiality))
-    return [c for c in scores if c not in material] + [c for c in rescored if c is not None]
+def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[CandidateScore]:
+    """Mark a log column whose fitted effect is that of a derived signal (one the node computes itself)."""
+    derived = [c for c in candidates if c.signal in DERIVED_SIGNALS and c.significant]
+    out = []
+    for c in candidates:
+        if c.signal not in DERIVED_SIGNALS and derived:
+            mine = screen.binned.candidate_means([c.spec])[:, 0, :]
+            alike = [(_alike(screen, mine, screen.binned.candidate_means([d.spec])[:, 0, :]), d.signal)
+                     for d in derived]
+            likeness, name = max(alike)
+            if likeness >= STANDS_FOR_CORRELATION:
+                c = replace(c, stands_for=name)
+        out.append(c)
+    return out
 
 
-def _score(screen: Screen, signal: str, variants: Sequence[TermSpec], shifts: int, rng: np.random.Generator,
-           floor_var: float, materiality: float) -> CandidateScore | None:
-    """Held-out improvement of one candidate over the screen's base, against its shifted copies."""
-    means = screen.candidate_means(variants)
-    if np.ptp(means, axis=0).max() == 0.0:
-        return None  # constant over the steady rows: nothing to tell apart from the polynomial's constant
-    offsets = np.concatenate([[0], _fair_shifts(means, shifts, rng)])
-    improvement = (screen.base_sse() - screen.scores(means, offsets)) / screen.rows_total
-    real, null = improvement[0], improvement[1:]
-    if null.size < min(shifts, 9):
-        null = np.array([np.inf])  # too few fair shifts: chance cannot be measured, so nothing is claimed
-    spec = variants[0] if len(variants) == 1 else _best_variant(screen, variants)
-    significant = bool(real > null.max() and real > materiality * floor_var)
-    return CandidateScore(signal, spec, float(real), float(null.mean()), float(null.std()),
-                          float(null.max()), float(real / floor_var), significant)
+def _alike(screen: Screen, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """How much of ``a``'s columns ``b``'s span (R^2), both after removing what the base model spans."""
+    x = screen.x / screen.sqrt_counts[:, None]
+
+    def rest(m: NDArray[np.float64]) -> NDArray[np.float64]:
+        return m - x @ solve_normal(x.T @ x, x.T @ m)
+
+    ra, rb = rest(a), rest(b)
+    explained = rb @ solve_normal(rb.T @ rb, rb.T @ ra)
+    total = float(np.sum(ra * ra))
+    return float(np.sum(explained * explained)) / total if total > 0.0 else 0.0
 
 
-def _fair_shifts(means: NDArray[np.float64], count: int, rng: np.random.Generator) -> NDArray[np.int64]:
-    """Up to ``count`` circular shifts (in bins, within the middle 80 %) that decorrelate the candidate from itself.
-
-    The circular self-correlation of each variant (and across its columns) is computed
-    by FFT on block means of the bins, which is ample for the slow shapes that matter.
-    """
-    n, n_var, w = means.shape
-    step = max(1, -(-n // SELF_CORRELATION_POINTS))
-    m = n // step
-    x = means[:m * step].reshape(m, step, n_var, w).mean(axis=1)
-    x = x - x.mean(axis=0)
-    spectrum = np.fft.rfft(x, axis=0)
-    power = np.sum(x * x, axis=0)
-    power[power == 0.0] = 1.0
-    worst = np.zeros(m)
-    for v in range(n_var):
-        for i in range(w):
-            for j in range(w):
-                cross = np.fft.irfft(np.conj(spectrum[:, v, i]) * spectrum[:, v, j], m)
-                worst = np.maximum(worst, np.abs(cross) / np.sqrt(power[v, i] * power[v, j]))
-    lags = np.arange(m // 10, m - m // 10)
-    fair = lags[worst[lags] <= MAX_SELF_CORRELATION]
-    chosen = rng.choice(fair, size=min(count, fair.size), replace=False) if fair.size else fair
-    return chosen * step
-
-
-def held_out_rms(rows: Binned, specs: Sequence[TermSpec] = ()) -> float:
-    """Held-out RMS error (deg/s) of the polynomial + ``specs``; ``rows`` binned with ``bin_s=0``: every steady row."""
+def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[np.float64]:
+    """Per bin, what the polynomial + ``specs`` fitted on the other folds leaves (weighted as the bins are)."""
     screen = Screen(rows, specs)
-    return float(np.sqrt(screen.base_sse() / screen.rows_total))
+    out = np.empty(len(screen.e))
+    gram = screen.gram.sum(axis=0)
+    for k in rows.folds:
+        beta = solve_normal(gram - screen.x[k].T @ screen.x[k], screen.x.T @ screen.e - screen.x[k].T @ screen.e[k])
+        out[k] = screen.e[k] - screen.x[k] @ beta
+    return out
 
 
 def _best_variant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:

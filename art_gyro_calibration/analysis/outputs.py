@@ -1,0 +1,107 @@
+"""Files ``calibrate`` writes: never over an input, over an existing file only when forced, never half-written.
+
+Every output is checked before the work starts and written into a hidden staging
+directory beside it (same file system); when the command succeeds each file is renamed
+into place, and when it fails (an error, Ctrl-C) the staging directory is removed and the
+outputs are as they were.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+from types import TracebackType
+
+StrPath = str | os.PathLike[str]
+
+
+class OutputError(ValueError):
+    """An output that would destroy data, or that cannot be written."""
+
+
+class Outputs:
+    """The outputs of one command; use as a context manager: they are renamed into place when it ends well."""
+
+    def __init__(self, inputs: Iterable[StrPath | None], force: bool = False) -> None:
+        self._inputs = [Path(p) for p in inputs if p is not None]
+        self._force = force
+        self._claimed: list[Path] = []
+        self._stages: list[tuple[Path, Path]] = []   # (staging directory, directory its files go to)
+
+    def claim(self, path: StrPath, beside: Iterable[StrPath] = ()) -> Path:
+        """Check ``path`` and the files the work writes ``beside`` it; returns where to write ``path`` now."""
+        target = self._check(path)
+        for other in beside:
+            self._check(other)
+        stage = next((s for s, d in self._stages if d == target.parent), None) or self._stage(target.parent, path)
+        return stage / target.name
+
+    def claim_directory(self, directory: StrPath, pattern: str) -> Path:
+        """A directory the work fills with files matching ``pattern`` (glob); returns where to write them now."""
+        d = Path(directory)
+        if d.exists() and not d.is_dir():
+            raise OutputError(f'{d}: is not a directory')
+        existing = sorted(p.name for p in d.glob(pattern)) if d.is_dir() else []
+        if existing and not self._force:
+            raise OutputError(f'{d}: already holds {", ".join(existing[:3])}{" ..." if len(existing) > 3 else ""}; '
+                              'pass --force to replace them')
+        real = Path(os.path.realpath(d))
+        parent = real if real.is_dir() else real.parent
+        while not parent.is_dir():
+            parent = parent.parent
+        stage = self._stage(parent, d)
+        self._stages[-1] = (stage, real)
+        return stage
+
+    def _check(self, path: StrPath) -> Path:
+        p = Path(path)
+        real = Path(os.path.realpath(p))
+        for given in self._inputs:
+            if real == Path(os.path.realpath(given)) or p.exists() and given.exists() and os.path.samefile(p, given):
+                raise OutputError(f'{p}: is the input {given}: write the output to another file')
+        if real in self._claimed:
+            raise OutputError(f'{p}: named as two outputs')
+        if p.is_dir():
+            raise OutputError(f'{p}: is a directory')
+        if p.exists() and not self._force:
+            raise OutputError(f'{p}: exists; pass --force to replace it')
+        if not real.parent.is_dir():
+            raise OutputError(f'{p}: directory {real.parent} does not exist')
+        self._claimed.append(real)
+        return real
+
+    def _stage(self, parent: Path, named: StrPath) -> Path:
+        try:
+            stage = Path(tempfile.mkdtemp(prefix='.calibrate-', dir=parent))
+        except OSError as e:
+            raise OutputError(f'{named}: cannot write in {parent}: {e.strerror}') from None
+        self._stages.append((stage, parent))
+        return stage
+
+    def commit(self) -> None:
+        """Rename every staged file into place."""
+        for stage, directory in self._stages:
+            directory.mkdir(parents=True, exist_ok=True)
+            for f in sorted(stage.iterdir()):
+                os.replace(f, directory / f.name)
+            stage.rmdir()
+        self._stages.clear()
+
+    def discard(self) -> None:
+        """Remove what was staged; the outputs stay as they were."""
+        for stage, _ in self._stages:
+            shutil.rmtree(stage, ignore_errors=True)
+        self._stages.clear()
+
+    def __enter__(self) -> Outputs:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        if kind is None:
+            self.commit()
+        else:
+            self.discard()
