@@ -253,6 +253,9 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
     hours = float(still.sum()) / HOUR
     every = [f for day in study.folds for f in study.folds[day]]
     materiality = [f.loop.materiality_dph for f in every]
+    white = [f.allan['art'].adev[0] for f in every]
+    drops = [study.folds[d][0].log.temp_c[study.folds[d][0].bias_windows['bias_start'][0]]
+             - study.folds[d][0].log.temp_c[study.folds[d][0].bias_windows['bias_settled'][0]] for d in study.folds]
     floors = list(study.floors.values())
     lines = [
         '# Real gyros\' logs: a CATS tag\'s MEMS IMU lying still for three days, and a phone for six hours',
@@ -273,8 +276,8 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
         'The CATS tag lay in one orientation per day, so an orientation effect cannot be told from the day; it '
         'was powered on once, so whether a drift restarts at power-on (what a `time` term assumes: the node '
         'counts `time` from its own start) cannot be told from the bias wander either. Both are MEMS gyros '
-        '(0.09-0.12 deg/s of white noise per 1 Hz sample on the tag, turn-on biases of degrees per second), not '
-        'a fibre optic gyro: the sizes here say nothing about an RD2100\'s.',
+        f'({min(white):.2f}-{max(white):.2f} deg/s of white noise per 1 Hz sample on the tag, turn-on biases of '
+        'degrees per second), not a fibre optic gyro: the sizes here say nothing about an RD2100\'s.',
         '- **What a rate-table record of an RD2100 would add**: the whole polynomial (rate powers and their '
         'temperature cross terms, from table rates of +-100 deg/s at several chamber temperatures), the '
         'scale-factor and Shupe (dT/dt) effects of a fibre coil at the sizes that matter for it (bias '
@@ -290,7 +293,8 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
         f'{len(record.t)} samples over {(record.t[-1] - record.t[0]) / HOUR:.1f} h; the importer '
         f'(`importers.still_mask`) keeps {hours:.1f} h in {len(runs(still))} still runs, cutting the handling '
         f'between orientations with 5 min either side. Orientations in turn: {", ".join(study.names)}. Each day '
-        'starts with a handling transient: the temperature falls by about 8-12 degC in its first hour.',
+        f'starts with a handling transient: the temperature falls by {min(drops):.1f}-{max(drops):.1f} degC before '
+        'it settles.',
         '',
         f'![the record]({figs["record"]})',
         '',
@@ -329,8 +333,8 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
         f'the same span, from the end of the settled bias window to the end of the day: "10-min rms" is the rms of '
         f'{BLOCK_S / 60:.0f}-minute means (the systematic part, bias included), the heading is the error '
         f'integrated from the start of the span over 10 min and 1 h (`metrics.field_errors`; one draw of the '
-        f'white noise, about 2.4 and 6 deg for this gyro), and the 1-h heading rms over the day is over 1-h '
-        f'missions starting every 10 min.',
+        f'white noise alone, which is {np.median(white) * np.sqrt(600):.1f} and {np.median(white) * 60:.1f} deg rms '
+        'for this gyro), and the 1-h heading rms over the day is over 1-h missions starting every 10 min.',
         '',
         '## Results: each day held out',
         '',
@@ -423,6 +427,14 @@ def findings(study: Study) -> list[str]:
                        f'named in {cell.detected} of {len(cell.trials)} trials.')
     ext = [f.allan['extended'] for f in every]
     rising = sum(a.adev[-1] > 1.3 * a.adev.min() for a in ext)
+    for p in study.phone:
+        a = p.allan['gyro']
+        short = a.tau_s < 10.0
+        k = int(np.argmax(np.where(short, a.adev, 0.0)))
+        out.append(f'- **The phone, gyro {p.axis}**: its Allan deviation rises from {a.adev[0]:.4f} deg/s at '
+                   f'{a.tau_s[0]:g} s to {a.adev[k]:.4f} at {a.tau_s[k]:g} s before it falls as white noise would: '
+                   'its 10 Hz streams were filtered (the file says subset and decimated), so their first value is '
+                   'not the white noise; beyond that it reaches a floor and rises again like the tag.')
     out += [
         f'- **Random, not traced**: the Allan deviation of what is left on the held-out day falls as tau^-1/2 to a '
         f'floor of {min(a.adev.min() for a in ext):.4f}-{max(a.adev.min() for a in ext):.4f} deg/s and rises '

@@ -35,6 +35,16 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
+def _save_allan(fig: Any, axes: Any, ylabel: str, path: Path) -> Path:
+    """Label a row of Allan-deviation panels (legend in the first) and write the figure."""
+    for ax in axes[0]:
+        ax.set_xlabel('tau (s)')
+        ax.grid(True, which='both', alpha=0.3)
+    axes[0][0].set_ylabel(ylabel)
+    axes[0][0].legend(fontsize=7)
+    return _save(fig, path)
+
+
 def plot_record(record: StaticRecord, still: NDArray[np.bool_], path: Path) -> Path:
     """The record: 10-minute means of the three gyro axes, temperature and gravity, still runs shaded."""
     plt = _pyplot()
@@ -142,11 +152,7 @@ def plot_allan(folds: Sequence[Fold], path: Path) -> Path:
         ax.axhline(fold.bias_instability_dps, color='tab:green', ls='--', lw=0.8,
                    label=f'training floor {fold.bias_instability_dps:.4f} deg/s')
         ax.set_title(f'gyro {fold.axis}, held-out day ({fold.held_name})')
-        ax.set_xlabel('tau (s)')
-        ax.grid(True, which='both', alpha=0.3)
-    axes[0][0].set_ylabel('Allan deviation of the held-out error (deg/s)')
-    axes[0][0].legend(fontsize=7)
-    return _save(fig, path)
+    return _save_allan(fig, axes, 'Allan deviation of the held-out error (deg/s)', path)
 
 
 def plot_injection(cells: Sequence[Cell], path: Path) -> Path:
@@ -192,8 +198,4 @@ def plot_phone(phone: Sequence[PhoneAxis], cats: dict[str, dict[str, Any]], path
             ax.loglog(a.tau_s, a.adev, 'o-', ms=3, color=colour,
                       label=f'CATS tag, {"raw" if key == "raw" else "after the ART polynomial"} (1 Hz)')
         ax.set_title(f'gyro {p.axis}')
-        ax.set_xlabel('tau (s)')
-        ax.grid(True, which='both', alpha=0.3)
-    axes[0][0].set_ylabel('Allan deviation (deg/s)')
-    axes[0][0].legend(fontsize=7)
-    return _save(fig, path)
+    return _save_allan(fig, axes, 'Allan deviation (deg/s)', path)
