@@ -70,11 +70,13 @@ class Study:
     phone: list[PhoneAxis]
     plan: Plan
     cpu_s: float
+    version: str = ''  # `` at commit <hash>`` of the code that ran, taken before anything is written
 
 
 def run_study(paths: dict[str, Path], plan: Plan, max_effects: int = DEFAULT_MAX_EFFECTS) -> Study:
     """Every fold, the injections and the phone, with progress on stderr."""
     start = time.process_time()
+    version = _version()
 
     def say(text: str) -> None:
         print(f'[{time.process_time() - start:6.0f} s cpu] {text}', file=sys.stderr, flush=True)
@@ -100,7 +102,7 @@ def run_study(paths: dict[str, Path], plan: Plan, max_effects: int = DEFAULT_MAX
     phone = [run_phone_axis(phone_record, phone_still, a, max_effects) for a in plan.phone_axes]
     say('phone done')
     return Study(record, still, names, folds, floors, cats_allan, cells(trials), phone, plan,
-                 time.process_time() - start)
+                 time.process_time() - start, version)
 
 
 # --- the document ------------------------------------------------------------------------
@@ -261,7 +263,7 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
     lines = [
         '# Real gyros\' logs: a CATS tag\'s MEMS IMU lying still for three days, and a phone for six hours',
         '',
-        f'_Written by `nice -n 10 .venv/bin/python studies/measured_data.py`{_version()} in '
+        f'_Written by `nice -n 10 .venv/bin/python studies/measured_data.py`{study.version} in '
         f'{study.cpu_s / 60:.1f} min of CPU; every number below comes from that run._',
         '',
         '## What these records can and cannot test',
