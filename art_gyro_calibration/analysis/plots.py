@@ -64,9 +64,15 @@ def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
     fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7), squeeze=False)
     for ax, name in zip(axes.ravel(), names):
         x = result.signals.get(name)[rows]
-        order = np.argsort(x, kind='stable')
-        chunks = np.array_split(order, min(40, len(order)))
-        ax.plot([x[c].mean() for c in chunks], [residual[c].mean() - residual.mean() for c in chunks], 'o-', ms=3)
+        # Bins of equal width, not of equal count: sorting by a noisy measured signal (the rate at
+        # rest) would sort the residual's own noise into a slope.
+        edges = np.linspace(x.min(), x.max(), 41)
+        k = np.clip(np.searchsorted(edges, x, side='right') - 1, 0, 39)
+        counts = np.bincount(k, minlength=40)
+        sums = np.bincount(k, weights=residual - residual.mean(), minlength=40)
+        full = counts >= 50
+        centres = 0.5 * (edges[:-1] + edges[1:])
+        ax.plot(centres[full], sums[full] / counts[full], 'o-', ms=3)
         ax.axhline(0.0, color='grey', lw=0.8)
         ax.set_xlabel(name)
         ax.grid(True, alpha=0.3)
