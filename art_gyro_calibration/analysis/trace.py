@@ -445,7 +445,9 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
     candidates = []
     for name, values in table.items():
         real, null = float(values[0]), values[1:]
-        spec = families[name][0] if len(families[name]) == 1 else _best_variant(screen, families[name])
+        # A time constant is refined only where it may matter: for a candidate that beats chance.
+        spec = families[name][0] if len(families[name]) == 1 else \
+            _best_variant(screen, families[name], refine=real > threshold)
         size = screen.effect_dph(spec)
         candidates.append(CandidateScore(
             name, spec, real, float(null.mean()), float(null.std()), float(null.max()), real / floor_var,
@@ -516,10 +518,12 @@ def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[n
     return out
 
 
-def _best_variant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
-    """The best variant on all the data; its time constant, if it has one, refined by golden-section search."""
+def _best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
+    """The best variant on all the data; its time constant, if it has one and ``refine``, by golden-section search."""
     sse = [screen.training_sse(v) for v in variants]
     template = variants[int(np.argmin(sse))]
+    if not refine:
+        return template
     shape = replace(template, time_constant_s=0.0)
     kin = [(e, v) for e, v in zip(sse, variants) if replace(v, time_constant_s=0.0) == shape]
     if len(kin) < 2:
