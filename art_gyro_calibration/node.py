@@ -549,11 +549,10 @@ class GyroNode(Node):
             return
         try:
             error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals
-            corrected = compensator.correct(rate_dps, error_dps)
         except ArithmeticError as e:
-            error_dps = corrected = math.nan
+            error_dps = math.nan
             self._last_drop_error = f'{type(e).__name__}: {e}'
-        if not math.isfinite(corrected):
+        if not math.isfinite(error_dps):
             self._dropped[NOT_FINITE] += 1
             return
         collection = self._collection
@@ -561,6 +560,7 @@ class GyroNode(Node):
             collection.last_sample = time.monotonic()
             if collection.collector.add(rate_dps, error_dps, t, temp_c, compensator.last_causal_dps):
                 self._finish_collection(collection)
+        corrected = compensator.correct(rate_dps, error_dps)   # with the bias this frame may have completed
         imu = self._imu
         imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         imu.angular_velocity.z = math.radians(corrected)

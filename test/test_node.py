@@ -127,6 +127,9 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
         temperature = listener.wait_status('temperature', lambda s: s['level'] == b'\x01',
                                            'the temperature warning', proc, output)
         assert 'outside the calibrated range' in temperature['message']
+        # Said on the console too (a user without ros2cli sees no /diagnostics), once a minute at most.
+        warned = [line for line in output.read_text().splitlines() if 'gyro temperature 5.00 degC is outside' in line]
+        assert len(warned) == 1, warned
         bias = listener.status('static bias')
         assert bias['state'] == 'none' and bias['level'] == b'\x01'
         assert 'calibration loaded: NAVC4058 from parameters' in output.read_text()
@@ -216,7 +219,13 @@ def test_node_refuses_bad_parameters(tmp_path: Path, args: Callable[[Path], list
     """A bad calibration or parameter: one line naming it, no traceback, and a non-zero exit."""
     output = tmp_path / 'node.log'
     proc = start_node(domain_id(), output, *args(tmp_path))
-    assert proc.wait(TIMEOUT_S) != 0
+    try:
+        code = proc.wait(TIMEOUT_S)
+    except subprocess.TimeoutExpired:   # it accepted them: stop it, it must not outlive the test
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f'the node ran instead of refusing:\n{output.read_text()}') from None
+    assert code != 0
     text = output.read_text()
     assert text.startswith('gyro_node: error: ') and message.format(repo=REPO, tmp=tmp_path) in text, text
     assert 'Traceback' not in text
