@@ -75,6 +75,11 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
         refused = listener.wait_status('static bias', lambda s: s['state'] == 'refused', 'the refusal',
                                        proc, output)
         assert refused['static_bias_drift_dps'] == bias['static_bias_drift_dps']
+        # What run_demo.sh waits with: a refused bias is exit 1.
+        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--wait-static-bias',
+                               '--timeout', str(TIMEOUT_S), '--ros-args', '-r', '__ns:=/robot'],
+                              env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S * 2)
+        assert wait.returncode == 1 and '/robot/gyro_node: static bias: refused' in wait.stderr, wait
         assert rates_dps(listener.wait_imu(10, proc, output)).mean() == pytest.approx(turning_dps, abs=0.01)
 
         # Still again: a new static bias, its values in the reply.
@@ -147,6 +152,9 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
         assert call.returncode == 0 and call.stdout.startswith('StaticBiasDrift='), call.stdout + call.stderr
         assert 'over 10 samples' in call.stdout
         listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
+        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--wait-static-bias'],
+                              env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S * 2)
+        assert wait.returncode == 0 and wait.stdout.startswith('/gyro_node: static bias: StaticBiasDrift='), wait
     # Every frame received is in the raw log, in counts, with the stamps in seconds.
     files = list(logs.glob('NAVC4058_*.csv'))
     assert len(files) == 1
