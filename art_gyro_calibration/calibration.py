@@ -228,7 +228,8 @@ def signal_envelope(calibration: Calibration, signal: str) -> tuple[float, float
     """Range of a derived signal over the calibration's envelope; None for a signal with no known range.
 
     The envelope: the temperature in ``temperature_range_c``, the rate within +-full scale, a run of
-    up to TIME_HORIZON_S. A log column (a supply voltage) has no known range. The filtered derivatives ``(x - ema(x)) / tau`` are bounded by the span of ``x`` over ``tau``.
+    up to TIME_HORIZON_S. A log column (a supply voltage) has no known range. The filtered
+    derivatives ``(x - ema(x)) / tau`` are bounded by the span of ``x`` over ``tau``.
     """
     low_c, high_c = calibration.temperature_range_c
     full_scale = FULL_SCALE_COUNTS * calibration.rate_scale_factor
