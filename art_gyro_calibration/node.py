@@ -785,6 +785,13 @@ class GyroNode(Node):
         """Stop the driver (no frame after this) and close the raw log."""
         self._closing.set()
         self._driver.stop()
+        collection = self._collection
+        if collection is not None:   # the calls waiting for it hear why, rather than time out
+            self._end_collection(collection, None, 'the node is shutting down')
+            try:
+                self._send_replies()
+            except Exception as e:   # the context may be shut down already (SIGINT): nothing more to say
+                self.get_logger().warning(f'static bias replies not sent at shutdown: {type(e).__name__}: {e}')
         with self._log_lock:
             log, self._log = self._log, None
         if log is not None:
