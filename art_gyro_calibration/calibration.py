@@ -225,10 +225,11 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
 
 
 def signal_envelope(calibration: Calibration, signal: str) -> tuple[float, float] | None:
-    """Range of a derived signal when the temperature stays in ``temperature_range_c`` and the rate
-    within +-full scale, for up to TIME_HORIZON_S; None for a signal with no known range (a log column).
+    """Range of a derived signal over the calibration's envelope; None for a signal with no known range.
 
-    The filtered derivatives ``(x - ema(x)) / tau`` are bounded by the span of ``x`` over ``tau``.
+    The envelope: the temperature in ``temperature_range_c``, the rate within +-full scale, a run of
+    up to TIME_HORIZON_S. A log column (a supply voltage) has no known range. The filtered
+    derivatives ``(x - ema(x)) / tau`` are bounded by the span of ``x`` over ``tau``.
     """
     low_c, high_c = calibration.temperature_range_c
     full_scale = FULL_SCALE_COUNTS * calibration.rate_scale_factor
@@ -367,8 +368,10 @@ class _NoAliasLoader(yaml.SafeLoader):
 
 
 def read_yaml(path: str | os.PathLike[str], what: str = 'file') -> Any:
-    """Parse a small YAML file safely: at most MAX_YAML_BYTES, no aliases; a :class:`CalibrationError`
-    naming the file (and a readable part of the problem) otherwise."""
+    """Parse a small YAML file safely: at most MAX_YAML_BYTES, no aliases.
+
+    Anything else is a :class:`CalibrationError` naming the file and a readable part of the problem.
+    """
     where = str(path)
     try:
         with open(path, 'rb') as stream:

@@ -559,9 +559,7 @@ class GyroNode(Node):
             collection.last_sample = time.monotonic()
             if collection.collector.add(rate_dps, error_dps, t, temp_c, compensator.last_causal_dps):
                 self._finish_collection(collection)
-        # After the collection: the frame that completes a static bias is the first corrected with it,
-        # as calibrate apply corrects it.
-        corrected = compensator.correct(rate_dps, error_dps)
+        corrected = compensator.correct(rate_dps, error_dps)   # with the bias this frame may have completed
         imu = self._imu
         imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         imu.angular_velocity.z = math.radians(corrected)
@@ -789,6 +787,13 @@ class GyroNode(Node):
         """Stop the driver (no frame after this) and close the raw log."""
         self._closing.set()
         self._driver.stop()
+        collection = self._collection
+        if collection is not None:   # the calls waiting for it hear why, rather than time out
+            self._end_collection(collection, None, 'the node is shutting down')
+            try:
+                self._send_replies()
+            except Exception as e:   # the context may be shut down already (SIGINT): nothing more to say
+                self.get_logger().warning(f'static bias replies not sent at shutdown: {type(e).__name__}: {e}')
         with self._log_lock:
             log, self._log = self._log, None
         if log is not None:

@@ -185,7 +185,7 @@ def test_unknown_keys_are_refused_with_the_closest_name(tmp_path: Path, extra: s
     ('{signals: [time], time: {form: power, powers: [60], coefficients: [1.0e-9]}}', 'extended.time'),
 ])
 def test_terms_that_overflow_in_the_envelope_are_refused(tmp_path: Path, extended: str, key: str) -> None:
-    """power [400] or an exp_decay of a signal that goes negative overflow: the node dropped every frame."""
+    """A power [400] or an exp_decay of a signal that goes negative overflows: the node dropped every frame."""
     path = tmp_path / 'cal.yaml'
     path.write_text(_cal_text(f'    extended: {extended}\n'))
     with pytest.raises(CalibrationError, match=f'^{re.escape(str(path))}: {key}: the .* term overflows'):

@@ -75,6 +75,11 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
         refused = listener.wait_status('static bias', lambda s: s['state'] == 'refused', 'the refusal',
                                        proc, output)
         assert refused['static_bias_drift_dps'] == bias['static_bias_drift_dps']
+        # What run_demo.sh waits with: a refused bias is exit 1.
+        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--wait-static-bias',
+                               '--timeout', str(TIMEOUT_S), '--ros-args', '-r', '__ns:=/robot'],
+                              env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S * 2)
+        assert wait.returncode == 1 and '/robot/gyro_node: static bias: refused' in wait.stderr, wait
         assert rates_dps(listener.wait_imu(10, proc, output)).mean() == pytest.approx(turning_dps, abs=0.01)
 
         # Still again: a new static bias, its values in the reply.
@@ -127,6 +132,9 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
         temperature = listener.wait_status('temperature', lambda s: s['level'] == b'\x01',
                                            'the temperature warning', proc, output)
         assert 'outside the calibrated range' in temperature['message']
+        # Said on the console too (a user without ros2cli sees no /diagnostics), once a minute at most.
+        warned = [line for line in output.read_text().splitlines() if 'gyro temperature 5.00 degC is outside' in line]
+        assert len(warned) == 1, warned
         bias = listener.status('static bias')
         assert bias['state'] == 'none' and bias['level'] == b'\x01'
         assert 'calibration loaded: NAVC4058 from parameters' in output.read_text()
@@ -144,6 +152,9 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
         assert call.returncode == 0 and call.stdout.startswith('StaticBiasDrift='), call.stdout + call.stderr
         assert 'over 10 samples' in call.stdout
         listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
+        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--wait-static-bias'],
+                              env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S * 2)
+        assert wait.returncode == 0 and wait.stdout.startswith('/gyro_node: static bias: StaticBiasDrift='), wait
     # Every frame received is in the raw log, in counts, with the stamps in seconds.
     files = list(logs.glob('NAVC4058_*.csv'))
     assert len(files) == 1
@@ -216,7 +227,13 @@ def test_node_refuses_bad_parameters(tmp_path: Path, args: Callable[[Path], list
     """A bad calibration or parameter: one line naming it, no traceback, and a non-zero exit."""
     output = tmp_path / 'node.log'
     proc = start_node(domain_id(), output, *args(tmp_path))
-    assert proc.wait(TIMEOUT_S) != 0
+    try:
+        code = proc.wait(TIMEOUT_S)
+    except subprocess.TimeoutExpired:   # it accepted them: stop it, it must not outlive the test
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f'the node ran instead of refusing:\n{output.read_text()}') from None
+    assert code != 0
     text = output.read_text()
     assert text.startswith('gyro_node: error: ') and message.format(repo=REPO, tmp=tmp_path) in text, text
     assert 'Traceback' not in text
