@@ -3,12 +3,15 @@
 :class:`Compensator` does it one sample at a time (the node); :func:`apply_calibration`
 over a whole log or chunk after chunk of one (``calibrate apply``). Both give
 ``CompRate = GyroRate - StaticBiasDrift - comp + CalcStaticBiasDrift``, and both drop the
-samples :func:`plausible` refuses.
+samples :func:`plausible` refuses, clamp the temperature to the calibrated range (and
+count the samples outside it), and refine a static bias the temperature-rate terms need
+refined (:class:`static_bias.Refinement`). How the run started (:class:`RunStart`) decides
+whether a warm-up term applies.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,8 +19,8 @@ from numpy.typing import NDArray
 from art_gyro_calibration.calibration import Calibration, check_signals_available
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalState, SignalTracker, compute_signals
-from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS, Rate,
-                                              StaticBias, static_bias)
+from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS, REFINE_SPAN_TAUS,
+                                              BiasWindow, Rate, Refinement, StaticBias, static_bias)
 
 
 # A frame claiming a temperature outside what any electronics survives is corrupt (its 8-bit
@@ -32,19 +35,58 @@ def plausible(temp_c: Rate) -> Rate:
     return (low <= temp_c) & (temp_c <= high)
 
 
+@dataclass(frozen=True)
+class RunStart:
+    """How a run began: ``powered_on_at_start`` if the gyro was switched on with it (a cold start).
+
+    Unknown by default: a warm-up term then counts as decayed, so that a node restarted on a
+    warm gyro never replays a warm-up into its static bias. Told it was a cold start, the
+    warm-up decays from the run's first sample.
+    """
+
+    powered_on_at_start: bool = False
+
+
 class Compensator:
-    """Per-sample compensation with the signals the extended terms need, kept causally."""
+    """Per-sample compensation with the signals the extended terms need, kept causally.
 
-    __slots__ = ('calibration', 'bias', '_model', '_tracker', '_rate_scale', '_temp_scale')
+    ``clamped`` counts the samples whose temperature was outside the calibrated range;
+    ``refined`` is the static bias refinement's change once it happened (see ``bias``).
+    """
 
-    def __init__(self, calibration: Calibration) -> None:
+    __slots__ = ('calibration', '_bias', '_model', '_tracker', '_rate_scale', '_temp_scale', '_range',
+                 '_refinable', '_refinement', 'clamped', 'last_causal_dps')
+
+    def __init__(self, calibration: Calibration, start: RunStart = RunStart()) -> None:
         check_signals_available(calibration)
         self.calibration = calibration
-        self.bias: StaticBias = NO_BIAS
         self._model = calibration.model
-        self._tracker = SignalTracker(calibration.filters)
+        self._tracker = SignalTracker(calibration.filters, self._model.lags, start.powered_on_at_start)
         self._rate_scale = calibration.rate_scale_factor
         self._temp_scale = calibration.temp_scale_factor
+        self._range = calibration.temperature_range_c
+        self._refinable = bool(self._model.refinable)
+        self._refinement: Refinement | None = None
+        self._bias: StaticBias = NO_BIAS
+        self.clamped = 0
+        # The temperature-rate terms' part of the last error: a static bias collection keeps it.
+        self.last_causal_dps = 0.0
+
+    @property
+    def refinable(self) -> bool:
+        """Whether a static bias should keep its window: the model has temperature-rate terms."""
+        return self._refinable
+
+    @property
+    def bias(self) -> StaticBias:
+        """The static bias in use; setting one that kept its window starts its refinement."""
+        return self._bias
+
+    @bias.setter
+    def bias(self, bias: StaticBias) -> None:
+        self._bias = bias
+        self._refinement = Refinement(bias, self._model.refinable, _refine_span_s(self.calibration)) \
+            if bias.window is not None and self._refinable else None
 
     def scale(self, raw_rate: int, raw_temp: int) -> tuple[float, float]:
         """Counts to (GyroRate deg/s, GyroTemp degC)."""
@@ -52,12 +94,28 @@ class Compensator:
 
     def error(self, t: float, rate_dps: float, temp_c: float) -> float:
         """Advance the signals to this sample and return comp, its modelled error."""
-        self._tracker.update(t, rate_dps, temp_c)
-        return self._model.error_one(self._tracker)
+        tracker = self._tracker
+        tracker.update(t, rate_dps, temp_c)
+        low, high = self._range
+        if not low <= temp_c <= high:
+            self.clamped += 1
+        refinement = self._refinement
+        if refinement is not None:
+            if t >= refinement.ready_at:
+                self._bias, self._refinement = refinement.refined(), None
+            else:
+                refinement.add(t, temp_c)
+        if self._refinable:
+            self.last_causal_dps = self._model.refinable_error_one(tracker)
+        return self._model.error_one(tracker)
 
     def correct(self, rate_dps: float, error_dps: float) -> float:
         """``CompRate`` with the current static bias."""
-        return self.bias.correct(rate_dps, error_dps)
+        return self._bias.correct(rate_dps, error_dps)
+
+
+def _refine_span_s(calibration: Calibration) -> float:
+    return REFINE_SPAN_TAUS * calibration.filters.temperature_rate_tau_s
 
 
 @dataclass(frozen=True)
@@ -66,19 +124,24 @@ class Applied:
 
     comp_dps: NDArray[np.float64]
     corrected_dps: NDArray[np.float64]
-    bias: StaticBias
+    bias: StaticBias            # the static bias at the chunk's end (refined, once it was)
     kept: NDArray[np.bool_]     # per row of the log: plausible, so compensated (the node drops the rest)
     state: SignalState          # the signals after the last kept sample: where the next chunk continues
+    clamped: int = 0            # kept rows (this chunk and those before) outside the calibrated temperature range
+    refinement: Refinement | None = None   # a static bias refinement still gathering temperatures
+    start: RunStart = RunStart()
 
 
 def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
                       max_mean_dps: float = DEFAULT_MAX_MEAN_DPS,
-                      max_std_dps: float = DEFAULT_MAX_STD_DPS, *, after: Applied | None = None) -> Applied:
+                      max_std_dps: float = DEFAULT_MAX_STD_DPS, *, after: Applied | None = None,
+                      start: RunStart = RunStart()) -> Applied:
     """Static bias over the first ``bias_samples`` kept rows, then compensation of every kept row.
 
     Rows :func:`plausible` refuses are dropped, as the node drops their frames. A log read in
     chunks passes each chunk with ``after`` = the previous chunk's result (the first chunk
     holding at least ``bias_samples`` kept rows): its signals continue, and its bias is kept.
+    ``start`` says how the run began (the first chunk's; later chunks continue it).
     """
     kept = plausible(log.temp_c)
     if not kept.all():
@@ -88,9 +151,31 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
             raise ValueError(f'bias_samples must be between 2 and the {len(log)} plausible rows of the log, '
                              f'got {bias_samples}')
         check_signals_available(calibration, DERIVED_SIGNALS + tuple(log.extras))
+    else:
+        start = after.start
+    model = calibration.model
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, calibration.filters,
-                              None if after is None else after.state)
-    comp = calibration.model.error(signals)
-    bias = static_bias(log.rate_dps[:bias_samples], comp[:bias_samples], max_mean_dps, max_std_dps) \
-        if after is None else after.bias
-    return Applied(comp, bias.correct(log.rate_dps, comp), bias, kept, signals.end_state())
+                              None if after is None else after.state, start.powered_on_at_start)
+    comp = model.error(signals)
+    low, high = calibration.temperature_range_c
+    clamped = int(np.count_nonzero((log.temp_c < low) | (log.temp_c > high))) + (0 if after is None else after.clamped)
+    if after is None:
+        n = bias_samples
+        bias = static_bias(log.rate_dps[:n], comp[:n], max_mean_dps, max_std_dps)
+        refinement = None
+        if model.refinable:
+            causal = sum(model.term_error(t, signals)[:n] for t in model.refinable)
+            bias = replace(bias, window=BiasWindow(log.t[:n].copy(), log.rate_dps[:n].copy(), log.temp_c[:n].copy(),
+                                                   float(np.mean(causal))))
+            refinement = Refinement(bias, model.refinable, _refine_span_s(calibration))
+        first = n   # the rows after the window feed the refinement
+    else:
+        bias, refinement, first = after.bias, after.refinement, 0
+    corrected = bias.correct(log.rate_dps, comp)
+    if refinement is not None:
+        ready = first + int(np.searchsorted(log.t[first:], refinement.ready_at, side='left'))
+        refinement.add_many(log.t[first:ready], log.temp_c[first:ready])
+        if ready < len(log):
+            bias, refinement = refinement.refined(), None
+            corrected[ready:] = bias.correct(log.rate_dps[ready:], comp[ready:])
+    return Applied(comp, corrected, bias, kept, signals.end_state(), clamped, refinement, start)

@@ -1,4 +1,4 @@
-"""A simulated RD2100 on a real pseudo-terminal, with the errors of a calibrated gyro.
+"""A simulated RD2100 (or KVH FOG) on a real pseudo-terminal, with the errors of a calibrated gyro.
 
 The physics (what the gyro reads for a true rate and temperature) is in
 :class:`GyroSimulator`, pure and vectorised; :class:`FakeRd2100` puts its samples on a
@@ -8,11 +8,15 @@ A reading is ``measured_from_true(polynomial, true_rate, T) + turn_on_bias + ear
 + white noise`` in deg/s, quantised to counts with the calibration's rate scale factor;
 the temperature is ``round(T / temp_scale_factor)`` counts. Like the gyro, readings
 saturate at the signed 16-bit count range (about +-100 deg/s at 0.00305 deg/s per count).
+With ``protocol='kvh_fog'`` the fake is a KVH DSP-1760/1775 instead: the reading and the
+temperature go unquantised into its float message, set as a :class:`KvhFogConfig` says, at the
+fake's own output rate, numbered 0..127 in turn.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import signal
@@ -27,7 +31,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
-from art_gyro_calibration.frame import INT16_MAX, INT16_MIN, PROTOCOLS, make_encoder
+from art_gyro_calibration.frame import (INT16_MAX, INT16_MIN, KVH_ANGLE_UNITS, KVH_FOG, KVH_FORMATS, KVH_ROTATIONS,
+                                        KVH_TEMPERATURE_UNITS, PROTOCOLS, KvhFogConfig, make_encoder)
 from art_gyro_calibration.model import measured_from_true
 
 # White noise of an RD2100 at its 10 Hz output, one sample's standard deviation.
@@ -139,30 +144,43 @@ class GyroSimulator:
         return (measured_from_true(self.calibration.polynomial, true_rate_dps, temp_c)
                 + self.turn_on_bias_dps + self.earth_rate_dps)
 
-    def counts(self, t: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """Raw (rate, temperature) counts at times ``t``, with fresh noise."""
+    def readings(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """What the gyro reads (deg/s, with fresh noise) and its temperature (degC) at times ``t``."""
         t = np.asarray(t, dtype=float)
         temp = self.temperature.temperature_at(t)
         reading = self.reading_dps(self.profile.rate_at(t), temp)
         if self.noise_dps > 0:
             reading = reading + self._rng.normal(0.0, self.noise_dps, t.shape)
+        return reading, temp
+
+    def counts(self, t: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Raw (rate, temperature) counts at times ``t``, with fresh noise."""
+        reading, temp = self.readings(t)
         raw_rate = np.clip(np.rint(reading / self.calibration.rate_scale_factor), INT16_MIN, INT16_MAX)
         raw_temp = np.clip(np.rint(temp / self.calibration.temp_scale_factor), INT16_MIN, INT16_MAX)
         return raw_rate.astype(np.int64), raw_temp.astype(np.int64)
 
 
 class FakeRd2100:
-    """A simulated RD2100 writing frames to a pseudo-terminal; use as a context manager."""
+    """A simulated RD2100 writing frames to a pseudo-terminal; use as a context manager.
+
+    With ``protocol='kvh_fog'`` it sends KVH messages set as ``kvh_fog`` says, except for the
+    output rate, which is the fake's ``rate_hz``; ``last_sample`` is then (deg/s, degC).
+    """
 
     def __init__(self, serial_number: str, protocol: str = 'binary', rate_hz: float = 10.0,
                  link: str | None = None, profile: RateProfile | str = '0',
                  temperature: TemperatureProfile | float = 25.0, noise_dps: float | None = None,
-                 seed: int | None = None, turn_on_bias_dps: float | None = None) -> None:
+                 seed: int | None = None, turn_on_bias_dps: float | None = None,
+                 kvh_fog: KvhFogConfig | None = None) -> None:
         if not (math.isfinite(rate_hz) and 0 < rate_hz <= 10000):
             raise ValueError(f'rate_hz must be in (0, 10000], got {rate_hz}')
         if link is not None and os.path.lexists(link) and not os.path.islink(link):
             raise ValueError(f'link {link} exists and is not a symlink: refusing to replace it')
-        self._encode = make_encoder(protocol)
+        self.kvh_fog = (dataclasses.replace(kvh_fog or KvhFogConfig(), output_rate_hz=rate_hz)
+                        if protocol == KVH_FOG else None)
+        # Public, so that a test can corrupt what follows (a kvh_fog encoder's status byte, say).
+        self.encoder = make_encoder(protocol, self.kvh_fog)
         self.protocol = protocol
         self.rate_hz = rate_hz
         self.link = link
@@ -173,7 +191,9 @@ class FakeRd2100:
             default_noise_dps(rate_hz) if noise_dps is None else noise_dps, seed, turn_on_bias_dps)
         self.sent = 0        # frames written
         self.dropped = 0     # bytes dropped because nobody read them
-        self.last_sample: tuple[int, int] | None = None
+        self.lost = 0        # frames made but not sent (drop())
+        self._to_lose = 0
+        self.last_sample: tuple[float, float] | None = None
         self._lock = threading.Lock()    # master fd and pending bytes: frames and injections never interleave
         self._master: int | None = None
         self._slave: int | None = None
@@ -252,6 +272,11 @@ class FakeRd2100:
         with self._lock:
             self._write(data)
 
+    def drop(self, frames: int) -> None:
+        """Lose the next ``frames`` frames on the wire: made (and numbered, in kvh_fog) but not sent."""
+        with self._lock:
+            self._to_lose += frames
+
     def _write(self, data: bytes) -> None:
         """Write under the lock; what a slow reader leaves is kept, then dropped past a bound."""
         if self._master is None:
@@ -271,9 +296,11 @@ class FakeRd2100:
         block = max(1, int(self.rate_hz * 0.1))   # simulate 0.1 s at a time: numpy, not per sample
         start = time.monotonic()
         index = 0
+        kvh = self.protocol == KVH_FOG
         while not self._stop.is_set():
             times = (index + np.arange(block)) * period
-            raw_rates, raw_temps = self.simulator.counts(times)
+            # A KVH unit sends floats: its samples are the readings themselves, not counts.
+            raw_rates, raw_temps = self.simulator.readings(times) if kvh else self.simulator.counts(times)
             for raw_rate, raw_temp in zip(raw_rates.tolist(), raw_temps.tolist()):
                 # Absolute deadlines: sleep jitter does not accumulate into a rate error.
                 delay = start + index * period - time.monotonic()
@@ -282,9 +309,14 @@ class FakeRd2100:
                 elif delay > 0 and self._stop.wait(delay):
                     return
                 with self._lock:
-                    self._write(self._encode(raw_rate, raw_temp))
+                    frame = self.encoder(raw_rate, raw_temp)
                     self.last_sample = (raw_rate, raw_temp)
-                    self.sent += 1
+                    if self._to_lose:
+                        self._to_lose -= 1
+                        self.lost += 1
+                    else:
+                        self._write(frame)
+                        self.sent += 1
                 index += 1
 
     def __enter__(self) -> FakeRd2100:
@@ -309,6 +341,15 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--noise-dps', type=float, help='per-sample white noise (default 0.005 at 10 Hz, x sqrt(rate/10))')
     p.add_argument('--turn-on-bias-dps', type=float, help='turn-on bias (default: drawn with the seed)')
     p.add_argument('--seed', type=int, help='random seed')
+    kvh = p.add_argument_group('protocol kvh_fog', 'how the simulated KVH unit is set (the node\'s kvh_fog.* '
+                                                   'parameters must say the same; its output rate is --rate-hz)')
+    defaults = KvhFogConfig()
+    kvh.add_argument('--kvh-message-format', choices=tuple(KVH_FORMATS), default=defaults.message_format)
+    kvh.add_argument('--kvh-yaw-axis', default=defaults.yaw_axis, help='x, y or z, - if it points down '
+                                                                       '(default %(default)s)')
+    kvh.add_argument('--kvh-rotation', choices=KVH_ROTATIONS, default=defaults.rotation)
+    kvh.add_argument('--kvh-angle-units', choices=KVH_ANGLE_UNITS, default=defaults.angle_units)
+    kvh.add_argument('--kvh-temperature-units', choices=KVH_TEMPERATURE_UNITS, default=defaults.temperature_units)
     return p
 
 
@@ -319,8 +360,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         temperature = (TemperatureProfile.parse_ramp(args.temperature_ramp) if args.temperature_ramp
                        else TemperatureProfile(args.temperature))
+        # Its output rate is the fake's --rate-hz.
+        kvh_fog = KvhFogConfig(message_format=args.kvh_message_format, yaw_axis=args.kvh_yaw_axis,
+                               rotation=args.kvh_rotation, angle_units=args.kvh_angle_units,
+                               temperature_units=args.kvh_temperature_units)
         fake = FakeRd2100(args.serial, args.protocol, args.rate_hz, args.link, RateProfile.parse(args.profile),
-                          temperature, args.noise_dps, args.seed, args.turn_on_bias_dps)
+                          temperature, args.noise_dps, args.seed, args.turn_on_bias_dps, kvh_fog)
     except (ValueError, OSError) as e:
         parser.exit(2, f'fake_rd2100: {e}\n')
     done = threading.Event()

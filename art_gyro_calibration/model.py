@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from art_gyro_calibration.signals import Signals, SignalTracker
+from art_gyro_calibration.signals import LAGGED_SIGNAL, Signals, SignalTracker
 from art_gyro_calibration.terms import Term
 
 
@@ -72,26 +72,67 @@ class ArtPolynomial:
         return f'ArtPolynomial(rows={self.rows}, columns={self.columns})'
 
 
+# Signals that are temperatures: clamped to the calibrated range with the polynomial's.
+_TEMPERATURES = ('temperature', LAGGED_SIGNAL)
+# The terms a static bias taken while the temperature-rate filter still starts up gets wrong.
+_REFINABLE = 'temperature_rate'
+
+
 @dataclass(frozen=True)
 class ErrorModel:
-    """The report's polynomial plus the extended terms found beyond it."""
+    """The report's polynomial plus the extended terms found beyond it.
+
+    With ``temperature_range_c`` the temperatures are clamped to it, as PX4 and ArduPilot
+    clamp their thermal calibrations: outside the calibrated range a polynomial
+    extrapolates wildly, its value at the edge is the better guess.
+    """
 
     polynomial: ArtPolynomial
     terms: tuple[Term, ...] = ()
+    temperature_range_c: tuple[float, float] | None = None
+
+    @property
+    def lags(self) -> tuple[float, ...]:
+        """Time constants of the lagged temperatures the terms need."""
+        return tuple(t.time_constant_s for t in self.terms if t.signal == LAGGED_SIGNAL)
+
+    @property
+    def refinable(self) -> tuple[Term, ...]:
+        """The terms on the temperature rate, which a static bias refinement re-evaluates."""
+        return tuple(t for t in self.terms if t.signal == _REFINABLE)
+
+    def _clamp(self, temp: NDArray[np.float64]) -> NDArray[np.float64]:
+        return temp if self.temperature_range_c is None else np.clip(temp, *self.temperature_range_c)
+
+    def _clamp_one(self, temp: float) -> float:
+        if self.temperature_range_c is None:
+            return temp
+        low, high = self.temperature_range_c
+        return low if temp < low else high if temp > high else temp
+
+    def term_error(self, term: Term, signals: Signals) -> NDArray[np.float64]:
+        """One term's modelled error over a log."""
+        x = signals.for_term(term)
+        return term.evaluate(self._clamp(x) if term.signal in _TEMPERATURES else x, signals.rate)
 
     def error(self, signals: Signals) -> NDArray[np.float64]:
         """Modelled error in deg/s of every sample of a log."""
-        comp = self.polynomial.error(signals.rate, signals.temperature)
+        comp = self.polynomial.error(signals.rate, self._clamp(signals.temperature))
         for term in self.terms:
-            comp += term.evaluate(signals.get(term.signal))
+            comp += self.term_error(term, signals)
         return comp
 
     def error_one(self, tracker: SignalTracker) -> float:
         """Modelled error of the sample ``tracker`` was last updated with."""
-        comp = self.polynomial.error_one(tracker.rate, tracker.temperature)
+        comp = self.polynomial.error_one(tracker.rate, self._clamp_one(tracker.temperature))
         for term in self.terms:
-            comp += term.evaluate_one(tracker.value(term.signal))
+            x = tracker.for_term(term)
+            comp += term.evaluate_one(self._clamp_one(x) if term.signal in _TEMPERATURES else x, tracker.rate)
         return comp
+
+    def refinable_error_one(self, tracker: SignalTracker) -> float:
+        """The part of :meth:`error_one` the temperature-rate terms make."""
+        return sum(t.evaluate_one(tracker.for_term(t), tracker.rate) for t in self.refinable)
 
 
 def measured_from_true(polynomial: ArtPolynomial, true_rate_dps: ArrayLike, temp_c: ArrayLike,

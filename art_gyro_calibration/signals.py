@@ -13,19 +13,33 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 # Signals derived from (t, rate, temperature); any other name is an extra log column.
-DERIVED_SIGNALS = ('temperature', 'temperature_rate', 'time', 'rate', 'rate_abs',
-                   'rate_sign', 'rate_change', 'angle')
+# ``time`` counts from the run's first sample (a linear drift needs no other origin);
+# ``time_since_power_on`` from the gyro's power-on, infinite when the run did not start
+# with it (a warm-up has then decayed: a warm restart must not replay it);
+# ``temperature_lag`` is the temperature through a first-order lag whose time constant
+# the term carries (a fibre coil that lags the sensor).
+DERIVED_SIGNALS = ('temperature', 'temperature_rate', 'time', 'time_since_power_on', 'temperature_lag', 'rate',
+                   'rate_abs', 'rate_sign', 'rate_change', 'angle')
+LAGGED_SIGNAL = 'temperature_lag'
 
 # A temperature count is 0.05 degC and a chamber ramps at about 1 degC/min: the
 # derivative needs minutes of smoothing to rise above the quantisation.
 DEFAULT_TEMPERATURE_RATE_TAU_S = 120.0
 # Angular acceleration of a rate table or robot settles within a second.
 DEFAULT_RATE_CHANGE_TAU_S = 0.5
+
+
+class TermLike(Protocol):
+    """What names a term's signal: a term or a term's spec."""
+
+    signal: str
+    time_constant_s: float
 
 
 @dataclass(frozen=True)
@@ -53,6 +67,7 @@ class SignalState:
     angle: float                # angle turned up to the sample, degrees
     temperature_level: float    # level of the temperature_rate filter (smoothed temperature)
     rate_level: float           # level of the rate_change filter (smoothed rate)
+    lag_levels: tuple[tuple[float, float], ...] = ()   # (time constant, level) of each lagged temperature
 
 
 @dataclass(frozen=True)
@@ -61,7 +76,11 @@ class Signals:
 
     The derived signals are computed on first use, so a model without extended
     terms costs no filtering. ``previous`` is the state after the sample before
-    ``t[0]`` (None: ``t[0]`` is the log's first sample).
+    ``t[0]`` (None: ``t[0]`` is the log's first sample). ``powered_on_at_start``: the
+    log starts at the gyro's power-on (a rate-table log does; a run started on a warm gyro
+    does not). ``angle_rate``: the rate the angle integrates, by default the measured one;
+    the loop gives the rate its ART fit corrects, so that a heading effect is fitted
+    against the heading, not against the polynomial's own error integrated for hours.
     """
 
     t: NDArray[np.float64]
@@ -70,6 +89,9 @@ class Signals:
     extras: Mapping[str, NDArray[np.float64]] = field(default_factory=dict)
     filters: SignalFilters = field(default_factory=SignalFilters)
     previous: SignalState | None = None
+    powered_on_at_start: bool = True
+    angle_rate: NDArray[np.float64] | None = None
+    _lags: dict[float, NDArray[np.float64]] = field(default_factory=dict, compare=False, repr=False)
 
     @cached_property
     def temperature_rate(self) -> NDArray[np.float64]:
@@ -107,9 +129,33 @@ class Signals:
         decay = -np.maximum(np.diff(self.t, prepend=self.previous.t), 0.0) / tau_s
         return first_order_smooth(np.concatenate(([level], x)), decay)
 
+    def lagged_temperature(self, tau_s: float) -> NDArray[np.float64]:
+        """The temperature through a first-order lag of ``tau_s`` (degC), starting at the first sample's."""
+        if tau_s not in self._lags:
+            levels = dict(self.previous.lag_levels) if self.previous is not None else {}
+            self._lags[tau_s] = self._smoothed(self.temperature, levels.get(tau_s), tau_s)
+        return self._lags[tau_s]
+
+    def for_term(self, term: TermLike) -> NDArray[np.float64]:
+        """The signal a term (or a term's spec) is evaluated on: its own lag for ``temperature_lag``."""
+        if term.signal == LAGGED_SIGNAL:
+            return self.lagged_temperature(term.time_constant_s)
+        return self.get(term.signal)
+
+    @property
+    def time_since_power_on(self) -> NDArray[np.float64]:
+        """Seconds since the gyro's power-on: ``time``, or infinite if the log did not start at power-on."""
+        return self.time if self.powered_on_at_start else np.full(len(self.t), np.inf)
+
     @cached_property
     def angle(self) -> NDArray[np.float64]:
-        """Angle turned in degrees, trapezoidal integral of the measured rate."""
+        """Angle turned in degrees, trapezoidal integral of ``angle_rate`` (by default the measured rate)."""
+        if self.angle_rate is not None:
+            if self.previous is not None:
+                raise ValueError('the angle of a corrected rate is computed over a whole log, not chunk by chunk')
+            rate = self.angle_rate
+            return np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(self.t)))) \
+                if len(rate) else np.zeros(0)
         if self.previous is None:
             if not len(self.rate):
                 return np.zeros(0)
@@ -135,7 +181,8 @@ class Signals:
         return SignalState(t0=float(self.t[0]) if self.previous is None else self.previous.t0,
                            t=float(self.t[-1]), rate=float(self.rate[-1]), temperature=float(self.temperature[-1]),
                            angle=float(self.angle[-1]), temperature_level=float(self._temperature_level[-1]),
-                           rate_level=float(self._rate_level[-1]))
+                           rate_level=float(self._rate_level[-1]),
+                           lag_levels=tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items())))
 
     @property
     def rate_abs(self) -> NDArray[np.float64]:
@@ -153,6 +200,8 @@ class Signals:
 
     def get(self, name: str) -> NDArray[np.float64]:
         """Signal ``name``: a derived one or an extra column of the log."""
+        if name == LAGGED_SIGNAL:
+            raise KeyError(f'signal {LAGGED_SIGNAL!r} needs its time constant: use for_term or lagged_temperature')
         if name in DERIVED_SIGNALS:
             return np.asarray(getattr(self, name), dtype=float)
         try:
@@ -199,7 +248,8 @@ def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64]) -
 
 def compute_signals(t: ArrayLike, rate_dps: ArrayLike, temp_c: ArrayLike,
                     extras: Mapping[str, ArrayLike] | None = None,
-                    filters: SignalFilters = SignalFilters(), state: SignalState | None = None) -> Signals:
+                    filters: SignalFilters = SignalFilters(), state: SignalState | None = None,
+                    powered_on_at_start: bool = True) -> Signals:
     """Signals of a log, each computed causally (a sample sees only the past).
 
     For a log read in chunks, ``state`` is the previous chunk's :meth:`Signals.end_state`
@@ -208,7 +258,7 @@ def compute_signals(t: ArrayLike, rate_dps: ArrayLike, temp_c: ArrayLike,
     return Signals(t=np.asarray(t, dtype=float), rate=np.asarray(rate_dps, dtype=float),
                    temperature=np.asarray(temp_c, dtype=float),
                    extras={k: np.asarray(v, dtype=float) for k, v in (extras or {}).items()}, filters=filters,
-                   previous=state)
+                   previous=state, powered_on_at_start=powered_on_at_start)
 
 
 class _Derivative:
@@ -230,18 +280,26 @@ class _Derivative:
 
 
 class SignalTracker:
-    """The derived signals of the latest sample, updated one sample at a time."""
+    """The derived signals of the latest sample, updated one sample at a time.
 
-    __slots__ = ('t0', 't', 'rate', 'temperature', 'angle', '_temperature_rate', '_rate_change')
+    ``lags``: the time constants of the lagged temperatures the model needs. The angle is
+    not tracked: a heading term needs an absolute heading, which the node does not have.
+    """
 
-    def __init__(self, filters: SignalFilters = SignalFilters()) -> None:
+    __slots__ = ('t0', 't', 'rate', 'temperature', 'power_on_offset_s', '_temperature_rate', '_rate_change',
+                 '_lags')
+
+    def __init__(self, filters: SignalFilters = SignalFilters(), lags: tuple[float, ...] = (),
+                 powered_on_at_start: bool = False) -> None:
         self.t0: float | None = None
         self.t = 0.0
         self.rate = 0.0
         self.temperature = 0.0
-        self.angle = 0.0
+        # Added to ``time`` for ``time_since_power_on``: infinite when power-on is unknown (a warm gyro).
+        self.power_on_offset_s = 0.0 if powered_on_at_start else math.inf
         self._temperature_rate = _Derivative(filters.temperature_rate_tau_s)
         self._rate_change = _Derivative(filters.rate_change_tau_s)
+        self._lags = {tau: _Derivative(tau) for tau in lags}
 
     def update(self, t: float, rate_dps: float, temp_c: float) -> None:
         """Advance to a new sample at time ``t`` (s)."""
@@ -250,10 +308,18 @@ class SignalTracker:
             dt = 0.0
         else:
             dt = t - self.t
-            self.angle += 0.5 * (rate_dps + self.rate) * dt
         self._temperature_rate.update(dt, temp_c)
         self._rate_change.update(dt, rate_dps)
+        for lag in self._lags.values():
+            lag.update(dt, temp_c)
         self.t, self.rate, self.temperature = t, rate_dps, temp_c
+
+    def for_term(self, term: TermLike) -> float:
+        """Current value of the signal ``term`` is evaluated on (its own lag for ``temperature_lag``)."""
+        if term.signal == LAGGED_SIGNAL:
+            lag = self._lags[term.time_constant_s]
+            return lag.smooth if lag.smooth is not None else self.temperature
+        return self.value(term.signal)
 
     def value(self, name: str) -> float:
         """Current value of derived signal ``name``."""
@@ -263,6 +329,8 @@ class SignalTracker:
             return self._temperature_rate.value
         if name == 'time':
             return self.t - (self.t0 if self.t0 is not None else self.t)
+        if name == 'time_since_power_on':
+            return self.t - (self.t0 if self.t0 is not None else self.t) + self.power_on_offset_s
         if name == 'rate':
             return self.rate
         if name == 'rate_abs':
@@ -271,7 +339,6 @@ class SignalTracker:
             return 1.0 if self.rate > 0.0 else -1.0 if self.rate < 0.0 else 0.0
         if name == 'rate_change':
             return self._rate_change.value
-        if name == 'angle':
-            return self.angle
-        raise KeyError(f'signal {name!r} is not available per sample; derived signals are '
-                       f'{", ".join(DERIVED_SIGNALS)}')
+        raise KeyError(f'signal {name!r} is not available per sample; the node tracks '
+                       f'{", ".join(n for n in DERIVED_SIGNALS if n not in ("angle", LAGGED_SIGNAL))} '
+                       f'and {LAGGED_SIGNAL} (with a time constant)')

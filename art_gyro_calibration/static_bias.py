@@ -4,13 +4,22 @@ Before every mission the gyro sits still for ``n`` samples (100 = 10 s at 10 Hz)
 ``StaticBiasDrift`` is the mean scaled rate (it holds the bias of the day and the
 Earth's rate) and ``CalcStaticBiasDrift`` the mean modelled error over the same
 samples; the output is ``rate - StaticBiasDrift - error + CalcStaticBiasDrift``.
+
+A model with temperature-rate terms (the Shupe effect) meets a problem the report's
+polynomial does not have: over the first seconds the causal temperature-rate filter has
+seen no history and reads about 0, while a freshly powered gyro self-heats. The
+static bias then absorbs the Shupe error of its window for the whole mission. So the
+window is kept, and once the temperature has been followed for a few filter time
+constants (:class:`Refinement`) the rate of temperature over the window is estimated
+from both sides of it, and ``CalcStaticBiasDrift`` is recomputed with it, once.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import TypeVar
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -22,6 +31,9 @@ DEFAULT_SAMPLES = 100
 # not the gyro drifting (the modelled error alone reaches 0.1 deg/s at some temperatures).
 DEFAULT_MAX_MEAN_DPS = 0.1
 DEFAULT_MAX_STD_DPS = 0.05
+# A refinement fits the temperature over this many temperature-rate filter time constants from
+# the window's start: long enough to see a slope through 0.05 degC counts, short enough for a quadratic.
+REFINE_SPAN_TAUS = 3.0
 
 # One sample (the node) or a whole log (apply_calibration).
 Rate = TypeVar('Rate', float, NDArray[np.float64])
@@ -31,14 +43,33 @@ class MotionError(ValueError):
     """The samples of a static bias collection show the gyro was turning."""
 
 
+if TYPE_CHECKING:
+    from art_gyro_calibration.terms import Term
+
+
+@dataclass(frozen=True)
+class BiasWindow:
+    """The samples a static bias was taken over, kept to refine it.
+
+    ``causal_dps`` is the mean of the temperature-rate terms over them, as the causal filter gave them.
+    """
+
+    t: NDArray[np.float64]
+    rate_dps: NDArray[np.float64]
+    temp_c: NDArray[np.float64]
+    causal_dps: float
+
+
 @dataclass(frozen=True)
 class StaticBias:
-    """Result of one static bias collection (deg/s)."""
+    """Result of one static bias collection (deg/s); ``refined_dps`` is what a refinement added."""
 
     static_bias_drift_dps: float
     calc_static_bias_drift_dps: float
     samples: int
     rate_std_dps: float
+    window: BiasWindow | None = field(default=None, compare=False, repr=False)
+    refined_dps: float = 0.0
 
     def correct(self, rate_dps: Rate, error_dps: Rate) -> Rate:
         """``CompRate`` of the report, for one sample or arrays of them."""
@@ -46,8 +77,9 @@ class StaticBias:
 
     def describe(self) -> str:
         """One line for people: the values found."""
+        refined = f', refined by {self.refined_dps:+.6f} deg/s' if self.refined_dps else ''
         return (f'StaticBiasDrift={self.static_bias_drift_dps:.6f} deg/s, '
-                f'CalcStaticBiasDrift={self.calc_static_bias_drift_dps:.6f} deg/s '
+                f'CalcStaticBiasDrift={self.calc_static_bias_drift_dps:.6f} deg/s{refined} '
                 f'over {self.samples} samples (rate std {self.rate_std_dps:.6f} deg/s)')
 
 
@@ -67,12 +99,17 @@ def static_bias(rate_dps: ArrayLike, error_dps: ArrayLike,
 
 
 class StaticBiasCollector:
-    """Collects a static bias one sample at a time, as the node receives frames."""
+    """Collects a static bias one sample at a time, as the node receives frames.
 
-    __slots__ = ('samples', 'max_mean_dps', 'max_std_dps', '_n', '_sum_rate', '_sum_sq', '_sum_error')
+    With ``keep_window`` it also keeps each sample's time, rate and temperature and the
+    temperature-rate terms' part of its error (a :class:`BiasWindow`, for a :class:`Refinement`).
+    """
+
+    __slots__ = ('samples', 'max_mean_dps', 'max_std_dps', '_n', '_sum_rate', '_sum_sq', '_sum_error',
+                 '_window', '_sum_causal')
 
     def __init__(self, samples: int = DEFAULT_SAMPLES, max_mean_dps: float = DEFAULT_MAX_MEAN_DPS,
-                 max_std_dps: float = DEFAULT_MAX_STD_DPS) -> None:
+                 max_std_dps: float = DEFAULT_MAX_STD_DPS, keep_window: bool = False) -> None:
         if samples < 2:
             raise ValueError(f'a static bias needs at least 2 samples, got {samples}')
         self.samples = samples
@@ -82,9 +119,15 @@ class StaticBiasCollector:
         self._sum_rate = 0.0
         self._sum_sq = 0.0
         self._sum_error = 0.0
+        self._sum_causal = 0.0
+        self._window = np.empty((3, samples)) if keep_window else None
 
-    def add(self, rate_dps: float, error_dps: float) -> bool:
+    def add(self, rate_dps: float, error_dps: float, t: float = 0.0, temp_c: float = 0.0,
+            causal_dps: float = 0.0) -> bool:
         """Add a sample; True once ``samples`` have been collected."""
+        if self._window is not None:
+            self._window[:, self._n] = t, rate_dps, temp_c
+            self._sum_causal += causal_dps
         self._n += 1
         self._sum_rate += rate_dps
         self._sum_sq += rate_dps * rate_dps
@@ -101,7 +144,75 @@ class StaticBiasCollector:
         n = self._n
         mean = self._sum_rate / n
         std = math.sqrt(max(self._sum_sq / n - mean * mean, 0.0))
-        return _checked(mean, self._sum_error / n, std, n, self.max_mean_dps, self.max_std_dps)
+        bias = _checked(mean, self._sum_error / n, std, n, self.max_mean_dps, self.max_std_dps)
+        if self._window is None:
+            return bias
+        t, rate, temp = self._window[:, :n].copy()
+        return replace(bias, window=BiasWindow(t, rate, temp, self._sum_causal / n))
+
+
+class Refinement:
+    """Refines a static bias once the temperature around its window is known (see the module's docstring).
+
+    The temperature from the window's start over ``span_s`` is fitted with a quadratic in
+    time; its slope at each window sample replaces what the causal filter read there, and
+    ``CalcStaticBiasDrift`` moves by the change of the temperature-rate ``terms``' mean.
+    Samples come one at a time (:meth:`add`, the node) or as arrays (:meth:`add_many`);
+    the refined bias applies from the first sample at or after :attr:`ready_at`.
+    """
+
+    __slots__ = ('bias', 'terms', 'span_s', 'center', 'ready_at', 'sums')
+
+    def __init__(self, bias: StaticBias, terms: Sequence[Term], span_s: float) -> None:
+        if bias.window is None:
+            raise ValueError('a refinement needs the static bias window')
+        window = bias.window
+        self.bias = bias
+        self.terms = tuple(terms)
+        self.span_s = span_s
+        self.center = 0.5 * float(window.t[0] + window.t[-1])
+        self.ready_at = float(window.t[0]) + span_s
+        # Sums of u^0..u^4 and T u^0..u^2, u = (t - center) / span: the normal equations of the quadratic.
+        self.sums = [0.0] * 8
+        self.add_many(window.t, window.temp_c)
+
+    def add(self, t: float, temp_c: float) -> None:
+        """One more sample of the temperature (before :attr:`ready_at`)."""
+        u = (t - self.center) / self.span_s
+        u2 = u * u
+        s = self.sums
+        s[0] += 1.0
+        s[1] += u
+        s[2] += u2
+        s[3] += u2 * u
+        s[4] += u2 * u2
+        s[5] += temp_c
+        s[6] += temp_c * u
+        s[7] += temp_c * u2
+
+    def add_many(self, t: NDArray[np.float64], temp_c: NDArray[np.float64]) -> None:
+        """Many samples at once (all before :attr:`ready_at`)."""
+        u = (np.asarray(t, dtype=float) - self.center) / self.span_s
+        temp = np.asarray(temp_c, dtype=float)
+        powers = [np.ones_like(u), u, u * u, u * u * u, u ** 4]
+        for i, column in enumerate(powers + [temp, temp * u, temp * u * u]):
+            self.sums[i] += float(column.sum())
+
+    def refined(self) -> StaticBias:
+        """The static bias with ``CalcStaticBiasDrift`` recomputed; unchanged if the fit is not determined."""
+        s = self.sums
+        normal = np.array([[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4]]])
+        if s[0] < 3 or not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
+            return replace(self.bias, window=None)
+        _, b, c = np.linalg.solve(normal, [s[5], s[6], s[7]])
+        window = self.bias.window
+        assert window is not None
+        u = (window.t - self.center) / self.span_s
+        slope = (b + 2.0 * c * u) / self.span_s   # degC/s at each window sample
+        refit = float(sum(np.mean(t.evaluate(slope, window.rate_dps)) for t in self.terms))
+        delta = refit - window.causal_dps
+        return replace(self.bias, calc_static_bias_drift_dps=self.bias.calc_static_bias_drift_dps + delta,
+                       window=None, refined_dps=delta)
 
 
 def _checked(mean: float, mean_error: float, std: float, n: int,

@@ -22,15 +22,20 @@ from art_gyro_calibration.analysis.cli import main  # noqa: E402
 from art_gyro_calibration.calibration import load_packaged_calibration, write_calibration  # noqa: E402
 from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile, TemperatureProfile  # noqa: E402
 from art_gyro_calibration.frame import encode_binary  # noqa: E402
+from art_gyro_calibration.signals import SignalFilters  # noqa: E402
 from art_gyro_calibration.terms import Term  # noqa: E402
 
 BIAS_SAMPLES = 20
 
 
 def test_apply_on_the_node_log_equals_what_the_node_published(tmp_path: Path, loopback: None, capsys) -> None:
+    # Every signal the node tracks, a lagged temperature with rate cross terms, and a temperature-rate
+    # filter quick enough that the static bias refinement happens within the run.
     cal = dataclasses.replace(load_packaged_calibration('NAVC3545'), terms=(
-        Term('temperature_rate', 'power', (2.0,), (1,)), Term('time', 'exp_decay', (0.05,), (), 5.0),
-        Term('angle', 'harmonic', (0.01, 0.02)), Term('rate_change', 'power', (0.002,), (1,))))
+        Term('temperature_rate', 'power', (0.02,), (1,)), Term('time', 'power', (1e-4,), (1,)),
+        Term('time_since_power_on', 'exp_decay', (0.03,), (), 5.0),
+        Term('temperature_lag', 'power', (1e-4, 2e-5), (1,), 3.0, (0, 1)),
+        Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(temperature_rate_tau_s=0.2))
     cal_path = tmp_path / 'CAL.yaml'
     write_calibration(cal_path, cal)
     log_path = tmp_path / 'node.csv'
@@ -40,7 +45,7 @@ def test_apply_on_the_node_log_equals_what_the_node_published(tmp_path: Path, lo
     try:
         with node_with_listener(domain_id(), output, '--params-file', str(cal_path), '-p', f'port:={fake.path}',
                                 '-p', 'baud:=115200', '-p', f'bias_samples:={BIAS_SAMPLES}',
-                                '-p', f'log_path:={log_path}') as (proc, listener):
+                                '-p', f'log_path:={log_path}', '-p', 'powered_on_at_start:=true') as (proc, listener):
             # Frames only once the listener hears the node: it must receive every message from the first.
             wait_until(lambda: listener.history() and listener.node.count_publishers('imu/data_raw'),
                        'the node discovered', proc, output)
@@ -65,7 +70,7 @@ def test_apply_on_the_node_log_equals_what_the_node_published(tmp_path: Path, lo
     capsys.readouterr()
     out = tmp_path / 'OUT.csv'
     assert main(['apply', str(log_path), '--calibration', str(cal_path), '--out', str(out),
-                 '--bias-samples', str(BIAS_SAMPLES)]) == 0
+                 '--bias-samples', str(BIAS_SAMPLES), '--powered-on-at-start']) == 0
     printed = capsys.readouterr().out
     data = np.loadtxt(out, delimiter=',', skiprows=1)
     t, rate, comp, corrected = data[:, 0], data[:, 1], data[:, 3], data[:, 4]
@@ -78,3 +83,5 @@ def test_apply_on_the_node_log_equals_what_the_node_published(tmp_path: Path, lo
     np.testing.assert_allclose(published, expected, rtol=0, atol=2e-9)
     assert np.ptp(comp) > 0.1 and np.ptp(rate) > 60   # turning, warming: the terms and the polynomial at work
     assert status['frames_implausible_temperature'] == '2' and '2 dropped as the node drops them' in printed
+    assert 'refined by' in printed   # the static bias refinement happened within the run, on both sides
+    assert '2 outside the calibrated range' in printed   # 129.95 and -59.95 degC: compensated at the range's edge

@@ -15,7 +15,7 @@ import serial
 from art_gyro_calibration.calibration import CalibrationError, load_packaged_calibration
 from art_gyro_calibration.fake_rd2100 import (ART_LATITUDE_DEG, MAX_PENDING_BYTES, FakeRd2100, GyroSimulator,
                                               RateProfile, TemperatureProfile, default_noise_dps, earth_rate_dps)
-from art_gyro_calibration.frame import make_parser
+from art_gyro_calibration.frame import KvhFogConfig, make_parser
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -297,3 +297,67 @@ def test_console_entry_refuses_an_unknown_serial():
     proc = run_main('--serial', 'NAVC0000')
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 2 and 'NAVC0000' in err
+
+
+# --- protocol kvh_fog -----------------------------------------------------------------------------
+
+def read_port(path, want_bytes, baud=921600, timeout_s=10.0):
+    with serial.Serial(path, baud, timeout=0.1) as port:
+        data = b''
+        deadline = time.monotonic() + timeout_s
+        while len(data) < want_bytes and time.monotonic() < deadline:
+            data += port.read(4096)
+    return data
+
+
+@pytest.mark.parametrize('config', [KvhFogConfig(), KvhFogConfig('C', '-x', 'rate', 'deg', 1000.0, 'C_100')],
+                         ids=['factory', 'C_-x_rate_deg_C100'])
+def test_kvh_fog_messages_on_the_pty_carry_the_simulated_reading(config):
+    """The unquantised reading in the unit's settings, at the fake's own output rate, numbered without gaps."""
+    with FakeRd2100('NAVC4377', protocol='kvh_fog', rate_hz=200, profile='-20', temperature=18.25,
+                    noise_dps=0.0, turn_on_bias_dps=0.0, kvh_fog=config) as fake:
+        data = read_port(fake.path, 40 * config.format.length)
+    assert fake.kvh_fog.output_rate_hz == 200.0 and fake.kvh_fog.yaw_axis == config.yaw_axis
+    parser = make_parser('kvh_fog', fake.kvh_fog)
+    got = [(s.raw_rate, s.raw_temp) for s, _ in parser.feed(data)]
+    reading = fake.simulator.readings([0.0])[0].item()
+    assert abs(reading + 20.0) > 0.01   # the calibrated error is in it
+    # The port may open mid-message (one garbage run) and, in Format C, before a temperature (up to 3 messages).
+    reasons = parser.stats.rejected_by_reason
+    assert len(got) >= 30 and parser.stats.lost_frames == reasons['bad_crc'] == 0
+    assert reasons['garbage'] <= 1 and reasons['no_temperature_yet'] <= 3
+    assert [r for r, _ in got] == pytest.approx([reading] * len(got), rel=1e-6)
+    assert [t for _, t in got] == pytest.approx([18.25 if config.temperature_units == 'C_100' else 18.0] * len(got))
+
+
+def test_drop_loses_frames_on_the_wire_which_the_sequence_shows():
+    with FakeRd2100('NAVC3545', protocol='kvh_fog', rate_hz=200) as fake:
+        with serial.Serial(fake.path, 921600, timeout=0.1) as port:
+            parser = make_parser('kvh_fog', fake.kvh_fog)
+            deadline = time.monotonic() + 10.0
+            while parser.stats.frames < 10 and time.monotonic() < deadline:
+                parser.feed(port.read(4096))
+            fake.drop(7)
+            while parser.stats.frames < 40 and time.monotonic() < deadline:
+                parser.feed(port.read(4096))
+    assert fake.lost == 7 and parser.stats.lost_frames == 7 and parser.stats.rejected_by_reason['bad_crc'] == 0
+
+
+def test_console_entry_sends_kvh_fog():
+    proc = run_main('--serial', 'KVH_DSP1760_EXAMPLE', '--protocol', 'kvh_fog', '--rate-hz', '100',
+                    '--kvh-message-format', 'C', '--kvh-yaw-axis=-y', '--profile', '10')
+    try:
+        path = proc.stdout.readline().strip()
+        data = read_port(path, 20 * 38)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    parser = make_parser('kvh_fog', KvhFogConfig(message_format='C', yaw_axis='-y', output_rate_hz=100.0))
+    rates = [s.raw_rate for s, _ in parser.feed(data)]
+    assert len(rates) >= 10 and np.mean(rates) == pytest.approx(10.0, abs=0.1)
+    bad = run_main('--serial', 'NAVC3545', '--protocol', 'kvh_fog', '--kvh-yaw-axis', 'up')
+    _, err = bad.communicate(timeout=30)
+    assert bad.returncode == 2 and 'kvh_fog.yaw_axis must be x, y or z' in err

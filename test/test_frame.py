@@ -1,12 +1,17 @@
-"""Tests of the RD2100 frame parsers and encoders."""
+"""Tests of the frame parsers and encoders: RD2100 binary and ASCII, KVH kvh_fog."""
 
 import itertools
+import math
+import re
+import zlib
 
 import pytest
 
-from art_gyro_calibration.frame import (BAD_CHECKSUM, GARBAGE, LINE_TOO_LONG, MALFORMED, MAX_LINE_BYTES,
-                                        OUT_OF_RANGE, AsciiFrameParser, BinaryFrameParser, RawSample,
-                                        encode_ascii, encode_binary, make_encoder, make_parser)
+from art_gyro_calibration.frame import (AXIS_INVALID, BAD_CHECKSUM, BAD_CRC, GARBAGE, KVH_FORMATS, LINE_TOO_LONG,
+                                        MALFORMED, MAX_LINE_BYTES, NO_TEMPERATURE_YET, NOT_FINITE, OTHER_FORMAT,
+                                        OUT_OF_RANGE, REPEATED_SEQUENCE, AsciiFrameParser, BinaryFrameParser,
+                                        KvhFogConfig, KvhFogParser, RawSample, crc32_mpeg2, encode_ascii,
+                                        encode_binary, encode_kvh_fog, make_encoder, make_parser)
 
 EXTREMES = (-32768, -32767, -256, -129, -128, -1, 0, 1, 127, 128, 255, 256, 12345, 32766, 32767)
 PAIRS = list(itertools.product(EXTREMES, repeat=2))
@@ -165,3 +170,215 @@ def test_unknown_protocol_is_a_clear_error():
         make_parser('nmea')
     with pytest.raises(ValueError, match='unknown protocol'):
         make_encoder('')
+
+
+# --- kvh_fog -------------------------------------------------------------------------------------
+
+# The 1775 IMU technical manual's sample message (section 5.2.1), Format A, all sensors valid.
+MANUAL_SAMPLE = bytes.fromhex('FE 81 FF 55 37 A9 6A 6E 38 58 6C 1F B7 5B F8 62 BF 80 3E 78 BB 65 0D 28 3B 0A 37 AC '
+                              '77 3D 00 28 4B FA 34 D8')
+MANUAL_ROTATION = (2.0196e-05, 5.1599e-05, -1.3111e-05)
+MANUAL_ACCELERATION = (-1.00191, -0.0034950, 0.0021090)
+
+
+def crc32_mpeg2_bitwise(data: bytes) -> int:
+    """CRC-32/MPEG-2 from its definition, a bit at a time: poly 0x04C11DB7, init all ones, MSB first, no XOR out."""
+    crc = 0xFFFFFFFF
+    for byte in data:
+        crc ^= byte << 24
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x04C11DB7 if crc & 0x80000000 else crc << 1) & 0xFFFFFFFF
+    return crc
+
+
+def kvh_samples(parser, data):
+    return [(s.raw_rate, s.raw_temp) for s, _ in parser.feed(data)]
+
+
+def test_kvh_crc_is_crc32_mpeg2_checked_on_the_manual_sample_and_the_catalogue_check_value():
+    assert crc32_mpeg2(MANUAL_SAMPLE[:32]) == crc32_mpeg2_bitwise(MANUAL_SAMPLE[:32]) == 0x4BFA34D8
+    assert MANUAL_SAMPLE[32:] == bytes.fromhex('4BFA34D8')
+    # The CRC catalogue's check value of CRC-32/MPEG-2 (and zlib's reflected CRC-32 differs).
+    assert crc32_mpeg2(b'123456789') == crc32_mpeg2_bitwise(b'123456789') == 0x0376E6E7
+    assert zlib.crc32(MANUAL_SAMPLE[:32]) != 0x4BFA34D8
+
+
+def test_kvh_manual_sample_decodes_to_the_manuals_values():
+    rx, ry, rz, ax, ay, az, status, sequence, temperature = KVH_FORMATS['A'].layout.unpack_from(MANUAL_SAMPLE, 4)
+    assert (rx, ry, rz) == pytest.approx(MANUAL_ROTATION, rel=1e-4)
+    assert (ax, ay, az) == pytest.approx(MANUAL_ACCELERATION, rel=1e-4)
+    assert (status, sequence, temperature) == (0x77, 61, 40)
+    # The encoder writes exactly the manual's bytes for those values.
+    assert encode_kvh_fog((rx, ry, rz), (ax, ay, az), 0x77, 61, 40) == MANUAL_SAMPLE
+
+
+@pytest.mark.parametrize('axis, value', list(zip('xyz', MANUAL_ROTATION)))
+def test_kvh_parser_takes_the_manual_sample_on_each_axis(axis, value):
+    """Rate in degrees: the float itself; in radians: times 180/pi; with sign; temperature 40 degC."""
+    parser = make_parser('kvh_fog', KvhFogConfig(yaw_axis=axis, rotation='rate', angle_units='deg'))
+    assert parser.feed(MANUAL_SAMPLE) == [(RawSample(pytest.approx(value, rel=1e-4), 40.0), 36)]
+    down = KvhFogParser(KvhFogConfig(yaw_axis=f'-{axis}', rotation='rate', angle_units='rad'))
+    assert kvh_samples(down, MANUAL_SAMPLE) == [(pytest.approx(-math.degrees(value), rel=1e-4), 40.0)]
+    assert parser.frame_bytes == 36 and parser.stats.rejected == 0 and parser.stats.lost_frames == 0
+
+
+def test_kvh_delta_angle_is_a_rate_through_the_output_rate():
+    """The factory setting: delta angle in radians; at 1000 Hz 2.0196e-05 rad per message is 1.1571 deg/s."""
+    parser = make_parser('kvh_fog')   # defaults: A, +z, delta_angle, rad, 1000 Hz, C
+    z = KVH_FORMATS['A'].layout.unpack_from(MANUAL_SAMPLE, 4)[2]
+    assert kvh_samples(parser, MANUAL_SAMPLE) == [(pytest.approx(math.degrees(z) * 1000.0, rel=1e-12), 40.0)]
+    slow = KvhFogParser(KvhFogConfig(yaw_axis='x', angle_units='deg', output_rate_hz=10.0))
+    assert kvh_samples(slow, MANUAL_SAMPLE) == [(pytest.approx(2.0196e-04, rel=1e-4), 40.0)]
+
+
+@pytest.mark.parametrize('units, wire, expected_c', [('C', 40, 40.0), ('C_100', 4012, 40.12), ('F', 104, 40.0),
+                                                     ('F_100', -4000, -40.0)])
+def test_kvh_temperature_units(units, wire, expected_c):
+    message = encode_kvh_fog((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0x77, 0, wire)
+    parser = KvhFogParser(KvhFogConfig(temperature_units=units))
+    assert kvh_samples(parser, message) == [(0.0, pytest.approx(expected_c, abs=1e-12))]
+
+
+def kvh_message(sequence, status=0x77, temperature=40, message_format='A', z=0.001):
+    return encode_kvh_fog((0.0, 0.0, z), (0.0, 0.0, 1.0), status, sequence, temperature, message_format,
+                          magnetic=(0.25, -0.5, 0.75))
+
+
+def test_kvh_stream_with_the_sample_cut_repeated_bit_flipped_and_a_sequence_gap():
+    """Only whole, new, good messages come out; each fault is counted by its reason; lost frames are the gaps."""
+    cut = kvh_message(60)[:17]
+    flipped = bytearray(kvh_message(62))
+    flipped[20] ^= 0x08
+    stream = (b'\x00\xfe\x81' + cut + MANUAL_SAMPLE + MANUAL_SAMPLE + bytes(flipped) + kvh_message(63)
+              + kvh_message(66) + b'\xfe\x81\xff' + kvh_message(67) + kvh_message(0)[:30])
+    config = KvhFogConfig(rotation='rate', angle_units='deg')
+    results = {}
+    for size in (len(stream), 1, 7, 36, 37):   # whole, a byte at a time, and chunks across the messages
+        parser = KvhFogParser(config)
+        got = [s for i in range(0, len(stream), size) for s in kvh_samples(parser, stream[i:i + size])]
+        stats = parser.stats
+        results[size] = (got, stats.rejected_by_reason, stats.lost_frames, stats.frames, stats.bytes_skipped)
+    got, reasons, lost, frames, skipped = results[len(stream)]
+    assert all(r == results[len(stream)] for r in results.values())
+    assert got == [(pytest.approx(-1.3111e-05, rel=1e-4), 40.0)] + [(pytest.approx(0.001), 40.0)] * 3
+    assert frames == 4
+    # The cut message and the flipped one fail their CRC; the second copy of the sample repeats sequence 61.
+    # Garbage: the bytes before the cut message, and the lone header start before message 67.
+    assert reasons == {BAD_CRC: 2, GARBAGE: 2, OTHER_FORMAT: 0, AXIS_INVALID: 0, REPEATED_SEQUENCE: 1,
+                       NOT_FINITE: 0, NO_TEMPERATURE_YET: 0}
+    assert lost == 1 + 2   # 62 (flipped), then 64 and 65 never sent
+    # Every byte is in an accepted message, skipped, or held (the last message, still arriving).
+    assert skipped + 36 * frames + len(parser._buffer) == len(stream) and len(parser._buffer) == 30
+
+
+def test_kvh_offsets_point_just_past_each_message_in_the_chunk():
+    parser = KvhFogParser(KvhFogConfig())
+    messages = [kvh_message(i) for i in range(3)]
+    assert parser.feed(messages[0][:10]) == []
+    out = parser.feed(messages[0][10:] + messages[1] + messages[2][:35])
+    assert [end for _, end in out] == [26, 62]
+    assert [end for _, end in parser.feed(messages[2][35:])] == [1]
+
+
+def test_kvh_invalid_yaw_gyro_is_not_published_and_counted_other_axes_do_not_matter():
+    z_invalid = kvh_message(1, status=0x73)   # gyro z (bit 2) invalid
+    only_z = kvh_message(2, status=0x04)      # everything but gyro z invalid
+    parser = KvhFogParser(KvhFogConfig())
+    assert len(parser.feed(kvh_message(0) + z_invalid + only_z)) == 2
+    assert parser.stats.rejected_by_reason[AXIS_INVALID] == 1 and parser.stats.lost_frames == 0
+    x_parser = KvhFogParser(KvhFogConfig(yaw_axis='x'))
+    assert len(x_parser.feed(z_invalid + only_z)) == 1
+    assert x_parser.stats.rejected_by_reason[AXIS_INVALID] == 1
+
+
+def test_kvh_format_c_holds_the_temperature_of_every_fourth_message():
+    """Format C: 38 bytes; sequence 0 mod 4 carries the temperature, 1-3 the magnetometer (never a temperature)."""
+    config = KvhFogConfig(message_format='C', rotation='rate', angle_units='deg')
+    parser = make_parser('kvh_fog', config)
+    assert parser.frame_bytes == 38
+    data = b''.join(kvh_message(s, temperature=20.0 + s, message_format='C') for s in (1, 2, 3, 4, 5, 6, 7, 8))
+    assert len(data) == 8 * 38
+    assert [t for _, t in kvh_samples(parser, data)] == [24.0, 24.0, 24.0, 24.0, 28.0]
+    assert parser.stats.rejected_by_reason[NO_TEMPERATURE_YET] == 3
+    parser.reset()   # a new connection: the held temperature is gone
+    assert kvh_samples(parser, kvh_message(9, message_format='C')) == []
+    assert parser.stats.rejected_by_reason[NO_TEMPERATURE_YET] == 4
+
+
+def test_kvh_format_b_has_a_timestamp_and_40_bytes():
+    config = KvhFogConfig(message_format='B', rotation='rate', angle_units='deg')
+    message = encode_kvh_fog((0.0, 0.0, 1.5), (0.0, 0.0, 1.0), 0x77, 5, -12, 'B', timestamp_us=123456789)
+    assert len(message) == 40 and message[:4] == bytes.fromhex('FE81FF56')
+    assert kvh_samples(make_parser('kvh_fog', config), message) == [(1.5, -12.0)]
+
+
+def test_kvh_other_formats_are_counted_and_skipped():
+    parser = KvhFogParser(KvhFogConfig())
+    data = kvh_message(0, message_format='C') + kvh_message(1) + kvh_message(2, message_format='B') + kvh_message(3)
+    assert len(parser.feed(data)) == 2
+    assert parser.stats.rejected_by_reason[OTHER_FORMAT] == 2
+    assert parser.stats.rejected_by_reason[GARBAGE] == 0 and parser.stats.rejected_by_reason[BAD_CRC] == 0
+    assert parser.stats.bytes_skipped == 38 + 40
+    assert parser.stats.lost_frames == 1   # 2 came in a format this parser does not read
+
+
+def test_kvh_non_finite_values_are_rejected():
+    parser = KvhFogParser(KvhFogConfig())
+    assert kvh_samples(parser, kvh_message(0, z=math.nan) + kvh_message(1, z=math.inf) + kvh_message(2)) != []
+    assert parser.stats.rejected_by_reason[NOT_FINITE] == 2 and parser.stats.frames == 1
+
+
+def test_kvh_sequence_wraps_after_127_and_reset_forgets_it():
+    parser = KvhFogParser(KvhFogConfig())
+    parser.feed(b''.join(kvh_message(s) for s in (126, 127, 0, 1, 3)))
+    assert parser.stats.frames == 5 and parser.stats.lost_frames == 1
+    parser.feed(kvh_message(4)[:20])
+    parser.reset()   # the link was lost: the partial message is dropped, and a gap across it is unknown
+    assert kvh_samples(parser, kvh_message(4)[20:] + kvh_message(90)) == [(pytest.approx(57.29577951308232), 40.0)]
+    assert parser.stats.lost_frames == 1 and parser.stats.frames == 6
+
+
+@pytest.mark.parametrize('message_format', ['A', 'B', 'C'])
+@pytest.mark.parametrize('rotation, angle_units, temperature_units', [
+    ('delta_angle', 'rad', 'C'), ('rate', 'deg', 'C_100'), ('delta_angle', 'deg', 'F'), ('rate', 'rad', 'F_100')])
+@pytest.mark.parametrize('yaw_axis', ['+z', '-y', 'x'])
+def test_kvh_encoder_and_parser_round_trip(message_format, rotation, angle_units, temperature_units, yaw_axis):
+    """Samples in deg/s and degC survive the unit's float32 and its temperature resolution."""
+    config = KvhFogConfig(message_format, yaw_axis, rotation, angle_units, 250.0, temperature_units)
+    encode = make_encoder('kvh_fog', config)
+    rates = [0.0, 1e-4, -0.5, 30.0, -400.0]
+    data = b''.join(encode(rate, 25.3 - i) for i, rate in enumerate(rates * 2))   # 10 messages: C has temperatures
+    got = kvh_samples(make_parser('kvh_fog', config), data)
+    skipped = 0 if message_format != 'C' else 0   # the encoder starts at sequence 0, a temperature message
+    assert [r for r, _ in got] == pytest.approx((rates * 2)[skipped:], rel=1e-6, abs=1e-9)
+    temps = [t for _, t in got]
+    if message_format == 'C':   # a float every fourth message, held between
+        assert temps == pytest.approx([25.3 - 4 * (i // 4) for i in range(10)], abs=1e-4)
+    else:
+        resolution = {'C': 1.0, 'C_100': 0.01, 'F': 5 / 9, 'F_100': 0.01 * 5 / 9}[temperature_units]
+        assert temps == pytest.approx([25.3 - i for i in range(10)], abs=resolution / 2 + 1e-9)
+
+
+@pytest.mark.parametrize('field, value, message', [
+    ('message_format', 'D', 'kvh_fog.message_format must be one of A, B, C'),
+    ('yaw_axis', 'up', 'kvh_fog.yaw_axis must be x, y or z'),
+    ('yaw_axis', '+-z', 'kvh_fog.yaw_axis'),
+    ('rotation', 'angle', 'kvh_fog.rotation must be one of delta_angle, rate'),
+    ('angle_units', 'grad', 'kvh_fog.angle_units'),
+    ('output_rate_hz', 0.0, 'kvh_fog.output_rate_hz must be a number of Hz in'),
+    ('output_rate_hz', 6000.0, 'kvh_fog.output_rate_hz'),
+    ('output_rate_hz', math.nan, 'kvh_fog.output_rate_hz'),
+    ('temperature_units', 'K', 'kvh_fog.temperature_units must be one of C, C_100, F, F_100'),
+])
+def test_kvh_config_refuses_bad_settings_naming_the_parameter(field, value, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        KvhFogConfig(**{field: value})
+
+
+def test_kvh_encoder_refuses_what_the_message_cannot_carry():
+    with pytest.raises(ValueError, match='sequence'):
+        encode_kvh_fog((0.0,) * 3, (0.0,) * 3, 0x77, 128, 0)
+    with pytest.raises(ValueError, match='integer'):
+        encode_kvh_fog((0.0,) * 3, (0.0,) * 3, 0x77, 0, 25.5)
+    with pytest.raises(ValueError, match='signed 16-bit'):
+        encode_kvh_fog((0.0,) * 3, (0.0,) * 3, 0x77, 0, 40000)

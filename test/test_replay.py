@@ -1,9 +1,23 @@
 """Field replay: a calibration applied to another run as the node applies it, and the field errors."""
 
+import json
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.analysis.metrics import field_errors, heading_error_deg, steady_segments
+from art_gyro_calibration.analysis.replay import replay, restart, without_terms
+from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
+from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration
+from art_gyro_calibration.compensation import RunStart, apply_calibration
+from art_gyro_calibration.log import write_columns
+from art_gyro_calibration.static_bias import MotionError
+from art_gyro_calibration.terms import Term
+
+REPO = Path(__file__).resolve().parent.parent
 
 
 def _table(hours: float = 1.5, rate_hz: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
@@ -46,3 +60,102 @@ def test_a_heading_beyond_the_log_is_unknown():
     assert np.isnan(fe.heading_1h_deg)
     assert fe.to_dict()['heading_1h_deg'] is None
     assert heading_error_deg(t, np.ones(t.size), 0, [0.0, 60.0]) == pytest.approx([0.0, 60.0])
+
+
+@pytest.fixture(scope='module')
+def calibration():
+    return load_packaged_calibration('NAVC4058')
+
+
+def _simulated(calibration, path, seed, effects, hours=4.0):
+    run = simulate_run(calibration, SimulationSettings(hours=hours, rate_hz=2.0, seed=seed, effects=effects))
+    write_run(path, run)
+    return run.log(calibration)
+
+
+def test_replay_is_the_node_on_a_cold_start(calibration):
+    log = simulate_run(calibration, SimulationSettings(hours=1.0, rate_hz=2.0, seed=1, effects=('shupe',))).log(
+        calibration)
+    extended = replace(calibration, terms=(Term('temperature_rate', 'power', (0.24,), (1,)),))
+    done = replay(log, extended, 100)
+    applied = apply_calibration(log, extended, 100)
+    np.testing.assert_array_equal(done.applied.corrected_dps, applied.corrected_dps)
+    np.testing.assert_array_equal(done.error_dps, applied.corrected_dps - log.ref_rate)
+    want = field_errors(log.t, done.error_dps, steady_segments(log.t, log.ref_rate), 100)
+    assert done.field.to_dict() == want.to_dict()
+    # The report's calibration is the same file without its terms.
+    assert without_terms(extended) == calibration
+
+
+def test_replay_tells_the_node_how_the_run_started(calibration):
+    log = simulate_run(calibration, SimulationSettings(hours=1.0, rate_hz=2.0, seed=1, effects=('warmup',))).log(
+        calibration)
+    warm_up = replace(calibration, terms=(Term('time_since_power_on', 'exp_decay', (0.02,), (), 1200.0),))
+    cold, unknown = RunStart(powered_on_at_start=True), RunStart()
+    np.testing.assert_array_equal(replay(log, warm_up, 100, start=cold).applied.corrected_dps,
+                                  apply_calibration(log, warm_up, 100, start=cold).corrected_dps)
+    # Told of the power-on, the warm-up term removes the simulated one; left unknown, it is not applied.
+    assert replay(log, warm_up, 100, start=cold).field.systematic_rms_dps \
+        < 0.5 * replay(log, warm_up, 100, start=unknown).field.systematic_rms_dps
+    np.testing.assert_array_equal(replay(log, warm_up, 100).applied.corrected_dps,
+                                  replay(log, calibration, 100).applied.corrected_dps)
+
+
+def test_a_warm_restart_starts_the_node_later(calibration):
+    log = simulate_run(calibration, SimulationSettings(hours=1.0, rate_hz=2.0, seed=1)).log(calibration)
+    # The table rests from 60 s to the first step; 30 s in, a restart still has 30 s of rest for its bias.
+    warm = restart(log, 30.0)
+    assert warm.t[0] == 30.0 and len(warm) == len(log) - 60
+    done = replay(warm, calibration, 40)
+    np.testing.assert_array_equal(done.applied.corrected_dps, apply_calibration(warm, calibration, 40).corrected_dps)
+    # The bias is taken over the restarted run's first rows, not the log's.
+    assert done.applied.bias.static_bias_drift_dps == pytest.approx(np.mean(log.rate_dps[60:100]))
+    # A restart while the table turns is refused, as the node refuses it.
+    turning = int(np.flatnonzero(log.ref_rate != 0.0)[0])
+    with pytest.raises(MotionError, match='turning|moving'):
+        replay(restart(log, log.t[turning] - log.t[0]), calibration, 40)
+    with pytest.raises(ValueError, match='not within'):
+        restart(log, 1e6)
+
+
+def test_fit_validate_drops_a_term_the_second_run_is_worse_with(calibration, tmp_path):
+    # The fitted run's supply voltage moves the gyro's reading. The second run's column reads another
+    # rail, swinging by +-2 V, that does not reach the gyro: the supply term the loop finds makes it worse.
+    _simulated(calibration, tmp_path / 'A.csv', 4, ('shupe', 'supply_voltage'))
+    second = simulate_run(calibration, SimulationSettings(hours=2.0, rate_hz=2.0, seed=5, effects=('shupe',)))
+    t = second.columns['t']
+    write_columns(tmp_path / 'B.csv', {**second.columns, 'supply_v': 24.0 + 2.0 * np.sin(2 * np.pi * t / 1800.0)})
+    out, report_path = tmp_path / 'CAL.yaml', tmp_path / 'REPORT.json'
+    assert main(['fit', str(tmp_path / 'A.csv'), '--rows', '3', '--columns', '2', '--serial', 'NAVC4058',
+                 '--out', str(out), '--report', str(report_path), '--validate', str(tmp_path / 'B.csv')]) == 0
+    report = json.loads(report_path.read_text())
+    assert {'supply_v', 'temperature_rate'} <= {e['signal'] for e in report['effects']}
+    validation = report['validation']
+    dropped = {d['signal']: d['reason'] for d in validation['dropped']}
+    assert 'better without' in dropped['supply_v'] and 'temperature_rate' not in dropped
+    written = [t.signal for t in load_calibration(out).terms]
+    assert 'temperature_rate' in written and 'supply_v' not in written
+    assert sorted(written + list(dropped)) == sorted(e['signal'] for e in report['effects'])
+    [run] = validation['runs']
+    assert run['source'] == str(tmp_path / 'B.csv')
+    errors = run['calibrations']
+    assert set(errors) == {'art', 'extended', 'validated'}
+    for e in errors.values():
+        assert set(e) == {'mean_bias_dps', 'mean_bias_dph', 'systematic_rms_dps', 'systematic_rms_dph',
+                          'heading_10min_deg', 'heading_1h_deg'}
+    # The supply term made the second run worse than the report's calibration; the Shupe term kept makes it better.
+    assert errors['validated']['systematic_rms_dph'] < errors['art']['systematic_rms_dph'] \
+        < errors['extended']['systematic_rms_dph']
+    assert '## Field replay on other runs' in (tmp_path / 'REPORT.md').read_text()
+
+
+def test_replay_command(calibration, tmp_path, capsys):
+    log = tmp_path / 'B.csv'
+    _simulated(calibration, log, 5, ('shupe',), hours=1.5)
+    assert main(['replay', str(log), '--calibration', str(REPO / 'config' / 'NAVC4058.yaml')]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].startswith('| run | calibration | mean bias (deg/h)')
+    assert [row.split('|')[2].strip() for row in table[2:]] == ['art', 'extended']
+    assert main(['replay', str(log), '--calibration', str(REPO / 'config' / 'NAVC4058.yaml'),
+                 '--start-s', '300']) == 1
+    assert 'turning' in capsys.readouterr().err

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
-from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalFilters, SignalTracker, compute_signals
+from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalFilters, Signals, SignalTracker, compute_signals
 from art_gyro_calibration.terms import Term
 
 
@@ -21,14 +21,28 @@ def test_tracker_agrees_with_batch(jitter: float) -> None:
     t = np.arange(20000) * 0.1 + rng.uniform(0, jitter, 20000)
     rate, temp = _run(t)
     signals = compute_signals(t, rate, temp, filters=SignalFilters(60.0, 0.3))
-    tracker = SignalTracker(SignalFilters(60.0, 0.3))
-    got = {name: [] for name in DERIVED_SIGNALS}
+    lag = Term('temperature_lag', 'power', (1.0,), (1,), 300.0)
+    tracker = SignalTracker(SignalFilters(60.0, 0.3), lags=(300.0,), powered_on_at_start=True)
+    tracked = [name for name in DERIVED_SIGNALS if name not in ('angle', 'temperature_lag')]   # not per sample
+    got: dict[str, list[float]] = {name: [] for name in tracked + ['temperature_lag']}
     for k in range(len(t)):
         tracker.update(t[k], rate[k], temp[k])
-        for name in DERIVED_SIGNALS:
+        for name in tracked:
             got[name].append(tracker.value(name))
-    for name in DERIVED_SIGNALS:
+        got['temperature_lag'].append(tracker.for_term(lag))
+    for name in tracked:
         np.testing.assert_allclose(got[name], signals.get(name), rtol=1e-9, atol=1e-9, err_msg=name)
+    np.testing.assert_allclose(got['temperature_lag'], signals.for_term(lag), rtol=1e-9, atol=1e-9)
+
+
+def test_a_warm_gyro_has_no_time_since_power_on() -> None:
+    """Unless the run started at power-on, the warm-up's clock is infinite: the warm-up has decayed."""
+    t = np.arange(100) * 0.1
+    tracker = SignalTracker()
+    tracker.update(0.0, 0.0, 20.0)
+    assert tracker.value('time_since_power_on') == np.inf
+    assert np.all(np.isinf(compute_signals(t, t, t, powered_on_at_start=False).time_since_power_on))
+    np.testing.assert_array_equal(compute_signals(t, t, t).time_since_power_on, t)
 
 
 def test_temperature_rate_of_a_ramp() -> None:
@@ -67,10 +81,13 @@ def test_error_model_per_sample_equals_batch() -> None:
     t = np.arange(3000) * 0.1
     rate, temp = _run(t)
     model = ErrorModel(ArtPolynomial([[1e-6, 2e-4], [3e-3, -0.01]]),
-                       (Term('temperature_rate', 'power', (4.0,), (1,)), Term('time', 'exp_decay', (0.03,), (), 120.0),
-                        Term('angle', 'harmonic', (0.002, 0.001)), Term('rate_sign', 'power', (0.001,), (1,))))
+                       (Term('temperature_rate', 'power', (4.0, 0.01), (1,), rate_powers=(0, 1)),
+                        Term('time_since_power_on', 'exp_decay', (0.03,), (), 120.0),
+                        Term('temperature_lag', 'power', (1e-3, 2e-5, 1e-6, 3e-8), (1, 2), 300.0, (0, 1)),
+                        Term('time', 'power', (1e-5,), (1,)), Term('rate_sign', 'power', (0.001,), (1,))),
+                       temperature_range_c=(12.0, 20.5))
     batch = model.error(compute_signals(t, rate, temp))
-    tracker = SignalTracker()
+    tracker = SignalTracker(lags=model.lags, powered_on_at_start=True)
     one = []
     for k in range(len(t)):
         tracker.update(t[k], rate[k], temp[k])
@@ -102,19 +119,24 @@ def test_chunked_equals_whole_log(seed: int) -> None:
     cuts = np.unique(np.concatenate(([0, 1, 2, n // 3, n // 3 + 1, n], rng.integers(0, n, 40))))
     state = None
     parts = {name: [] for name in DERIVED_SIGNALS + ('supply_v',)}
+    lag = Term('temperature_lag', 'power', (1.0,), (1,), 200.0)
+
+    def value(signals: Signals, name: str) -> np.ndarray:
+        return signals.for_term(lag) if name == lag.signal else signals.get(name)
+
     for start, stop in zip(cuts[:-1], cuts[1:]):
         chunk = compute_signals(t[start:stop], rate[start:stop], temp[start:stop],
                                 {'supply_v': supply[start:stop]}, filters, state)
         for name in parts:
-            parts[name].append(chunk.get(name))
+            parts[name].append(value(chunk, name))
         state = chunk.end_state()
     chunk = compute_signals(t[n:], rate[n:], temp[n:], {'supply_v': supply[n:]}, filters, state)
     assert len(chunk) == 0 and chunk.end_state() == state   # an empty chunk carries the state through
     for name in parts:
         # The filters' closed form rounds to a few ulps of (x - level) * tau / dt wherever it restarts
         # (2e-11 deg/s^2 of a rate change reaching 130 deg/s^2 here); the rest is the same arithmetic.
-        scale = max(1.0, np.max(np.abs(whole.get(name))))
-        np.testing.assert_allclose(np.concatenate(parts[name]), whole.get(name), rtol=0, atol=1e-12 * scale,
+        scale = max(1.0, np.max(np.abs(value(whole, name))))
+        np.testing.assert_allclose(np.concatenate(parts[name]), value(whole, name), rtol=0, atol=1e-12 * scale,
                                    err_msg=name)
     end = whole.end_state()
     assert (end.t0, end.t, end.rate, end.temperature, end.angle) == \
@@ -133,7 +155,6 @@ def test_end_state_continues_the_tracker() -> None:
         tracker.update(t[k], rate[k], temp[k])
     assert (state.t0, state.t, state.rate, state.temperature) == \
         (tracker.t0, tracker.t, tracker.rate, tracker.temperature)
-    assert state.angle == pytest.approx(tracker.angle, rel=1e-12)
     assert state.temperature_level == pytest.approx(tracker._temperature_rate.smooth, rel=1e-12)
     assert state.rate_level == pytest.approx(tracker._rate_change.smooth, rel=1e-12)
     with pytest.raises(ValueError, match='no samples'):

@@ -1,13 +1,16 @@
 """Simulated rate-table runs: the profile, the truth side file, the switchable effects."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.log import read_log
-from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run, truth_path, write_run
+from art_gyro_calibration.analysis.simulate import (COIL_LAG_TAU_S, EFFECTS, WIDER_EFFECTS, SimulationSettings, lagged,
+                                                    same_gyro, simulate_run, truth_path, warm_restart, write_run)
+from art_gyro_calibration.signals import compute_signals
 
 
 @pytest.fixture(scope='module')
@@ -60,3 +63,92 @@ def test_effects_change_the_reading_and_are_recorded_only_in_the_truth(calibrati
 def test_unknown_effect_is_refused():
     with pytest.raises(ValueError, match='unknown effect'):
         SimulationSettings(effects=('magnetism',))
+
+
+def _difference_dps(calibration, settings, **changes):
+    """Reading with ``changes`` less the reading without, same seed (deg/s, within one count)."""
+    base = simulate_run(calibration, settings)
+    run = simulate_run(calibration, replace(settings, **changes))
+    return run, (run.columns['raw_rate'] - base.columns['raw_rate']) * calibration.rate_scale_factor
+
+
+def _size(difference, basis):
+    """Least-squares size of ``basis`` in ``difference``."""
+    return float(basis @ difference / (basis @ basis))
+
+
+@pytest.mark.parametrize('effect', sorted(WIDER_EFFECTS))
+def test_each_wider_effect_is_recovered_from_its_truth(calibration, effect):
+    settings = SimulationSettings(hours=6.0, rate_hz=1.0, seed=2)
+    run, diff = _difference_dps(calibration, settings, effects=(effect,))
+    truth = run.truth['effects'][effect]
+    c = run.columns
+    signals = compute_signals(c['t'], c['ref_rate'], c['raw_temp'] * calibration.temp_scale_factor)
+    low, high = calibration.temperature_range_c
+    u = (signals.temperature - 0.5 * (low + high)) / (0.5 * (high - low))
+    poly = calibration.polynomial
+    basis = {
+        'coil_lag': poly.error(c['ref_rate'], lagged(signals.t, signals.temperature, COIL_LAG_TAU_S))
+        - poly.error(c['ref_rate'], signals.temperature),
+        'rate_t3': signals.rate * u ** 3,
+        'rate_temperature_rate': signals.rate * signals.temperature_rate,
+        'drift': signals.time,
+    }[effect]
+    want = truth['fraction'] if effect == 'coil_lag' else truth['coefficients'][0]
+    assert want == WIDER_EFFECTS[effect]
+    assert _size(diff, basis) == pytest.approx(want, rel=0.05)
+    # The effect matters: well above a count over the run.
+    assert np.sqrt(np.mean((want * basis) ** 2)) > 0.002
+
+
+def test_effect_sizes_scale_a_wider_effect(calibration):
+    settings = SimulationSettings(hours=2.0, rate_hz=1.0, seed=2, effects=('rate_t3',))
+    full = simulate_run(calibration, settings)
+    quarter, diff = _difference_dps(calibration, settings, effect_sizes={'rate_t3': 0.25 * WIDER_EFFECTS['rate_t3']})
+    _, whole = _difference_dps(calibration, replace(settings, effects=()), effects=('rate_t3',))
+    assert full.truth['effects']['rate_t3']['coefficients'] == [WIDER_EFFECTS['rate_t3']]
+    assert quarter.truth['effects']['rate_t3']['coefficients'] == [0.25 * WIDER_EFFECTS['rate_t3']]
+    assert _size(diff, whole) == pytest.approx(-0.75, abs=0.03)  # a quarter of it is left
+
+
+def test_bias_wander_and_rate_random_walk(calibration):
+    settings = SimulationSettings(hours=24.0, rate_hz=0.5, seed=9)
+    # Large beside the counts' quantisation (0.003 deg/s), short beside the run: its stationary spread.
+    _, wander = _difference_dps(calibration, settings, wander_dps=0.02, wander_tau_s=120.0)
+    assert np.std(wander) == pytest.approx(0.02, rel=0.1)
+    _, walk = _difference_dps(calibration, settings, rate_random_walk_dph_rthr=30.0)
+    # A random walk of 30 deg/h/sqrt(h) spreads by 30 * sqrt(hours) deg/h: the increments over an hour.
+    rows = int(3600 * settings.rate_hz)
+    steps = (walk[rows:] - walk[:-rows])[::rows] * 3600.0
+    assert np.std(steps) == pytest.approx(30.0, rel=0.35)
+    # Off by default, and then the run is the same as before they existed.
+    assert SimulationSettings().wander_dps == 0.0 and SimulationSettings().rate_random_walk_dph_rthr == 0.0
+
+
+def test_a_second_run_of_the_same_gyro(calibration):
+    settings = SimulationSettings(hours=1.0, rate_hz=1.0, seed=3, effects=('shupe',))
+    first, second = simulate_run(calibration, settings), simulate_run(calibration, same_gyro(settings, 4))
+    assert first.truth['effects'] == second.truth['effects']
+    assert first.truth['polynomial'] == second.truth['polynomial']
+    assert first.truth['turn_on_bias_dps'] != second.truth['turn_on_bias_dps']
+
+
+def test_a_warm_restart_is_a_slice_of_a_long_run_at_another_heading(calibration):
+    settings = SimulationSettings(hours=1.0, rate_hz=2.0, seed=6, effects=('warmup',))
+    warm = warm_restart(calibration, settings, 3 * 3600.0, heading_deg=90.0)
+    c = warm.columns
+    assert len(c['t']) == 2 * 3600
+    assert 3 * 3600.0 <= warm.truth['start_s'] == c['t'][0] < 3 * 3600.0 + 600.0
+    assert warm.truth['powered_on_at_start'] is False
+    # The table rests for the static bias, after turning by 90 degrees from its whole turns.
+    assert np.all(c['ref_rate'][:int(settings.initial_rest_s * settings.rate_hz)] == 0.0)
+    assert warm.truth['heading_at_start_deg'] == 90.0
+    # The same gyro as the long run it is cut from: its first samples are the long run's.
+    long = simulate_run(calibration, replace(settings, hours=warm.truth['settings']['hours'],
+                                             restarts_s=(3 * 3600.0,), restart_turn_deg=90.0))
+    row = int(np.searchsorted(long.columns['t'], c['t'][0]))
+    np.testing.assert_array_equal(long.columns['raw_rate'][row:row + 100], c['raw_rate'][:100])
+    turn = long.columns['ref_rate'][row - 40:row]
+    assert np.sum(turn) / settings.rate_hz == pytest.approx(90.0, abs=10.0 / settings.rate_hz)
+    # Warm: the warm-up decayed hours ago.
+    assert warm.truth['effects']['warmup']['time_constant_s'] * 5 < c['t'][0]

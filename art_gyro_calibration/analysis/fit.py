@@ -35,20 +35,22 @@ class TermSpec:
     form: str
     powers: tuple[int, ...] = ()
     time_constant_s: float = 0.0
+    rate_powers: tuple[int, ...] = (0,)
 
     @property
     def width(self) -> int:
         """Number of coefficients."""
-        return Term.width(self.form, self.powers)
+        return Term.width(self.form, self.powers, self.rate_powers)
 
     def basis(self, signals: Signals) -> NDArray[np.float64]:
         """Unscaled basis columns over every sample of ``signals``."""
-        return term_basis(self.form, signals.get(self.signal), self.powers, self.time_constant_s)
+        return term_basis(self.form, signals.for_term(self), self.powers, self.time_constant_s, self.rate_powers,
+                          signals.rate)
 
     def term(self, coefficients: Sequence[float]) -> Term:
         """The term with fitted ``coefficients``."""
         return Term(self.signal, self.form, tuple(float(c) for c in coefficients), self.powers,
-                    self.time_constant_s)
+                    self.time_constant_s, self.rate_powers)
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,16 @@ quantisation. Switchable effects the ART model lacks:
 - ``supply_voltage``: ``k * (supply_v - 24 V)``, on an extra log column ``supply_v`` that is written
   whether or not the effect is on (the tracer must find it without being told).
 
+and effects outside those forms (:data:`WIDER_EFFECTS`), which a loop must find by a wider search
+or by its lack-of-fit alarm: a coil whose temperature lags the sensor's, a scale factor in the
+cube of temperature, a scale factor in the temperature rate, and a linear drift.
+
+Slow noise beyond the 300 s bias instability is off by default (``wander_dps``: a Gauss-Markov
+bias wander of correlation time ``wander_tau_s``, 1 h; ``rate_random_walk_dph_rthr``). A second run
+of the same gyro is the same settings with another seed (:func:`same_gyro`: new noise, turn-on bias
+and table order, the same errors); :func:`warm_restart` is a node restart on a gyro powered on
+hours before, at whatever heading the table has reached.
+
 The log holds what a lab would record (raw counts, table rate, supply voltage); the truth
 goes to a side file and never into the fit.
 """
@@ -21,7 +31,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +42,7 @@ from scipy.signal import lfilter
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.log import GyroLog, write_columns
 from art_gyro_calibration.model import measured_from_true
-from art_gyro_calibration.signals import SignalFilters, compute_signals
+from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals, first_order_smooth
 
 EARTH_RATE_DPS = 15.041 / 3600.0  # sidereal rate, deg/s
 ANN_ARBOR_LATITUDE_DEG = 42.3
@@ -45,10 +55,26 @@ EFFECTS: dict[str, tuple[str, str, float, float, float]] = {
     # 0.24 deg/s per degC/s: 0.004 deg/s (14 deg/h) while the chamber ramps at 1 degC/min.
     'shupe': ('temperature_rate', 'power', 0.24, 0.0, 0.0),
     # 0.02 deg/s decaying over 20 minutes after power-on.
-    'warmup': ('time', 'exp_decay', 0.02, 1200.0, 0.0),
+    'warmup': ('time_since_power_on', 'exp_decay', 0.02, 1200.0, 0.0),
     # 0.008 deg/s per volt away from the nominal 24 V, on a supply wandering by about +-0.5 V.
     'supply_voltage': ('supply_v', 'power', 0.008, 0.0, SUPPLY_NOMINAL_V),
 }
+COIL_LAG_TAU_S = 600.0
+RESTART_TURN_DPS = 10.0
+# Effects no single-signal term of the first loop can express: name -> default size.
+WIDER_EFFECTS: dict[str, float] = {
+    # Fraction of the polynomial's temperature dependence that follows a coil lagging the sensor by
+    # COIL_LAG_TAU_S (first order): the polynomial is evaluated at T + size * (T_coil - T).
+    'coil_lag': 1.0,
+    # size * rate * u**3, u = temperature scaled to [-1, 1] over the calibrated range: 200 ppm of
+    # the rate at the range's ends, 0.02 deg/s at full scale; beyond a 3-row polynomial.
+    'rate_t3': 2e-4,
+    # size * rate * dT/dt (filtered as the tracker does): 0.013 deg/s at 100 deg/s on a 1 degC/min ramp.
+    'rate_temperature_rate': 0.008,
+    # size * seconds since power-on: 1.8 deg/h more every hour.
+    'drift': 5e-7,
+}
+ALL_EFFECTS = (*EFFECTS, *WIDER_EFFECTS)
 
 
 @dataclass(frozen=True)
@@ -72,11 +98,20 @@ class SimulationSettings:
     rest_s: float = 10.0
     min_step_s: float = 30.0
     effect_sizes: dict[str, float] = field(default_factory=dict)
+    # Slow bias wander (first-order Gauss-Markov, stationary std in deg/s) and rate random walk.
+    wander_dps: float = 0.0
+    wander_tau_s: float = 3600.0
+    rate_random_walk_dph_rthr: float = 0.0
+    # Times (s since power-on) after which the table, at its next step, turns by restart_turn_deg at
+    # RESTART_TURN_DPS and rests for initial_rest_s: a node restarted there, on a warm gyro at
+    # another heading, takes its static bias.
+    restarts_s: tuple[float, ...] = ()
+    restart_turn_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        unknown = [e for e in self.effects if e not in EFFECTS]
+        unknown = [e for e in self.effects if e not in ALL_EFFECTS]
         if unknown:
-            raise ValueError(f'unknown effect(s) {unknown}; choose from {", ".join(EFFECTS)}')
+            raise ValueError(f'unknown effect(s) {unknown}; choose from {", ".join(ALL_EFFECTS)}')
         if not (self.hours > 0 and self.rate_hz > 0):
             raise ValueError(f'hours and rate_hz must be positive, got {self.hours}, {self.rate_hz}')
 
@@ -101,9 +136,17 @@ def table_profile(t: NDArray[np.float64], settings: SimulationSettings,
     starts, rates = [0.0], [0.0]
     clock = settings.initial_rest_s
     end = float(t[-1]) if len(t) else 0.0
+    restarts = sorted(settings.restarts_s)
     while clock <= end:
         cycle = np.concatenate([TABLE_RATES_DPS, -np.asarray(TABLE_RATES_DPS)])
         for rate in rng.permutation(cycle):
+            while restarts and clock >= restarts[0]:
+                restarts.pop(0)
+                if settings.restart_turn_deg:
+                    starts += [clock, clock + abs(settings.restart_turn_deg) / RESTART_TURN_DPS]
+                    rates += [math.copysign(RESTART_TURN_DPS, settings.restart_turn_deg), 0.0]
+                    clock = starts[-1]
+                clock += settings.initial_rest_s
             turns = math.ceil(settings.min_step_s * abs(rate) / 360.0)
             starts += [clock, clock + turns * 360.0 / abs(rate)]
             rates += [float(rate), 0.0]
@@ -148,14 +191,20 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
     effects: dict[str, Any] = {}
     effect_error = np.zeros(n)
     for name in settings.effects:
+        if name not in EFFECTS:
+            continue
         signal, form, size, tau, nominal = EFFECTS[name]
         size = settings.effect_sizes.get(name, size)
         x = signals.get(signal) - nominal
         effect_error += size * (np.exp(-x / tau) if form == 'exp_decay' else x)
         effects[name] = {'signal': signal, 'form': form, 'coefficients': [size],
                          **({'powers': [1]} if form == 'power' else {'time_constant_s': tau})}
-    true_input = table + earth + turn_on + instability + effect_error
-    measured = measured_from_true(calibration.polynomial, true_input, temp)
+    wider, polynomial_temp = _wider_effects(signals, settings, calibration.temperature_range_c)
+    for name, (error, entry) in wider.items():
+        effect_error += error
+        effects[name] = entry
+    true_input = table + earth + turn_on + instability + _slow_noise(n, settings) + effect_error
+    measured = measured_from_true(calibration.polynomial, true_input, polynomial_temp)
     noise_dps = settings.arw_deg_rthr / 60.0 * math.sqrt(settings.rate_hz)
     measured += rng.normal(0.0, noise_dps, n)
     columns = {
@@ -174,9 +223,117 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
         'white_noise_dps': noise_dps,
         'bias_instability_dps': settings.bias_instability_dps,
         'effects': effects,
+        # The node's view of the run's start: power-on, at the table's heading 0.
+        'start_s': 0.0,
+        'powered_on_at_start': True,
+        'heading_at_start_deg': 0.0,
         'settings': {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()},
     }
     return SimulatedRun(columns, truth)
+
+
+def effect_size(name: str, settings: SimulationSettings) -> float:
+    """Size of effect ``name`` in ``settings``: its ``effect_sizes`` entry, else the default."""
+    default = EFFECTS[name][2] if name in EFFECTS else WIDER_EFFECTS[name]
+    return settings.effect_sizes.get(name, default)
+
+
+def _wider_effects(signals: Signals, settings: SimulationSettings, temperature_range_c: tuple[float, float]
+                   ) -> tuple[dict[str, tuple[NDArray[np.float64], dict[str, Any]]], NDArray[np.float64]]:
+    """Errors (deg/s) and truth entries of the wider effects on, and the temperature the polynomial sees."""
+    low, high = temperature_range_c
+    u = (signals.temperature - 0.5 * (low + high)) / (0.5 * (high - low))
+    out: dict[str, tuple[NDArray[np.float64], dict[str, Any]]] = {}
+    polynomial_temp = signals.temperature
+    for name in settings.effects:
+        if name not in WIDER_EFFECTS:
+            continue
+        size = effect_size(name, settings)
+        error = np.zeros(len(signals))
+        if name == 'coil_lag':
+            coil = lagged(signals.t, signals.temperature, COIL_LAG_TAU_S)
+            polynomial_temp = signals.temperature + size * (coil - signals.temperature)
+            entry = {'signal': 'temperature', 'form': 'lagged_polynomial', 'fraction': size,
+                     'time_constant_s': COIL_LAG_TAU_S}
+        elif name == 'rate_t3':
+            error = size * signals.rate * u ** 3
+            entry = {'signal': 'rate * u**3', 'form': 'product', 'coefficients': [size],
+                     'temperature_range_c': [low, high]}
+        elif name == 'rate_temperature_rate':
+            error = size * signals.rate * signals.temperature_rate
+            entry = {'signal': 'rate * temperature_rate', 'form': 'product', 'coefficients': [size]}
+        else:  # drift
+            error = size * signals.time
+            entry = {'signal': 'time', 'form': 'power', 'powers': [1], 'coefficients': [size]}
+        out[name] = (error, entry)
+    return out, polynomial_temp
+
+
+def lagged(t: NDArray[np.float64], x: NDArray[np.float64], tau_s: float) -> NDArray[np.float64]:
+    """``x`` through a first-order lag of ``tau_s`` starting level with it (a coil at the sensor's temperature)."""
+    decay = -np.maximum(np.diff(t), 0.0) / tau_s
+    out = np.empty(len(x))
+    out[0] = x[0]
+    if len(x) > 1:
+        out[1:] = first_order_smooth(x, decay)
+    return out
+
+
+def _slow_noise(n: int, settings: SimulationSettings) -> NDArray[np.float64]:
+    """Bias wander (Gauss-Markov, stationary) plus rate random walk from 0 at power-on, deg/s.
+
+    Drawn from a stream of its own so that runs without them are what they always were.
+    """
+    out = np.zeros(n)
+    if settings.wander_dps <= 0.0 and settings.rate_random_walk_dph_rthr <= 0.0:
+        return out
+    rng = np.random.default_rng([settings.seed, 1])
+    dt = 1.0 / settings.rate_hz
+    if settings.wander_dps > 0.0:
+        phi = math.exp(-dt / settings.wander_tau_s)
+        drive = rng.normal(0.0, settings.wander_dps * math.sqrt(1.0 - phi * phi), n)
+        drive[0] = rng.normal(0.0, settings.wander_dps)
+        out += lfilter([1.0], [1.0, -phi], drive)
+    if settings.rate_random_walk_dph_rthr > 0.0:
+        # K deg/h/sqrt(h) = K / 3600 deg/s per sqrt(3600 s): steps of K / 3600 / 60 * sqrt(dt) deg/s.
+        step = settings.rate_random_walk_dph_rthr / 3600.0 / 60.0 * math.sqrt(dt)
+        out += np.cumsum(rng.normal(0.0, step, n))
+    return out
+
+
+def same_gyro(settings: SimulationSettings, seed: int) -> SimulationSettings:
+    """Another run of the same gyro: the same errors and effects, new noise, turn-on bias and table order."""
+    return replace(settings, seed=seed)
+
+
+def warm_restart(calibration: Calibration, settings: SimulationSettings, start_s: float,
+                 heading_deg: float = 137.0) -> SimulatedRun:
+    """A node started ``start_s`` after power-on, for ``settings.hours``: a slice of one longer run.
+
+    At its first step after ``start_s`` the table turns by ``heading_deg`` and rests for
+    ``initial_rest_s`` (where the node takes its static bias); the slice begins with that rest.
+    The gyro is warm, its slow effects are where power-on left them, the node's filters start
+    afresh, and the table stands at ``heading_deg`` (``heading_at_start_deg`` in the truth; the
+    samples of a step resolve it to ``rate / rate_hz``). Times stay counted from power-on.
+    """
+    # Room for the step running at start_s (up to a turn at 1 deg/s), the turn and the rest.
+    margin_s = 360.0 / min(TABLE_RATES_DPS) + settings.rest_s + abs(heading_deg) / RESTART_TURN_DPS \
+        + settings.initial_rest_s
+    long = replace(settings, hours=settings.hours + (start_s + margin_s) / 3600.0,
+                   restarts_s=(*settings.restarts_s, start_s), restart_turn_deg=heading_deg)
+    run = simulate_run(calibration, long)
+    t, ref = run.columns['t'], run.columns['ref_rate']
+    still = ref == 0.0
+    first = int(np.searchsorted(t, start_s))
+    # The lengthened rest: the first run of still rows from start_s on lasting initial_rest_s.
+    change = np.flatnonzero(np.diff(still[first:].astype(np.int8))) + first + 1
+    bounds = np.concatenate([[first], change, [len(t)]])
+    begin = next(int(a) for a, b in zip(bounds[:-1], bounds[1:])
+                 if still[a] and t[b - 1] - t[a] >= settings.initial_rest_s - 1.5 / settings.rate_hz)
+    stop = begin + int(round(settings.hours * 3600.0 * settings.rate_hz))
+    truth = {**run.truth, 'start_s': float(t[begin]), 'powered_on_at_start': False,
+             'heading_at_start_deg': heading_deg % 360.0}  # every other step is whole turns; settings: the long run's
+    return SimulatedRun({k: v[begin:stop] for k, v in run.columns.items()}, truth)
 
 
 def _supply_voltage(t: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.float64]:

@@ -15,7 +15,7 @@ from typing import IO
 import numpy as np
 
 from art_gyro_calibration.calibration import Calibration
-from art_gyro_calibration.compensation import apply_calibration, plausible
+from art_gyro_calibration.compensation import RunStart, apply_calibration, plausible
 from art_gyro_calibration.log import CHUNK_ROWS, CsvWriter, concatenate, read_log_chunks
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, StaticBias
 
@@ -29,11 +29,12 @@ class Streamed:
     rows: int       # rows of the log
     dropped: int    # rows dropped as the node drops their frames (implausible temperature)
     bias: StaticBias
+    clamped: int    # kept rows outside the calibrated temperature range
 
 
 def apply_to_csv(log_path: str | os.PathLike[str], calibration: Calibration, bias_samples: int, out: IO[bytes],
                  max_mean_dps: float = DEFAULT_MAX_MEAN_DPS, max_std_dps: float = DEFAULT_MAX_STD_DPS,
-                 chunk_rows: int = CHUNK_ROWS) -> Streamed:
+                 chunk_rows: int = CHUNK_ROWS, start: RunStart = RunStart()) -> Streamed:
     """Static bias over the first ``bias_samples`` kept rows of the log, then every kept row written to ``out``."""
     chunks = read_log_chunks(log_path, calibration.rate_scale_factor, calibration.temp_scale_factor, chunk_rows)
     # The static bias needs its rows in one piece: gather chunks until they hold enough kept rows.
@@ -47,10 +48,11 @@ def apply_to_csv(log_path: str | os.PathLike[str], calibration: Calibration, bia
     rows = dropped = 0
     applied = None   # an empty log is refused by the reader: the loop runs at least once
     for chunk in itertools.chain([concatenate(head)], chunks):
-        applied = apply_calibration(chunk, calibration, bias_samples, max_mean_dps, max_std_dps, after=applied)
+        applied = apply_calibration(chunk, calibration, bias_samples, max_mean_dps, max_std_dps, after=applied,
+                                    start=start)
         kept_log = chunk if applied.kept.all() else chunk.slice(applied.kept)
         writer.write({'t': kept_log.t, 'rate_dps': kept_log.rate_dps, 'temp_c': kept_log.temp_c,
                       'comp_dps': applied.comp_dps, 'corrected_dps': applied.corrected_dps})
         rows += len(chunk)
         dropped += len(chunk) - len(kept_log)
-    return Streamed(rows, dropped, applied.bias)
+    return Streamed(rows, dropped, applied.bias, applied.clamped)

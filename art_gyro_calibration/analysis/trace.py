@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.analysis.fit import Design, TermSpec, centred, fit_model, solve_normal
 from art_gyro_calibration.analysis.metrics import Segments, noise_floor
-from art_gyro_calibration.signals import DERIVED_SIGNALS, Signals
+from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, Signals
 
 DEFAULT_FOLDS = 6
 # Fewer folds than this leave too little to fit on; a short log gets this many, not shorter blocks.
@@ -53,40 +53,81 @@ DEFAULT_BLOCK_S = 900.0
 DEG_PER_H_PER_DPS = 3600.0
 # A log column whose fitted effect a derived signal's explains to this R^2 stands for that signal.
 STANDS_FOR_CORRELATION = 0.9
+# A richer form goes after a simpler significant one that explains this share of its effect (R^2).
+SIMPLER_FIRST = 0.5
 TIME_CONSTANT_GRID_SIZE = 8
 MAX_TIME_CONSTANT_RUNS = 4.0
 MIN_TIME_CONSTANT_S = 30.0
+# Golden-section steps refining a time constant between grid neighbours: 0.618**12 of the bracket.
+GOLDEN_STEPS = 12
 
 
-def candidate_specs(signals: Signals, rows: int, columns: int,
-                    exclude: Sequence[str] = ()) -> dict[str, list[TermSpec]]:
-    """Per candidate signal, the term shapes to try (several only for a warm-up's time constant).
+# The physical forms the screen tries, by candidate name (one family of shapes each). A name is
+# what the report calls the effect; the spec's signal is what the term is evaluated on.
+FORMS_TRIED = {
+    'temperature': 'the polynomial\'s next temperature row, T**rows x rate**0..columns-1 (bias and scale factor)',
+    'rate': 'the polynomial\'s next rate column, rate**columns (scale-factor non-linearity)',
+    'rate_x_temperature': 'the next rate column\'s temperature terms, T**1..rows-1 x rate**columns',
+    'temperature_rate': 'c dT/dt, the Shupe effect of a temperature gradient across the coil',
+    'rate_x_temperature_rate': 'c rate dT/dt, a scale factor that follows the temperature gradient',
+    'temperature_lag': 'the polynomial\'s temperature terms on a coil temperature lagging the sensor, '
+                       'T_lag**1..rows-1 x rate**0..columns-1, lag from 1 minute to 2 hours',
+    'time': 'c t, a linear drift (IEEE 952 ramp) from the run\'s start',
+    'time_since_power_on': 'c exp(-t/tau), a warm-up from power-on, tau from 30 s to four runs',
+    'rate_abs': 'c |rate|, scale-factor asymmetry',
+    'rate_sign': 'c sign(rate), a bias that depends on the turning direction (dead band, lock-in)',
+    'rate_change': 'c d(rate)/dt, angular-acceleration sensitivity',
+    'angle': 'c0 sin(heading) + c1 cos(heading), a once-per-turn (magnetic, tilt) coupling: reported, not '
+             'written (the node has no absolute heading)',
+    'extra columns': 'c x for every further numeric column of the log (a supply voltage, ...)',
+}
+LAG_GRID_S = (60.0, 3600.0 * 2)
 
-    temperature: the next power ``T**rows``; rate: the next power ``r**columns``;
-    time: a linear drift ``t``, or ``exp(-t/tau)`` over a log grid of tau from 30 s to four runs;
-    angle: once-per-turn harmonic;
-    everything else (temperature_rate, rate_abs, rate_sign, rate_change, extra columns): linear.
+
+def candidate_specs(signals: Signals, rows: int, columns: int, exclude: Sequence[str] = (),
+                    still: bool = False) -> dict[str, list[TermSpec]]:
+    """Per candidate (by name, :data:`FORMS_TRIED`), the term shapes to try: several for a time constant.
+
+    The polynomial's next orders are cross terms with the rate as the report's matrix has
+    them (not on a ``still`` log, whose rate is only its error); a warm-up is tried only on a
+    log that starts at power-on.
     """
     duration = float(signals.t[-1] - signals.t[0]) if len(signals) else 0.0
-    out: dict[str, list[TermSpec]] = {}
-    for name in signals.names():
-        if name in exclude:
-            continue
-        if name == 'temperature':
-            out[name] = [TermSpec(name, 'power', (rows,))]
-        elif name == 'rate':
-            out[name] = [TermSpec(name, 'power', (columns,))]
-        elif name == 'time':
-            # A linear drift, or a warm-up decaying from 30 s to several times the run (a long one
-            # is a slow drift that levels off); each fold picks the shape its training blocks prefer.
-            taus = np.geomspace(MIN_TIME_CONSTANT_S, max(MAX_TIME_CONSTANT_RUNS * duration, 2 * MIN_TIME_CONSTANT_S),
-                                TIME_CONSTANT_GRID_SIZE)
-            out[name] = [TermSpec(name, 'power', (1,))] + [TermSpec(name, 'exp_decay', (), float(tau)) for tau in taus]
-        elif name == 'angle':
-            out[name] = [TermSpec(name, 'harmonic')]
-        else:
-            out[name] = [TermSpec(name, 'power', (1,))]
-    return out
+    taus = np.geomspace(MIN_TIME_CONSTANT_S, max(MAX_TIME_CONSTANT_RUNS * duration, 2 * MIN_TIME_CONSTANT_S),
+                        TIME_CONSTANT_GRID_SIZE)
+    lags = np.geomspace(*LAG_GRID_S, TIME_CONSTANT_GRID_SIZE)
+    temperature_powers = tuple(range(1, rows))
+    rate_powers = (0,) if still else tuple(range(columns))
+    out: dict[str, list[TermSpec]] = {
+        'temperature': [TermSpec('temperature', 'power', (rows,), rate_powers=rate_powers)],
+        'rate': [TermSpec('rate', 'power', (columns,))],
+        'rate_x_temperature': [TermSpec('temperature', 'power', temperature_powers, rate_powers=(columns,))],
+        'temperature_rate': [TermSpec('temperature_rate', 'power', (1,))],
+        'rate_x_temperature_rate': [TermSpec('temperature_rate', 'power', (1,), rate_powers=(1,))],
+        'temperature_lag': [TermSpec(LAGGED_SIGNAL, 'power', temperature_powers, float(tau), rate_powers)
+                            for tau in lags],
+        'time': [TermSpec('time', 'power', (1,))],
+        'time_since_power_on': [TermSpec('time_since_power_on', 'exp_decay', (), float(tau)) for tau in taus],
+        'rate_abs': [TermSpec('rate_abs', 'power', (1,))],
+        'rate_sign': [TermSpec('rate_sign', 'power', (1,))],
+        'rate_change': [TermSpec('rate_change', 'power', (1,))],
+        'angle': [TermSpec('angle', 'harmonic')],
+    }
+    if rows < 2:
+        del out['rate_x_temperature'], out['temperature_lag']   # no temperature terms to lag
+    if not signals.powered_on_at_start:
+        del out['time_since_power_on']
+    out.update({name: [TermSpec(name, 'power', (1,))] for name in signals.extras})
+    return {name: specs for name, specs in out.items() if name not in exclude}
+
+
+def joined(have: TermSpec, new: TermSpec) -> TermSpec | None:
+    """One power term on a signal with both terms' columns, if they share their powers or their rate powers."""
+    if not (have.form == new.form == 'power' and have.time_constant_s == new.time_constant_s
+            and (have.powers == new.powers or have.rate_powers == new.rate_powers)):
+        return None
+    return replace(have, powers=tuple(sorted(set(have.powers) | set(new.powers))),
+                   rate_powers=tuple(sorted(set(have.rate_powers) | set(new.rate_powers))))
 
 
 def _bins(segments: Segments, t: NDArray[np.float64], bin_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -160,6 +201,9 @@ class Binned:
         self.block_s = min(block_s, duration / (2 * n_folds))
         fold = np.floor((t_bin - t_bin[0]) / self.block_s).astype(np.int64) % n_folds
         self.folds = [np.flatnonzero(fold == k) for k in range(n_folds)]
+        # The bins in fold order, and where each fold ends: per-fold sums then run on slices, not copies.
+        self.order = np.concatenate(self.folds)
+        self.bounds = np.cumsum([0] + [len(k) for k in self.folds])
 
     def _bin(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
         """Bin sums of steady-row ``values`` divided by sqrt(count): a mean weighted to unit noise."""
@@ -179,9 +223,15 @@ class Binned:
         """Time (s) of each bin's first row."""
         return self._t_bin
 
-    def fold_sums(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Per fold ``a_k' b_k`` over the bins of fold k, shape (K, a columns, b columns)."""
-        return np.stack([a[k].T @ b[k] for k in self.folds])
+    def fold_sums(self, a: NDArray[np.float64], b: NDArray[np.float64], ordered: bool = False) -> NDArray[np.float64]:
+        """Per fold ``a_k' b_k`` over the bins of fold k, shape (K, a columns, b columns).
+
+        ``ordered``: ``a`` and ``b`` are already in fold order (``x[binned.order]``).
+        """
+        if not ordered:
+            a, b = a[self.order], b[self.order]
+        edges = self.bounds
+        return np.stack([a[i:j].T @ b[i:j] for i, j in zip(edges[:-1], edges[1:])])
 
 
 class Screen:
@@ -197,6 +247,8 @@ class Screen:
         self.e = binned.base[:, -1]
         self.width = self.x.shape[1]
         self.gram = binned.fold_sums(self.x, self.x)
+        self._xe = self.x.T @ self.e
+        self._ee = float(self.e @ self.e)
         self._base_sse: float | None = None
 
     def weighted(self, spec: TermSpec) -> NDArray[np.float64]:
@@ -218,19 +270,29 @@ class Screen:
     def fit_with(self, spec: TermSpec) -> tuple[float, NDArray[np.float64]]:
         """SSE over all bins of the base plus ``spec``, and the candidate's coefficients (scaled basis)."""
         c = self.weighted(spec)
-        design = np.column_stack([self.x, c])
-        beta = solve_normal(design.T @ design, design.T @ self.e)
-        r = self.e - design @ beta
-        return float(r @ r), beta[self.width:]
+        cx = c.T @ self.x
+        gram = np.block([[self.gram.sum(axis=0), cx.T], [cx, c.T @ c]])
+        rhs = np.concatenate([self._xe, c.T @ self.e])
+        beta = solve_normal(gram, rhs)
+        return float(self._ee - beta @ rhs), beta[self.width:]
 
     def training_sse(self, spec: TermSpec) -> float:
         """SSE of the base model plus ``spec`` fitted to all folds (for choosing a time constant)."""
         return self.fit_with(spec)[0]
 
+    def beyond_base(self, means: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Bin means of candidate columns less what the base model's columns can give of them."""
+        x = self.x / self.sqrt_counts[:, None]
+        return means - x @ solve_normal(x.T @ x, x.T @ means)
+
     def effect_dph(self, spec: TermSpec) -> float:
-        """Worst-case size of the fitted candidate over the logged envelope: half its range of bin means, deg/h."""
+        """Worst-case size of the fitted candidate over the logged envelope, deg/h.
+
+        Half the range of what it adds beyond the base model (its part the polynomial could
+        absorb is no effect), over the bin means.
+        """
         _, beta = self.fit_with(spec)
-        contribution = self.binned.candidate_means([spec])[:, 0, :] @ beta
+        contribution = self.beyond_base(self.binned.candidate_means([spec])[:, 0, :]) @ beta
         return float(0.5 * np.ptp(contribution) * DEG_PER_H_PER_DPS)
 
     def held_out_improvements(self, families: dict[str, Sequence[TermSpec]],
@@ -240,9 +302,16 @@ class Screen:
         Each fold picks the family's variant (a time constant) that fits its training blocks
         best, for each target apart, so the choice itself is held out.
         """
-        fold_sums = self.binned.fold_sums
-        cross_x = fold_sums(self.x, targets)
-        yy = np.stack([np.einsum('nt,nt->t', targets[k], targets[k]) for k in self.binned.folds])
+        order = self.binned.order
+
+        def fold_sums(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+            return self.binned.fold_sums(a, b, ordered=True)
+
+        targets = targets[order]
+        x = self.x[order]
+        cross_x = fold_sums(x, targets)
+        edges = self.binned.bounds
+        yy = np.stack([np.einsum('nt,nt->t', targets[i:j], targets[i:j]) for i, j in zip(edges[:-1], edges[1:])])
         base_held, _ = _cv_sse(self.gram, cross_x, yy)
         p = self.width
         out = {}
@@ -250,11 +319,11 @@ class Screen:
             held = []
             trained = []
             for spec in variants:
-                c = self.weighted(spec)
+                c = self.weighted(spec)[order]
                 w = c.shape[1]
                 gram = np.empty((len(self.binned.folds), p + w, p + w))
                 gram[:, :p, :p] = self.gram
-                gram[:, p:, :p] = fold_sums(c, self.x)
+                gram[:, p:, :p] = fold_sums(c, x)
                 gram[:, :p, p:] = np.swapaxes(gram[:, p:, :p], 1, 2)
                 gram[:, p:, p:] = fold_sums(c, c)
                 h, tr = _cv_sse(gram, np.concatenate([cross_x, fold_sums(c, targets)], axis=1), yy)
@@ -312,22 +381,27 @@ class TraceResult:
 
     @property
     def best(self) -> CandidateScore | None:
-        """The significant candidate that removes most error, or None: nothing found.
+        """The significant candidate to add next, or None: nothing found.
 
-        A log column the node cannot read loses to a derived signal it stands for.
+        The one least likely by chance; among those tied at that (the strongest effects all
+        beat every draw), the simplest, then the one that removes most. A candidate that a
+        simpler significant one stands for gives way to it.
         """
         found = [c for c in self.candidates if c.significant]
         if not found:
             return None
+        least = min(c.p_value for c in found)
+        pick = min((c for c in found if c.p_value <= least),
+                   key=lambda c: (_complexity(c.spec), -c.improvement_dps2))
         named = {c.signal: c for c in found}
-        return named.get(found[0].stands_for, found[0])
+        return named.get(pick.stands_for, pick)
 
 
 def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
                    specs: Sequence[TermSpec] = (), *, folds: int = DEFAULT_FOLDS, draws: int = DEFAULT_DRAWS,
                    alpha: float = DEFAULT_ALPHA, bin_s: float = DEFAULT_BIN_S, materiality_dph: float = 0.0,
                    seed: int = 0, noise_floor_dps: float | None = None,
-                   exclude: Sequence[str] = (), binned: Binned | None = None) -> TraceResult:
+                   exclude: Sequence[str] = (), binned: Binned | None = None, still: bool = False) -> TraceResult:
     """Screen every signal not yet modelled (nor in ``exclude``) against what the model (polynomial + ``specs``) leaves.
 
     ``error`` is ``rate_dps - ref_rate`` per log row; only the steady rows of ``segments``
@@ -347,7 +421,11 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
     screen = Screen(binned, specs)
     rng = np.random.default_rng(seed)
     floor_var = noise_floor_dps ** 2
-    families = candidate_specs(signals, rows, columns, [*exclude, *(s.signal for s in specs)])
+    families = candidate_specs(signals, rows, columns, exclude, still)
+    # One term per signal in a calibration file: a candidate on a signal the model has must join its term.
+    taken = {spec.signal: spec for spec in specs}
+    families = {name: v for name, v in families.items()
+                if v[0].signal not in taken or joined(taken[v[0].signal], v[0]) is not None}
     families = {name: v for name, v in families.items() if np.ptp(binned.candidate_means(v), axis=0).max() > 0.0}
     residual = screen.residual()
     scores = {name: [] for name in families}
@@ -380,29 +458,48 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
 
 
 def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[CandidateScore]:
-    """Mark a log column whose fitted effect is that of a derived signal (one the node computes itself)."""
-    derived = [c for c in candidates if c.signal in DERIVED_SIGNALS and c.significant]
+    """Mark a significant candidate that a simpler significant one should go before.
+
+    A log column gives way to a derived signal (one the node computes) that explains its
+    fitted effect (R^2 >= :data:`STANDS_FOR_CORRELATION` beyond the base); a richer form to a
+    simpler one (fewer columns, or no time constant) that explains at least
+    :data:`SIMPLER_FIRST` of it: a lagged temperature's terms contain the Shupe term, a long
+    decay looks like a drift. The simpler one is named (:attr:`TraceResult.best`), and the
+    next round asks what the richer form adds beyond it.
+    """
+    found = [c for c in candidates if c.significant]
     out = []
     for c in candidates:
-        if c.signal not in DERIVED_SIGNALS and derived:
+        if c.significant:
             mine = screen.binned.candidate_means([c.spec])[:, 0, :]
-            alike = [(_alike(screen, mine, screen.binned.candidate_means([d.spec])[:, 0, :]), d.signal)
-                     for d in derived]
-            likeness, name = max(alike)
-            if likeness >= STANDS_FOR_CORRELATION:
-                c = replace(c, stands_for=name)
+            alike = []
+            for d in found:
+                if c.spec.signal not in DERIVED_SIGNALS and d.spec.signal in DERIVED_SIGNALS:
+                    needed = STANDS_FOR_CORRELATION
+                elif d is not c and _complexity(d.spec) < _complexity(c.spec):
+                    needed = SIMPLER_FIRST
+                else:
+                    continue
+                likeness = _alike(screen, mine, screen.binned.candidate_means([d.spec])[:, 0, :])
+                if likeness >= needed:
+                    alike.append((likeness, d.signal))
+            if alike:
+                c = replace(c, stands_for=max(alike)[1])
         out.append(c)
     return out
 
 
+def _complexity(spec: TermSpec) -> float:
+    """Columns, and half a column more for a time constant: a drift beats a decay that looks like it.
+
+    (A term without a time constant is also the start-up-safe one: a linear drift needs no origin.)
+    """
+    return spec.width + (0.5 if spec.time_constant_s > 0.0 else 0.0)
+
+
 def _alike(screen: Screen, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
     """How much of ``a``'s columns ``b``'s span (R^2), both after removing what the base model spans."""
-    x = screen.x / screen.sqrt_counts[:, None]
-
-    def rest(m: NDArray[np.float64]) -> NDArray[np.float64]:
-        return m - x @ solve_normal(x.T @ x, x.T @ m)
-
-    ra, rb = rest(a), rest(b)
+    ra, rb = screen.beyond_base(a), screen.beyond_base(b)
     explained = rb @ solve_normal(rb.T @ rb, rb.T @ ra)
     total = float(np.sum(ra * ra))
     return float(np.sum(explained * explained)) / total if total > 0.0 else 0.0
@@ -420,26 +517,25 @@ def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[n
 
 
 def _best_variant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
-    """The best variant on all the data; a time constant is refined by golden-section search in log(tau)."""
+    """The best variant on all the data; its time constant, if it has one, refined by golden-section search."""
     sse = [screen.training_sse(v) for v in variants]
-    best = int(np.argmin(sse))
-    if variants[best].form != 'exp_decay':
-        return variants[best]
-    decays = [(s, v) for s, v in zip(sse, variants) if v.form == 'exp_decay']
-    sse = [s for s, _ in decays]
-    variants = [v for _, v in decays]
+    template = variants[int(np.argmin(sse))]
+    shape = replace(template, time_constant_s=0.0)
+    kin = [(e, v) for e, v in zip(sse, variants) if replace(v, time_constant_s=0.0) == shape]
+    if len(kin) < 2:
+        return template
+    sse = [e for e, _ in kin]
     i = int(np.argmin(sse))
-    taus = [v.time_constant_s for v in variants]
+    taus = [v.time_constant_s for _, v in kin]
     lo, hi = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, len(taus) - 1)])
-    template = variants[i]
 
     def cost(log_tau: float) -> float:
-        return screen.training_sse(TermSpec(template.signal, template.form, (), float(np.exp(log_tau))))
+        return screen.training_sse(replace(template, time_constant_s=float(np.exp(log_tau))))
 
     golden = (np.sqrt(5.0) - 1) / 2
     a, b = lo + (1 - golden) * (hi - lo), lo + golden * (hi - lo)
     fa, fb = cost(a), cost(b)
-    for _ in range(20):
+    for _ in range(GOLDEN_STEPS):
         if fa < fb:
             hi, b, fb = b, a, fa
             a = lo + (1 - golden) * (hi - lo)
@@ -451,4 +547,4 @@ def _best_variant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
     best = float(np.exp(a if fa < fb else b))
     if min(fa, fb) > sse[i]:
         best = taus[i]
-    return TermSpec(template.signal, template.form, (), best)
+    return replace(template, time_constant_s=best)

@@ -1,0 +1,141 @@
+"""Start-up safety of the extended terms, as the node and ``calibrate apply`` apply them (issue 8, item 1)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
+from art_gyro_calibration.compensation import Compensator, RunStart, apply_calibration
+from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.model import measured_from_true
+from art_gyro_calibration.signals import SignalFilters, compute_signals
+from art_gyro_calibration.terms import Term
+
+RATE_HZ = 10.0
+BIAS_SAMPLES = 100
+DPH = 3600.0
+
+
+def _calibration(*terms: Term, tau_s: float = 120.0) -> Calibration:
+    base = load_packaged_calibration('NAVC3545')
+    return dataclasses.replace(base, terms=terms, filters=SignalFilters(temperature_rate_tau_s=tau_s))
+
+
+def _still_run(hours: float, temp: np.ndarray | None = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(int(hours * 3600 * RATE_HZ)) / RATE_HZ
+    return t, np.full(len(t), 25.0) if temp is None else temp
+
+
+def _per_sample(calibration: Calibration, log: GyroLog, start: RunStart) -> np.ndarray:
+    """What the node publishes once its startup static bias is taken (from frame BIAS_SAMPLES - 1 on)."""
+    from art_gyro_calibration.static_bias import StaticBiasCollector
+    comp = Compensator(calibration, start)
+    collector = StaticBiasCollector(BIAS_SAMPLES, keep_window=comp.refinable)
+    out = []
+    for t, rate, temp in zip(log.t, log.rate_dps, log.temp_c):
+        error = comp.error(t, rate, temp)
+        if collector is not None and collector.add(rate, error, t, temp, comp.last_causal_dps):
+            comp.bias, collector = collector.result(), None
+        out.append(comp.correct(rate, error))
+    return np.array(out[BIAS_SAMPLES - 1:])
+
+
+def test_a_warm_restart_with_a_warm_up_term_is_no_worse_than_the_report_calibration() -> None:
+    """A node restarted on a warm gyro must not replay the warm-up into its static bias.
+
+    The gyro's true error is the polynomial plus a warm-up that decayed hours ago; the run starts
+    3 h after power-on. With the warm-up counted from the node's start (the old behaviour) the
+    static bias absorbed its full 0.02 deg/s amplitude: 72 deg/h for the whole mission.
+    """
+    warm_up = Term('time_since_power_on', 'exp_decay', (0.02,), (), 1200.0)
+    t, temp = _still_run(1.0)
+    true_rate = np.zeros(len(t))
+    art = _calibration()
+    measured = measured_from_true(art.polynomial, true_rate, temp)   # the warm-up is long gone
+    log = GyroLog(t, measured, temp)
+    for start in (RunStart(), RunStart(powered_on_at_start=False)):
+        report_only = apply_calibration(log, art, BIAS_SAMPLES, start=start).corrected_dps
+        extended = apply_calibration(log, _calibration(warm_up), BIAS_SAMPLES, start=start).corrected_dps
+        assert abs(extended.mean()) * DPH <= abs(report_only.mean()) * DPH + 0.01
+    # Anchoring the warm-up at the run's start is what a node restart did: now only on a declared cold start.
+    anchored = apply_calibration(log, _calibration(warm_up), BIAS_SAMPLES,
+                                 start=RunStart(powered_on_at_start=True)).corrected_dps
+    assert abs(anchored[-100:].mean()) * DPH > 50.0
+
+
+def test_a_cold_start_with_a_warm_up_term_removes_it() -> None:
+    """Told the gyro was powered on with the run, the warm-up is corrected from the first sample."""
+    warm_up = Term('time_since_power_on', 'exp_decay', (0.02,), (), 1200.0)
+    t, temp = _still_run(1.0)
+    art = _calibration()
+    measured = measured_from_true(art.polynomial, 0.02 * np.exp(-t / 1200.0), temp)
+    log = GyroLog(t, measured, temp)
+    cold = RunStart(powered_on_at_start=True)
+    extended = apply_calibration(log, _calibration(warm_up), BIAS_SAMPLES, start=cold).corrected_dps
+    report_only = apply_calibration(log, art, BIAS_SAMPLES, start=cold).corrected_dps
+    assert np.abs(extended).max() * DPH < 0.1
+    assert np.abs(report_only[-100:]).mean() * DPH > 60.0   # the static bias kept the warm-up's start
+    np.testing.assert_allclose(_per_sample(_calibration(warm_up), log, cold), extended[BIAS_SAMPLES - 1:],
+                               rtol=0, atol=1e-12)
+
+
+def _self_heating(hours: float = 1.0) -> tuple[GyroLog, float, np.ndarray]:
+    """A freshly powered gyro warming by 6 degC with a 10-minute time constant: dT/dt starts at 0.01 degC/s."""
+    t = np.arange(int(hours * 3600 * RATE_HZ)) / RATE_HZ
+    temp = 20.0 + 6.0 * (1.0 - np.exp(-t / 600.0))
+    true_rate_of_temp = 6.0 / 600.0 * np.exp(-t / 600.0)
+    shupe = 0.5   # deg/s per degC/s: 0.005 deg/s (18 deg/h) at power-on
+    art = _calibration()
+    measured = measured_from_true(art.polynomial, shupe * true_rate_of_temp, temp)
+    return GyroLog(t, measured, np.round(temp / 0.05) * 0.05), shupe, true_rate_of_temp
+
+
+def test_the_static_bias_is_refined_once_the_temperature_rate_is_known() -> None:
+    """The Shupe error of the bias window is not absorbed for the whole mission (issue 8: 20+ deg/h).
+
+    Over the first 10 s the causal filter reads about 0 degC/s while the gyro self-heats; the
+    static bias takes the window's Shupe error with it. Refined after 3 filter time constants,
+    the error is what the model leaves, as on a gyro whose filter had run for ever.
+    """
+    log, shupe, _ = _self_heating()
+    cal = _calibration(Term('temperature_rate', 'power', (shupe,), (1,)))
+    applied = apply_calibration(log, cal, BIAS_SAMPLES)
+    after = log.t > 3600 * 0.5
+    assert applied.bias.refined_dps == pytest.approx(0.005, rel=0.15)
+    # Without the refinement the whole mission carried the window's -0.005 deg/s (18 deg/h).
+    unrefined = dataclasses.replace(applied.bias, refined_dps=0.0,
+                                    calc_static_bias_drift_dps=applied.bias.calc_static_bias_drift_dps
+                                    - applied.bias.refined_dps)
+    before = unrefined.correct(log.rate_dps, applied.comp_dps)
+    assert abs(before[after].mean()) * DPH > 15.0
+    assert abs(applied.corrected_dps[after].mean()) * DPH < 3.0
+    # The node refines the same way, sample by sample, and so do chunks of the log.
+    np.testing.assert_allclose(_per_sample(cal, log, RunStart()), applied.corrected_dps[BIAS_SAMPLES - 1:],
+                               rtol=0, atol=1e-9)
+    chunks = None
+    parts = []
+    for a, b in ((0, 150), (150, 2000), (2000, 3700), (3700, len(log))):
+        chunks = apply_calibration(log.slice(slice(a, b)), cal, BIAS_SAMPLES, after=chunks)
+        parts.append(chunks.corrected_dps)
+    np.testing.assert_allclose(np.concatenate(parts), applied.corrected_dps, rtol=0, atol=1e-9)
+
+
+def test_temperatures_outside_the_calibrated_range_are_clamped_and_counted() -> None:
+    """Outside temperature_range_c the polynomial is evaluated at the range's edge, and the samples counted."""
+    cal = _calibration(Term('temperature_lag', 'power', (1e-3,), (1,), 60.0))
+    low, high = cal.temperature_range_c
+    t = np.arange(200) / RATE_HZ
+    temp = np.where(t < 10, 30.0, high + 15.0)
+    rate = np.full(len(t), 5.0)
+    comp = Compensator(cal)
+    errors = [comp.error(a, b, c) for a, b, c in zip(t, rate, temp)]
+    assert comp.clamped == int(np.sum(temp > high))
+    edge = cal.polynomial.error(np.array([5.0]), np.array([high]))[0]
+    lag_edge = 1e-3 * min(compute_signals(t, rate, temp).lagged_temperature(60.0)[-1], high)
+    assert errors[-1] == pytest.approx(edge + lag_edge, abs=1e-12)
+    applied = apply_calibration(GyroLog(t, rate, temp), cal, 50, max_mean_dps=10.0)   # turning at 5 deg/s
+    assert applied.clamped == comp.clamped
+    np.testing.assert_allclose(applied.comp_dps, errors, rtol=0, atol=1e-12)

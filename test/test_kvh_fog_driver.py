@@ -1,0 +1,41 @@
+"""The driver on protocol kvh_fog against the fake KVH unit on a pty: the unit's settings, lost frames, stamps."""
+
+import threading
+import time
+
+from test_driver import wait_for
+
+from art_gyro_calibration.driver import BITS_PER_BYTE, Frame, Rd2100Driver
+from art_gyro_calibration.fake_rd2100 import FakeRd2100
+from art_gyro_calibration.frame import KvhFogConfig
+
+
+def test_driver_reads_kvh_fog_counts_lost_frames_and_stamps_with_the_message_length():
+    frames: list[Frame] = []
+    lock = threading.Lock()
+
+    def on_frame(frame):
+        with lock:
+            frames.append(frame)
+
+    config = KvhFogConfig(message_format='C', yaw_axis='y', rotation='rate', angle_units='deg')
+    with FakeRd2100('NAVC4361', protocol='kvh_fog', rate_hz=200, profile='12.5', temperature=22.0,
+                    noise_dps=0.0, turn_on_bias_dps=0.0, kvh_fog=config) as fake:
+        driver = Rd2100Driver(fake.path, 921600, 'kvh_fog', on_frame, kvh_fog=fake.kvh_fog)
+        # The stamp's wire-time correction: the whole 38-byte message of Format C at 921600 baud.
+        assert driver._stamper.frame_ns == 38 * (BITS_PER_BYTE * 1_000_000_000 // 921600)
+        driver.start()
+        try:
+            assert wait_for(lambda: len(frames) > 20)
+            fake.drop(9)
+            assert wait_for(lambda: driver.stats.lost_frames == 9 and len(frames) > 60)
+        finally:
+            driver.stop()
+    stats = driver.stats
+    assert stats.lost_frames == 9 and stats.rejected_by_reason['bad_crc'] == 0
+    with lock:
+        samples = [f.sample for f in frames]
+        stamps = [f.stamp_ns for f in frames]
+    reading = fake.simulator.readings([0.0])[0].item()
+    assert all(abs(s.raw_rate - reading) < 1e-5 and s.raw_temp == 22.0 for s in samples)
+    assert all(b >= a for a, b in zip(stamps, stamps[1:])) and abs(stamps[-1] - time.time_ns()) < 5e9
