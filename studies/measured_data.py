@@ -33,7 +33,7 @@ from art_gyro_calibration.log import GyroLog
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import measured_figures as figures  # noqa: E402
 from measured_folds import (AGREEMENT_SIGMAS, BIAS_SAMPLES, LOOP_BIN_S, ROWS, SETTLED_C_PER_H,  # noqa: E402
-                            STAGE_TITLES, WAY_TITLES, WAYS, Fold, record_allan, run_fold)
+                            STAGE_TITLES, TIME_SIGNALS, WAY_TITLES, WAYS, Fold, record_allan, run_fold)
 from measured_injection import (EFFECT_TITLES, EFFECTS, EXPECTED_SIGNALS, SIZES, WARMUP_TAU_S, Cell,  # noqa: E402
                                 cells, run_injections)
 from measured_phone import STAND_IN_C, TRAIN_FRACTION, PhoneAxis, phone_summary, run_phone_axis  # noqa: E402
@@ -311,11 +311,14 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
         'temperature powers and rate power 0, and its defaults but one: it screens bin means of '
         f'{LOOP_BIN_S:g} s instead of 1 s (every effect in question lives on hours; on gyro y with day 3 held out '
         'the verdict and the best candidates were the same with 1-s bins, at 15 times the CPU). Its time '
-        'candidates are a linear drift and `exp(-t/tau)` with tau from 30 s to four times the run.',
+        'candidates are a linear drift in `time` (from the run\'s start) and a warm-up `exp(-t/tau)` in '
+        '`time_since_power_on`, tau from 30 s to four times the run, a candidate only when the log starts at the '
+        'power-on (`from_power_on`).',
         '',
         '- **Held out: each day in turn**, which is one orientation too. Day 1 holds the power-on; with day 1 '
-        'held out the loop\'s `time` counts from the first training sample (day 2), and the held-out day is '
-        'evaluated on that clock, before the training days: a time term is then extrapolated backwards.',
+        'held out the training days do not start at it, so the loop is told so (`from_power_on=False`: no '
+        'warm-up candidate), its `time` counts from the first training sample (day 2), and the held-out day is '
+        'evaluated on that clock, before the training days: a drift is then extrapolated backwards.',
         '- **Chance and materiality are the loop\'s own** (`calibrate fit`\'s defaults): a candidate must beat '
         'the 95 % quantile of the best chance score over phase-randomised copies of what the base model leaves, '
         'and its fitted size over the logged envelope must reach the bias instability of what the ART '
@@ -374,8 +377,9 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
         'never see the step).',
         '',
         f'- **Effects**: {EFFECT_TITLES["shupe"]} (`temperature_rate`, the node\'s own filtered dT/dt); '
-        f'{EFFECT_TITLES["warmup"]} from the record\'s start (tau {WARMUP_TAU_S / HOUR:g} h); '
-        f'{EFFECT_TITLES["drift"]} over the whole record; {EFFECT_TITLES["step"]} (a constant added from day 2 on).',
+        f'{EFFECT_TITLES["warmup"]} from the record\'s start (`time_since_power_on`, tau {WARMUP_TAU_S / HOUR:g} h); '
+        f'{EFFECT_TITLES["drift"]} over the whole record (`time`); {EFFECT_TITLES["step"]} (a constant added from '
+        'day 2 on).',
         '- **Signal named**: the loop kept a term on the effect\'s signal (for the step: any accelerometer or '
         f'magnetometer axis: {", ".join(EXPECTED_SIGNALS["step"])}). **Another signal claimed**: it kept a term on '
         'a signal that neither names the effect nor was kept without the injection.',
@@ -424,7 +428,7 @@ def findings(study: Study) -> list[str]:
     out.append(f'- **Effects beyond temperature**: the loop traced something in {len(traced)} of {len(every)} '
                f'folds; the training-day agreement dropped {dropped} time term(s); the effects kept lowered the '
                f'held-out 10-min rms (bias after the transient) in {len(helped)} folds.')
-    timed = sum(any(e.signal == 'time' for e in f.loop.effects) for f in every)
+    timed = sum(any(e.signal in TIME_SIGNALS for e in f.loop.effects) for f in every)
     out.append(f'- **A drift on the record itself**: the loop traced a time term in {timed} of {len(every)} folds '
                '(a drift or slow warm-up must beat the chance of phase-randomised copies of the bias wander, '
                'which on two training days it rarely does).')

@@ -43,6 +43,8 @@ SETTLED_C_PER_H = 1.0
 LOOP_BIN_S = 10.0
 # Two training days disagree on a term when their gains differ by more than this many standard errors.
 AGREEMENT_SIGMAS = 2.0
+# The loop's time terms: a drift counted from the run's start, a warm-up from the power-on.
+TIME_SIGNALS = ('time', 'time_since_power_on')
 WAYS = ('predicted', 'bias_start', 'bias_settled', 'mean_removed')
 WAY_TITLES = {'predicted': 'as predicted (no bias removed)', 'bias_start': 'static bias at the start',
               'bias_settled': 'static bias after the transient', 'mean_removed': 'mean removed'}
@@ -218,16 +220,18 @@ def run_fold(log: GyroLog, days: NDArray[np.int_], day: int, held_name: str, axi
     """
     held = days == day
     train = log.slice(~held)
+    # The record starts at the power-on; training days after it do not (no warm-up is then a candidate).
+    from_power_on = bool(train.t[0] == log.t[0])
     loop = close_loop(train, rows, COLUMNS, serial_number=f'{serial_number}_{axis}', max_effects=max_effects,
-                      seed=seed, exclude=exclude, bin_s=LOOP_BIN_S)
+                      seed=seed, exclude=exclude, bin_s=LOOP_BIN_S, from_power_on=from_power_on)
     floor = loop.bias_instability_dph / HOUR
     agreements = tuple(time_term_agreement(loop, term, days[~held], floor)
-                       for term in loop.extended.model.terms if term.signal == 'time')
+                       for term in loop.extended.model.terms if term.signal in TIME_SIGNALS)
     models = {'uncalibrated': ErrorModel(ArtPolynomial(np.zeros((1, 1)))),
               'art': loop.art.model, 'extended': kept_model(loop, agreements, rows)}
     # The node runs since power-on, the record's start: filters over the whole record, the loop's clock.
     signals = SignalsSince(log.t, log.rate_dps, log.temp_c, log.extras, loop.extended.filters,
-                           origin_s=float(train.t[0]))
+                           powered_on_at_start=from_power_on, origin_s=float(train.t[0]))
     index = np.flatnonzero(held)
     settled = settled_start(log.t[index], log.temp_c[index], BIAS_SAMPLES, SETTLED_C_PER_H)
     windows = {'bias_start': index[:BIAS_SAMPLES], 'bias_settled': index[settled:settled + BIAS_SAMPLES]}

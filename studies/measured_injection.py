@@ -29,7 +29,7 @@ EFFECT_TITLES = {'shupe': 'Shupe-like k dT/dt', 'warmup': 'warm-up exp(-t/3 h)',
 ORIENTATION_SIGNALS = ACCELERATION_CHANNELS + tuple(f'mag_{a}' for a in AXES)
 # The signals that name each effect right: its own, or for a step at an orientation change, any channel
 # that changes with the orientation.
-EXPECTED_SIGNALS = {'shupe': ('temperature_rate',), 'warmup': ('time',), 'drift': ('time',),
+EXPECTED_SIGNALS = {'shupe': ('temperature_rate',), 'warmup': ('time_since_power_on',), 'drift': ('time',),
                     'step': ORIENTATION_SIGNALS}
 # Sizes: rms over the still record, in units of the axis's bias instability.
 SIZES = (10.0, 3.0, 1.0)

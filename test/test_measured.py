@@ -160,7 +160,7 @@ def test_a_drift_is_kept_only_if_every_training_day_agrees():
                                      0.001)
     assert not flip.kept
     # A warm-up that has died out by day 2 is judged on day 1 alone.
-    warmup = Term('time', 'exp_decay', (0.05,), (), 2 * HOUR)
+    warmup = Term('time_since_power_on', 'exp_decay', (0.05,), (), 2 * HOUR)
     alone = folds.time_term_agreement(_loop_double(t, warmup.evaluate(t) + noise, [warmup], days), warmup, days,
                                       0.001)
     assert alone.kept and alone.days[0].judged and not alone.days[1].judged
