@@ -14,12 +14,13 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml'))),
+        ('share/' + PACKAGE + '/launch', sorted(glob('launch/*.launch.py'))),
     ],
     python_requires='>=3.10',
     # The runtime a robot installs (the node, the driver, the fake gyro) needs only these;
     # the offline tools (art_gyro_calibration.analysis: fit, trace, simulate, plots, importers) need the extra.
     install_requires=['setuptools', 'numpy', 'pyyaml', 'pyserial'],
-    extras_require={'analysis': ['scipy', 'matplotlib', 'h5py']},
+    extras_require={'analysis': ['scipy', 'matplotlib', 'h5py', 'threadpoolctl']},
     zip_safe=True,
     maintainer='art_gyro_calibration developers',
     maintainer_email='dev@art-gyro.local',

@@ -15,15 +15,20 @@ A file is ``/**: ros__parameters: {...}`` so that the node takes it with
   ``.rate_powers`` (power form), ``.time_constant_s`` (exp_decay form, and the lag of
   ``temperature_lag``); see :mod:`art_gyro_calibration.terms`. Terms the node would apply
   wrongly from some start are refused: a heading term, a warm-up counted from the run's start.
+
+Any other key is refused (a misspelt ``extnded:`` would silently drop the fitted terms),
+and so is a model that overflows anywhere in the envelope it is used in (:func:`check_envelope`).
+Files are read with :func:`read_yaml`: bounded in size, no YAML aliases.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 import os
 import re
 import sys
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,14 +36,23 @@ from typing import Any
 import numpy as np
 import yaml
 
+from art_gyro_calibration.frame import INT16_MIN
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
 from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, SignalFilters
-from art_gyro_calibration.terms import Term
+from art_gyro_calibration.terms import FORMS, Term
 
 PACKAGE = 'art_gyro_calibration'
 TEMP_SCALE_FACTOR = 0.05  # degC per count, the same for every RD2100 (report, section 1)
 SERIAL_PATTERN = re.compile(r'^[A-Za-z0-9_-]+$')
 SIGNAL_PATTERN = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
+# A calibration or params file is a few kB: anything far larger is not one (and is not read whole).
+MAX_YAML_BYTES = 1 << 20
+# An error quoting a file (a YAML error echoes the offending line) is cut to this many characters.
+MAX_MESSAGE_CHARS = 400
+# The rate is a signed 16-bit count: full scale is this many counts times rate_scale_factor.
+FULL_SCALE_COUNTS = -INT16_MIN
+# How long a node may run: the horizon of the time signal (and of the angle turned) in the envelope check.
+TIME_HORIZON_S = 366 * 86400.0
 
 
 class CalibrationError(ValueError):
@@ -90,6 +104,55 @@ class Calibration:
         return params
 
 
+def _key_sets() -> tuple[frozenset[str], frozenset[str]]:
+    """Keys :meth:`Calibration.to_parameters` writes: (the fixed ones, the fields of every extended term).
+
+    Taken from a calibration with one term of every form, so a field added to ``to_parameters``
+    is known here without a second list to keep in step.
+    """
+    # Every optional field set: a power term with rate powers on the lagged signal (which carries a time constant).
+    shapes = {'power': ((1,), (0, 1)), 'exp_decay': ((), (0,)), 'harmonic': ((), (0,))}
+    terms = tuple(Term(signal=LAGGED_SIGNAL if form == 'power' else f'signal_{form}', form=form,
+                       coefficients=(0.0,) * Term.width(form, *shapes[form]), powers=shapes[form][0],
+                       rate_powers=shapes[form][1], time_constant_s=1.0) for form in FORMS)
+    sample = Calibration('SAMPLE', 1.0, ArtPolynomial([[0.0]]), (0.0, 1.0), terms=terms)
+    fixed, fields = set(), set()
+    for key in sample.to_parameters():
+        parts = key.split('.', 2)
+        if parts[0] == 'extended' and len(parts) == 3:
+            fields.add(parts[2])
+        else:
+            fixed.add(key)
+    return frozenset(fixed), frozenset(fields)
+
+
+CALIBRATION_KEYS, TERM_FIELDS = _key_sets()
+
+
+def is_calibration_key(name: str) -> bool:
+    """Whether ``name`` is a calibration parameter (for any extended signal name)."""
+    parts = name.split('.', 2)
+    if len(parts) == 3 and parts[0] == 'extended':
+        return bool(SIGNAL_PATTERN.match(parts[1])) and parts[2] in TERM_FIELDS
+    return name in CALIBRATION_KEYS
+
+
+def closest(name: str, candidates: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` with the candidate closest to a misspelt ``name``, or ''."""
+    match = difflib.get_close_matches(name, sorted(candidates), n=1, cutoff=0.6)
+    return f' (did you mean {match[0]!r}?)' if match else ''
+
+
+def check_known_keys(params: Mapping[str, Any], where: str) -> None:
+    """Refuse any key that is not a calibration parameter, naming the closest valid one."""
+    signals = params.get('extended.signals', [])
+    signals = [s for s in signals if isinstance(s, str)] if isinstance(signals, (list, tuple)) else []
+    valid = set(CALIBRATION_KEYS) | {f'extended.{s}.{f}' for s in signals for f in TERM_FIELDS}
+    for key in params:
+        if key not in valid:
+            raise CalibrationError(f'{where}: unknown key {key!r}{closest(key, valid)}')
+
+
 def _get(params: Mapping[str, Any], key: str, where: str) -> Any:
     if key in params:
         return params[key]
@@ -121,7 +184,11 @@ def _numbers(value: Any, key: str, where: str) -> list[float]:
 
 
 def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
-    """Build and check a calibration from flat dotted parameters; ``where`` names their source."""
+    """Build and check a calibration from flat dotted parameters; ``where`` names their source.
+
+    Unknown keys and a model that is not finite over its envelope are refused.
+    """
+    check_known_keys(params, where)
     serial = _get(params, 'serial_number', where)
     if not isinstance(serial, str) or not SERIAL_PATTERN.match(serial):
         raise CalibrationError(f'{where}: serial_number must be letters, digits, _ or -, got {serial!r}')
@@ -148,11 +215,71 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
                     'filters.rate_change_tau_s', where))
     except ValueError as e:
         raise CalibrationError(f'{where}: {e}') from None
-    return Calibration(
+    calibration = Calibration(
         serial_number=serial, rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
         polynomial=ArtPolynomial(np.reshape(coefficients, (rows, columns))),
         temperature_range_c=(temp_range[0], temp_range[1]),
         terms=_terms(params, where), filters=filters)
+    check_envelope(calibration, where)
+    return calibration
+
+
+def signal_envelope(calibration: Calibration, signal: str) -> tuple[float, float] | None:
+    """Range of a derived signal over the calibration's envelope; None for a signal with no known range.
+
+    The envelope: the temperature in ``temperature_range_c``, the rate within +-full scale, a run of
+    up to TIME_HORIZON_S. A log column (a supply voltage) has no known range. The filtered
+    derivatives ``(x - ema(x)) / tau`` are bounded by the span of ``x`` over ``tau``.
+    """
+    low_c, high_c = calibration.temperature_range_c
+    full_scale = FULL_SCALE_COUNTS * calibration.rate_scale_factor
+    filters = calibration.filters
+    span_c = (high_c - low_c) / filters.temperature_rate_tau_s
+    change = 2.0 * full_scale / filters.rate_change_tau_s
+    return {
+        'temperature': (low_c, high_c), 'temperature_lag': (low_c, high_c), 'temperature_rate': (-span_c, span_c),
+        'time': (0.0, TIME_HORIZON_S), 'time_since_power_on': (0.0, TIME_HORIZON_S),
+        'rate': (-full_scale, full_scale), 'rate_abs': (0.0, full_scale), 'rate_sign': (-1.0, 1.0),
+        'rate_change': (-change, change), 'angle': (-full_scale * TIME_HORIZON_S, full_scale * TIME_HORIZON_S),
+    }.get(signal)
+
+
+def check_envelope(calibration: Calibration, where: str) -> None:
+    """Refuse a model that overflows or is not finite anywhere in its envelope (see :func:`signal_envelope`).
+
+    Each part is bounded by the sum of its monomials' magnitudes at the envelope's extremes,
+    so a finite bound means a finite value everywhere inside.
+    """
+    low_c, high_c = calibration.temperature_range_c
+    temp_max = max(abs(low_c), abs(high_c))
+    rate_max = FULL_SCALE_COUNTS * calibration.rate_scale_factor
+    poly = calibration.polynomial
+    with np.errstate(over='ignore', invalid='ignore'):
+        temp_powers = temp_max ** np.arange(poly.rows - 1, -1, -1, dtype=float)
+        rate_powers = rate_max ** np.arange(poly.columns - 1, -1, -1, dtype=float)
+        bound = float(np.sum(np.abs(poly.coefficients) * np.outer(temp_powers, rate_powers)))
+    if not math.isfinite(bound):
+        raise CalibrationError(f'{where}: polynomial.coefficients: the polynomial overflows within the envelope '
+                               f'({low_c:g}..{high_c:g} degC, +-{rate_max:g} deg/s full scale)')
+    for term in calibration.terms:
+        envelope = signal_envelope(calibration, term.signal)
+        if envelope is None:
+            continue   # a log column (supply voltage): no known range
+        low, high = envelope
+        c = np.abs(np.asarray(term.coefficients, dtype=float))
+        with np.errstate(over='ignore', invalid='ignore'):
+            if term.form == 'power':   # c[j * len(q) + k] multiplies x**p[j] * rate**q[k]
+                monomials = np.outer(max(abs(low), abs(high)) ** np.asarray(term.powers, dtype=float),
+                                     rate_max ** np.asarray(term.rate_powers, dtype=float))
+                bound = float(np.sum(c * monomials.ravel()))
+            elif term.form == 'exp_decay':
+                bound = float(c[0] * np.exp(-low / term.time_constant_s))
+            else:
+                bound = float(np.sum(c))
+        if not math.isfinite(bound):
+            raise CalibrationError(f'{where}: extended.{term.signal}: the {term.form} term overflows for '
+                                   f'{term.signal} in {low:g}..{high:g} (the envelope: {low_c:g}..{high_c:g} '
+                                   f'degC, +-{rate_max:g} deg/s, {TIME_HORIZON_S / 86400:g} days)')
 
 
 def _terms(params: Mapping[str, Any], where: str) -> tuple[Term, ...]:
@@ -224,22 +351,52 @@ def _nest(params: Mapping[str, Any]) -> dict[str, Any]:
     return tree
 
 
+def shorten(text: str, limit: int = MAX_MESSAGE_CHARS) -> str:
+    """``text`` cut to ``limit`` characters, saying how much was left out."""
+    return text if len(text) <= limit else f'{text[:limit]}... ({len(text) - limit} more characters)'
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    """A safe loader that refuses aliases: a few hundred bytes of nested aliases expand to gigabytes."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(None, None, f'found alias *{event.anchor}: YAML aliases are not '
+                                              'allowed here', event.start_mark)
+        return super().compose_node(parent, index)
+
+
+def read_yaml(path: str | os.PathLike[str], what: str = 'file') -> Any:
+    """Parse a small YAML file safely: at most MAX_YAML_BYTES, no aliases.
+
+    Anything else is a :class:`CalibrationError` naming the file and a readable part of the problem.
+    """
+    where = str(path)
+    try:
+        with open(path, 'rb') as stream:
+            data = stream.read(MAX_YAML_BYTES + 1)
+    except OSError as e:
+        raise CalibrationError(f'{where}: cannot read: {e.strerror}') from None
+    if len(data) > MAX_YAML_BYTES:
+        raise CalibrationError(f'{where}: larger than {MAX_YAML_BYTES} bytes: not a {what}')
+    try:
+        return yaml.load(data.decode('utf-8'), Loader=_NoAliasLoader)
+    except UnicodeDecodeError as e:
+        raise CalibrationError(f'{where}: not UTF-8 text (byte {e.start}): not a {what}') from None
+    except yaml.YAMLError as e:
+        raise CalibrationError(f'{where}: not valid YAML: {shorten(str(e))}') from None
+
+
 def load_calibration(path: str | os.PathLike[str], expected_serial: str | None = None) -> Calibration:
     """Read and check a calibration file, which must be for ``expected_serial`` if given."""
     where = str(path)
-    try:
-        text = Path(path).read_text(encoding='utf-8')
-    except OSError as e:
-        raise CalibrationError(f'{where}: cannot read: {e.strerror}') from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise CalibrationError(f'{where}: not valid YAML: {e}') from None
+    doc = read_yaml(path, 'calibration file')
     if not isinstance(doc, Mapping) or len(doc) != 1:
         raise CalibrationError(f'{where}: expected one node entry such as "/**:" with ros__parameters')
     (node_name, body), = doc.items()
     if not isinstance(body, Mapping) or not isinstance(body.get('ros__parameters'), Mapping):
-        raise CalibrationError(f'{where}: entry {node_name!r} has no ros__parameters mapping')
+        raise CalibrationError(f'{where}: entry {shorten(repr(node_name))} has no ros__parameters mapping')
     calibration = from_parameters(flatten(body['ros__parameters']), where)
     if expected_serial is not None and calibration.serial_number != expected_serial:
         raise CalibrationError(f'{where}: serial_number is {calibration.serial_number!r}, '
@@ -282,6 +439,27 @@ def find_calibration_file(serial_number: str) -> Path:
         if candidate.is_file():
             return candidate
     raise CalibrationError(f'no calibration file {serial_number}.yaml in ' + ', '.join(map(str, searched)))
+
+
+def resolve_calibration_url(url: str) -> Path:
+    """The file a ``calibration_file`` parameter names (the ``camera_info_url`` pattern).
+
+    ``package://<package>/<path>`` is a file of an installed package's share directory;
+    ``file:///abs/path`` and a plain path are that file.
+    """
+    if url.startswith('package://'):
+        package, _, relative = url[len('package://'):].partition('/')
+        if not package or not relative:
+            raise CalibrationError(f'calibration_file {url!r}: expected package://<package>/<path>')
+        shares = [Path(p) / 'share' / package for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+        if package == PACKAGE:
+            shares += [d.parent for d in config_dirs()]
+        for share in shares:
+            if (share / relative).is_file():
+                return share / relative
+        raise CalibrationError(f'calibration_file {url!r}: no {relative} in ' + ', '.join(map(str, shares)))
+    path = url[len('file://'):] if url.startswith('file://') else url
+    return Path(path).expanduser()
 
 
 def load_packaged_calibration(serial_number: str) -> Calibration:

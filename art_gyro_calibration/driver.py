@@ -3,6 +3,12 @@
 The reader thread owns the port: it opens it, reads what is available, parses and
 stamps frames, and when the port is missing or disappears (unplugged) it closes it,
 reports the loss and retries until the port is back. Callbacks run on that thread.
+
+Stamps follow the gyro, not the reads: frame times are kept on the monotonic clock (the
+arrival of the chunk less its time on the wire, frames of one chunk spaced by the gyro's own
+period, estimated from the stream) and put on the caller's clock (wall or ROS time) by its
+offset from the monotonic clock. A step of that clock (set by hand, NTP, a simulation reset)
+re-anchors the stamps to it once, with a warning, instead of freezing them or spreading it.
 """
 
 from __future__ import annotations
@@ -22,14 +28,27 @@ STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 4
 # A read returns after this long without data: bounds how late stop() and an unplug are seen.
 READ_TIMEOUT_S = 0.1
 BITS_PER_BYTE = 10   # start + 8 data + stop
+# A change of the clock's offset from the monotonic clock between two reads beyond this is a step
+# (NTP slews at most 0.5 ms/s; a simulated clock published at 100 Hz moves in 10 ms steps).
+CLOCK_STEP_NS = 200_000_000
+# A measured interval per frame this far from the period estimate is a lost frame or a reopen, not the period.
+PERIOD_ACCEPT = (0.6, 1.6)
+PERIOD_SMOOTHING = 16   # the estimate averages about this many chunks
+# After the port opens, this long without a valid frame means the wrong baud rate or protocol (or no gyro).
+NO_FRAMES_WARNING_S = 2.0
 
 
 @dataclass(frozen=True, slots=True)
 class Frame:
-    """A sample and its stamp: host time its first byte left the gyro, estimated; never decreasing."""
+    """A sample and its stamps: when its first byte left the gyro, estimated.
+
+    ``stamp_ns`` is on the driver's clock (it steps when that clock steps); ``steady_ns`` is
+    the same time without those steps, continuous and increasing, for the signals.
+    """
 
     sample: RawSample
     stamp_ns: int
+    steady_ns: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,26 +67,82 @@ class DriverStats:
 
 
 class WireStamper:
-    """Host stamps of frames from the time a read returned, corrected for time on the wire, never decreasing."""
+    """Stamps of the frames of each read chunk: wire time subtracted, spaced by the gyro's period, on a clock.
 
-    __slots__ = ('byte_ns', 'frame_ns', 'last_ns')
+    Times are kept on the monotonic clock and moved onto the caller's clock by its current
+    offset; the period is the mean, over about PERIOD_SMOOTHING chunks, of the time between the
+    last frames of consecutive chunks divided by the frames in the later one, which stays right
+    when frames queued during a stall arrive in one burst.
+    """
+
+    __slots__ = ('byte_ns', 'frame_ns', 'period_ns', '_updates', '_last_steady', '_last_stamp', '_offset_ns',
+                 'steps_ns', 'step_ns')
 
     def __init__(self, baud: int, frame_bytes: int) -> None:
         self.byte_ns = BITS_PER_BYTE * 1_000_000_000 // baud
         self.frame_ns = frame_bytes * self.byte_ns
-        self.last_ns = -1
+        self.period_ns = 0.0            # 0: not known yet
+        self._updates = 0
+        self._last_steady: int | None = None   # monotonic time of the last frame stamped
+        self._last_stamp = 0
+        self._offset_ns: int | None = None     # caller's clock minus the monotonic clock
+        self.steps_ns = 0               # sum of the clock steps re-anchored to
+        self.step_ns = 0                # the step found by the latest chunk, 0 if none
 
-    def stamp(self, read_ns: int, chunk_bytes: int, end: int) -> int:
-        """Stamp of the frame ending at offset ``end`` of a chunk of ``chunk_bytes`` whose read returned at ``read_ns``.
+    def restart(self) -> None:
+        """After a reopen: the next chunk does not measure the period (the link was down meanwhile)."""
+        self._last_steady = None
 
-        The read returned when the chunk's last byte arrived; the frame's first byte left
-        the gyro the wire time of the frame and of every byte after it in the chunk earlier.
-        """
-        stamp = read_ns - (chunk_bytes - end) * self.byte_ns - self.frame_ns
-        if stamp < self.last_ns:   # a late read must not put a frame before the previous one
-            stamp = self.last_ns
-        self.last_ns = stamp
-        return stamp
+    def stamp(self, clock_ns: int, monotonic_ns: int, chunk_bytes: int,
+              ends: list[int]) -> list[tuple[int, int]]:
+        """(stamp, steady) of the frames ending at ``ends`` of a chunk whose read returned at the given times."""
+        offset = clock_ns - monotonic_ns
+        self.step_ns = 0
+        if self._offset_ns is not None and abs(offset - self._offset_ns) > CLOCK_STEP_NS:
+            self.step_ns = offset - self._offset_ns
+            self.steps_ns += self.step_ns
+        self._offset_ns = offset
+        n = len(ends)
+        if not n:
+            return []
+        # The read returned when the chunk's last byte arrived: the last frame's first byte left
+        # the gyro its own and every later byte's wire time earlier.
+        last = monotonic_ns - (chunk_bytes - ends[-1]) * self.byte_ns - self.frame_ns
+        previous = self._last_steady
+        spacing = [(ends[i + 1] - ends[i]) * self.byte_ns for i in range(n - 1)]
+        step = self.period_ns
+        if previous is not None and last > previous:
+            per_frame = (last - previous) / n
+            self._update_period(per_frame)
+            # Never so far apart that the first would go before the previous chunk's last.
+            step = min(self.period_ns, per_frame)
+        # Frames queued by a stall (or before an open) left the gyro a period apart, not a wire time apart.
+        spacing = [max(s, step) for s in spacing]
+        steady = [last] * n
+        for i in range(n - 2, -1, -1):
+            steady[i] = steady[i + 1] - int(spacing[i])
+        if previous is not None:
+            floor = previous + self.frame_ns   # frames are at least their wire time apart
+            for i in range(n):
+                if steady[i] < floor:
+                    steady[i] = floor
+                floor = steady[i] + self.frame_ns
+        self._last_steady = steady[-1]
+        out = []
+        for t in steady:
+            stamp = t + offset
+            if not self.step_ns and stamp <= self._last_stamp:   # jitter of a coarse clock: never back
+                stamp = self._last_stamp + 1
+            self._last_stamp = stamp
+            out.append((stamp, stamp - self.steps_ns))
+        return out
+
+    def _update_period(self, per_frame: float) -> None:
+        period = self.period_ns
+        if period and not PERIOD_ACCEPT[0] < per_frame / period < PERIOD_ACCEPT[1]:
+            return
+        self._updates += 1
+        self.period_ns = period + (per_frame - period) / min(self._updates, PERIOD_SMOOTHING)
 
 
 class Rd2100Driver:
@@ -75,7 +150,10 @@ class Rd2100Driver:
 
     def __init__(self, port: str, baud: int, protocol: str, on_frame: Callable[[Frame], None], *,
                  clock_ns: Callable[[], int] = time.time_ns, reopen_period_s: float = 0.5,
-                 on_link: Callable[[bool, str], None] | None = None, kvh_fog: KvhFogConfig | None = None) -> None:
+                 on_link: Callable[[bool, str], None] | None = None, kvh_fog: KvhFogConfig | None = None,
+                 on_warning: Callable[[str], None] | None = None,
+                 monotonic_ns: Callable[[], int] = time.monotonic_ns) -> None:
+        """``clock_ns`` is the stamps' clock; ``on_warning`` hears of clock steps and of no frames after an open."""
         if not isinstance(port, str) or not port:
             raise ValueError(f'port must be a device path such as /dev/ttyUSB0, got {port!r}')
         if baud not in STANDARD_BAUDS:
@@ -88,7 +166,12 @@ class Rd2100Driver:
         self.protocol = protocol
         self._on_frame = on_frame
         self._on_link = on_link
+        self._on_warning = on_warning
         self._clock_ns = clock_ns
+        self._monotonic_ns = monotonic_ns
+        self._opened_ns = 0            # monotonic time of the last open
+        self._frames_at_open = 0
+        self._quiet_warned = False
         self._reopen_period_s = float(reopen_period_s)
         self._stamper = WireStamper(baud, self._parser.frame_bytes)
         self._serial: serial.Serial | None = None
@@ -150,6 +233,10 @@ class Rd2100Driver:
             return False
         self._serial, self._identity = port, (st.st_dev, st.st_ino)
         self._parser.reset()
+        self._stamper.restart()
+        self._opened_ns = self._monotonic_ns()
+        self._frames_at_open = self._parser.stats.frames
+        self._quiet_warned = False
         self._connected = True
         if self._ever_connected:
             self._reopens += 1
@@ -185,18 +272,44 @@ class Rd2100Driver:
                 if waiting:
                     data += port.read(waiting)
             now_ns = self._clock_ns()
+            monotonic_ns = self._monotonic_ns()
         except (serial.SerialException, OSError) as e:
             if not self._stop.is_set():
                 self._lost(f'read from {self.port} failed: {e}')
             return
         if not data:
             self._check_path()
+            self._check_quiet(monotonic_ns)
             return
         frames = self._parser.feed(data)
-        size = len(data)
-        stamp = self._stamper.stamp
-        for sample, end in frames:
-            self._on_frame(Frame(sample, stamp(now_ns, size, end)))
+        stamps = self._stamper.stamp(now_ns, monotonic_ns, len(data), [end for _, end in frames])
+        if self._stamper.step_ns:
+            self._warn(f'the clock stepped by {self._stamper.step_ns * 1e-9:+.3f} s against the monotonic clock: '
+                       'stamps re-anchored to it')
+        for (sample, _), (stamp, steady) in zip(frames, stamps):
+            self._on_frame(Frame(sample, stamp, steady))
+        if not frames:
+            self._check_quiet(monotonic_ns)
+
+    def _warn(self, message: str) -> None:
+        if self._on_warning is not None:
+            self._on_warning(message)
+
+    def _check_quiet(self, monotonic_ns: int) -> None:
+        """Warn once per open when no frame came for NO_FRAMES_WARNING_S: say what did come and the likely cause."""
+        stats = self._parser.stats
+        if (self._quiet_warned or stats.frames != self._frames_at_open
+                or monotonic_ns - self._opened_ns < NO_FRAMES_WARNING_S * 1e9):
+            return
+        self._quiet_warned = True
+        if stats.bytes_skipped:
+            rejected = ', '.join(f'{count} {reason}' for reason, count in stats.rejected_by_reason.items() if count)
+            self._warn(f'no valid frame from {self.port} in {NO_FRAMES_WARNING_S:g} s after opening it; '
+                       f'{stats.bytes_skipped} bytes skipped so far ({rejected}): check the baud rate '
+                       f'({self.baud}) and the protocol ({self.protocol}) against the gyro\'s settings')
+        else:
+            self._warn(f'nothing received from {self.port} in {NO_FRAMES_WARNING_S:g} s after opening it: '
+                       'is the gyro powered and wired to this port?')
 
     def _check_path(self) -> None:
         """A quiet port may be gone without a read error: its path vanished or now names another device."""

@@ -8,9 +8,11 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 from collections.abc import Sequence
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
@@ -39,8 +41,10 @@ class ImuEcho(Node):
         if self._received % self._every == 0:
             stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
             rate = msg.angular_velocity.z
+            # No temperature until one arrived (its subscription may connect after the Imu one).
+            temperature = '' if math.isnan(self._temp_c) else f'  temperature {self._temp_c:6.2f} degC'
             print(f'{stamp:.3f} {msg.header.frame_id}: yaw rate {math.degrees(rate):+10.5f} deg/s '
-                  f'({rate:+.7f} rad/s)  temperature {self._temp_c:6.2f} degC', flush=True)
+                  f'({rate:+.7f} rad/s){temperature}', flush=True)
         if self._count and self._received >= self._count:
             self.done = True
 
@@ -65,6 +69,33 @@ def call_static_bias(timeout_s: float) -> int:
         node.destroy_node()
 
 
+def wait_static_bias(timeout_s: float) -> int:
+    """Wait for the first static bias a gyro_node reports on /diagnostics: 0 if applied, 1 if refused or none."""
+    node = Node('imu_wait_static_bias')
+    outcome: list[DiagnosticStatus] = []
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            state = next((kv.value for kv in status.values if kv.key == 'state'), '')
+            if status.name.endswith(': static bias') and state in ('ok', 'refused'):
+                outcome.append(status)
+
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while rclpy.ok() and not outcome and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.5)
+        if not outcome:
+            print(f'no static bias reported on /diagnostics within {timeout_s} s', file=sys.stderr)
+            return 1
+        status = outcome[0]
+        applied = status.level == DiagnosticStatus.OK
+        print(f'{status.name}: {status.message}', file=sys.stdout if applied else sys.stderr)
+        return 0 if applied else 1
+    finally:
+        node.destroy_node()
+
+
 def echo(every: int, count: int) -> int:
     """Print rates until Ctrl-C, or until ``count`` messages."""
     node = ImuEcho(max(1, every), max(0, count))
@@ -84,11 +115,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--count', type=int, default=0, help='exit after N messages (default: never)')
     parser.add_argument('--static-bias', action='store_true',
                         help='instead: call imu/static_bias (keep the gyro still), print the reply and exit')
-    parser.add_argument('--timeout', type=float, default=60.0, help='--static-bias: seconds to wait (default 60)')
+    parser.add_argument('--wait-static-bias', action='store_true',
+                        help='instead: wait until a gyro_node reports its static bias (exit 0) or its refusal (exit 1)')
+    parser.add_argument('--timeout', type=float, default=60.0,
+                        help='--static-bias, --wait-static-bias: seconds to wait (default 60)')
     options = parser.parse_args(rclpy.utilities.remove_ros_args(full)[1:])
     rclpy.init(args=full)
     try:
-        return call_static_bias(options.timeout) if options.static_bias else echo(options.every, options.count)
+        if options.static_bias:
+            return call_static_bias(options.timeout)
+        if options.wait_static_bias:
+            return wait_static_bias(options.timeout)
+        return echo(options.every, options.count)
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:

@@ -18,34 +18,42 @@ Service ``imu/static_bias`` (std_srvs/Trigger): collect a new static bias over
 ``bias_samples`` frames; the reply comes when it is done. A call while a collection runs
 joins it and gets its result. Motion (mean compensated rate or spread of the rate beyond
 the thresholds) refuses it and keeps the previous bias. Publishing goes on meanwhile with the previous bias.
+The reply is deferred, not waited for: the callback returns at once and the executor thread is free.
+
+Parameters are strict: an unknown name, a value of the wrong type or out of its range, or
+a calibration that does not fit, ends the node at startup with a message naming it.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import re
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import rclpy
-import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from art_gyro_calibration.calibration import (Calibration, CalibrationError, find_calibration_file,
-                                              from_parameters, load_calibration)
+from art_gyro_calibration.calibration import (CALIBRATION_KEYS, Calibration, CalibrationError, closest,
+                                              find_calibration_file, flatten, from_parameters, is_calibration_key,
+                                              load_calibration, read_yaml, resolve_calibration_url)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, Compensator, RunStart, plausible
 from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver
 from art_gyro_calibration.frame import AXIS_INVALID, KVH_FOG, PROTOCOLS, KvhFogConfig
@@ -60,26 +68,50 @@ UNMEASURED_VARIANCE = 1.0e6
 DIAGNOSTICS_PERIOD_S = 1.0
 # A static bias collection with no frame for this long has lost its gyro: it is abandoned.
 COLLECTION_STALL_S = 5.0
-# Parameters whose presence means the calibration comes in as parameters (--params-file).
-CALIBRATION_KEYS = ('rate_scale_factor', 'polynomial.rows', 'polynomial.columns', 'polynomial.coefficients')
+# A raw log that failed (full disk, deleted) is reopened this often; frames meanwhile are not logged.
+LOG_RETRY_S = 5.0
+# An out-of-range temperature is said on the console at most this often.
+TEMPERATURE_WARNING_PERIOD_S = 60.0
+# Why a frame read was not published (counted per reason in the link status).
+IMPLAUSIBLE_TEMPERATURE = 'implausible_temperature'
+NOT_FINITE = 'not_finite'
+IMU_TOPIC = 'imu/data_raw'
+# Calls to imu/static_bias that can wait for one collection at once (requests and replies are queued this deep).
+SERVICE_QUEUE_DEPTH = 1000
 
-# name: (default, description); the node's parameters besides a calibration's own.
-PARAMETERS: dict[str, tuple[Any, str]] = {
+
+class Range(NamedTuple):
+    """Inclusive bounds of a numeric parameter."""
+
+    low: float
+    high: float
+
+
+# name: (default, description[, constraint]), the node's parameters besides a calibration's own.
+# The constraint is a Range for a number or a tuple of the allowed values; the type is the default's.
+PARAMETERS: dict[str, tuple[Any, ...]] = {
     'port': ('/dev/ttyUSB0', 'Serial port of the gyro.'),
-    'baud': (9600, 'Serial baud rate (a standard rate; check the unit\'s setting).'),
+    'baud': (9600, 'Serial baud rate (check the unit\'s setting; a 1 kHz unit needs 115200 or more).',
+             STANDARD_BAUDS),
     'protocol': ('binary', 'Frame format on the wire: binary (8-byte RD2100 frames) or ascii '
-                           '("<raw_rate> <raw_temp>" lines).'),
+                           '("<raw_rate> <raw_temp>" lines).', PROTOCOLS),
     'serial_number': ('', 'KVH serial number of the gyro; loads the packaged config/<serial_number>.yaml '
-                          'unless a calibration comes in by --params-file, which must be for this serial.'),
+                          'unless calibration_file is set or a calibration comes in by --params-file, which '
+                          'must be for this serial.'),
+    'calibration_file': ('', 'A calibration file instead of the packaged one: a path, file:///path or '
+                             'package://<package>/<path> (as camera_info_url); its serial_number must match.'),
     'frame_id': ('imu_link', 'header.frame_id of the published messages.'),
-    'bias_samples': (DEFAULT_SAMPLES, 'Frames per static bias collection (100 = 10 s at 10 Hz).'),
+    'bias_samples': (DEFAULT_SAMPLES, 'Frames per static bias collection (100 = 10 s at 10 Hz).',
+                     Range(2, 1_000_000)),
     'static_bias_on_startup': (True, 'Collect a static bias at startup (the gyro must be still).'),
     'static_bias_max_mean_dps': (DEFAULT_MAX_MEAN_DPS, 'A static bias whose mean compensated rate exceeds '
-                                                       'this (deg/s) is refused: the gyro was turning.'),
+                                                       'this (deg/s) is refused: the gyro was turning.',
+                                 Range(1e-6, 10.0)),
     'static_bias_max_std_dps': (DEFAULT_MAX_STD_DPS, 'A static bias whose rate spread (standard deviation, '
-                                                     'deg/s) exceeds this is refused: the gyro was moving.'),
+                                                     'deg/s) exceeds this is refused: the gyro was moving.',
+                                Range(1e-6, 10.0)),
     'yaw_rate_stddev': (0.001, 'Standard deviation of the compensated yaw rate (rad/s); its square is '
-                               'angular_velocity_covariance[8].'),
+                               'angular_velocity_covariance[8].', Range(1e-7, 1.0)),
     'powered_on_at_start': (False, 'The gyro was switched on with the node (a cold start): a warm-up term of the '
                                    'calibration then decays from the node\'s first frame. Otherwise (the default, '
                                    'safe on a warm restart) a warm-up term counts as decayed.'),
@@ -125,6 +157,7 @@ class Settings:
     baud: int
     protocol: str
     serial_number: str
+    calibration_file: str
     frame_id: str
     bias_samples: int
     static_bias_on_startup: bool
@@ -135,28 +168,53 @@ class Settings:
     log_path: str
 
 
-def _positive(name: str, value: float) -> float:
-    if not (math.isfinite(value) and value > 0.0):
-        raise ParameterError(f'parameter {name} must be a positive number, got {value!r}')
-    return value
+def _constraint(name: str) -> Any:
+    entry = PARAMETERS[name]
+    return entry[2] if len(entry) > 2 else None
+
+
+def describe_constraint(name: str) -> str:
+    """The allowed values of a parameter for people, or ''."""
+    constraint = _constraint(name)
+    if isinstance(constraint, Range):
+        return f'{constraint.low:g}..{constraint.high:g}' if isinstance(constraint.low, float) else \
+            f'{constraint.low}..{constraint.high}'
+    if constraint:
+        return 'one of ' + ', '.join(map(str, constraint))
+    return ''
 
 
 def check_settings(values: dict[str, Any]) -> Settings:
-    """Check the node's parameter values (already of the declared types)."""
+    """Check the node's parameter values (already of the declared types) against their constraints."""
     for name in ('port', 'frame_id'):
         if not values[name].strip():
             raise ParameterError(f'parameter {name} must not be empty')
-    if values['baud'] not in STANDARD_BAUDS:
-        raise ParameterError(f'parameter baud must be a standard rate ({", ".join(map(str, STANDARD_BAUDS))}), '
-                             f'got {values["baud"]}')
-    if values['protocol'] not in PROTOCOLS:
-        raise ParameterError(f'parameter protocol must be one of {", ".join(PROTOCOLS)}, '
-                             f'got {values["protocol"]!r}')
-    if values['bias_samples'] < 2:
-        raise ParameterError(f'parameter bias_samples must be at least 2, got {values["bias_samples"]}')
-    for name in ('static_bias_max_mean_dps', 'static_bias_max_std_dps', 'yaw_rate_stddev'):
-        _positive(name, values[name])
+    for name, value in values.items():
+        constraint = _constraint(name)
+        if isinstance(constraint, Range):
+            if not (math.isfinite(value) and constraint.low <= value <= constraint.high):
+                raise ParameterError(f'parameter {name} must be in {describe_constraint(name)}, got {value!r}')
+        elif constraint and value not in constraint:
+            raise ParameterError(f'parameter {name} must be {describe_constraint(name)}, got {value!r}')
     return Settings(**values)
+
+
+def descriptor(name: str) -> ParameterDescriptor:
+    """Read-only descriptor of a node parameter, with its range where it is a number."""
+    default, description = PARAMETERS[name][:2]
+    d = ParameterDescriptor(description=description, read_only=True)
+    constraint = _constraint(name)
+    if isinstance(constraint, Range) and isinstance(default, int):
+        d.integer_range = [IntegerRange(from_value=int(constraint.low), to_value=int(constraint.high), step=1)]
+    elif isinstance(constraint, Range):
+        d.floating_point_range = [FloatingPointRange(from_value=float(constraint.low),
+                                                     to_value=float(constraint.high), step=0.0)]
+    elif constraint and isinstance(default, int):
+        d.integer_range = [IntegerRange(from_value=min(constraint), to_value=max(constraint), step=0)]
+        d.additional_constraints = describe_constraint(name)
+    elif constraint:
+        d.additional_constraints = describe_constraint(name)
+    return d
 
 
 def _coerce(name: str, value: Any, default: Any) -> Any:
@@ -168,6 +226,24 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
         return float(value)
     names = {bool: 'a boolean', int: 'an integer', float: 'a number', str: 'a string'}
     raise ParameterError(f'parameter {name} must be {names[kind]}, got {value!r}')
+
+
+def usage() -> str:
+    """``gyro_node --help``: how to run it and every parameter with its default, range and meaning."""
+    lines = [f'usage: {NODE_NAME} [--help] --ros-args [-p NAME:=VALUE]... [--params-file FILE]... '
+             '[-r __ns:=/NAMESPACE]', '', __doc__.splitlines()[0], '',
+             'parameters (read-only; checked at startup, an unknown or bad one ends the node with exit 1):']
+    for name, (default, description, *_) in PARAMETERS.items():
+        allowed = describe_constraint(name)
+        lines.append(f'  {name} ({type(default).__name__}, default {default!r}{", " + allowed if allowed else ""})')
+        lines.append(f'      {description}')
+    lines += ['', 'calibration parameters (from the calibration file, read-only): '
+              + ', '.join(sorted(CALIBRATION_KEYS)) + ', extended.<signal>.*',
+              f'QoS of {IMU_TOPIC} (default reliable, depth 10): qos_overrides./<namespace>/{IMU_TOPIC}.publisher.'
+              '{reliability,history,depth,durability}',
+              'topics: imu/data_raw (sensor_msgs/Imu), imu/temperature (std_msgs/Float64), /diagnostics; '
+              'service: imu/static_bias (std_srvs/Trigger)']
+    return '\n'.join(lines)
 
 
 def params_files(argv: Sequence[str]) -> list[str]:
@@ -184,49 +260,66 @@ def params_files(argv: Sequence[str]) -> list[str]:
     return files
 
 
-def params_file_serials(paths: Sequence[str]) -> dict[str, str]:
-    """Serial number of each params file that holds a calibration (has ``polynomial``)."""
-    serials = {}
+def _entry_pattern(key: str) -> re.Pattern[str]:
+    """A params file's node entry (``/**``, ``gyro_node``, ``/robot/*``) as a pattern of fully qualified names."""
+    key = key if key.startswith('/') else '/' + key
+    parts = re.split(r'(\*\*|\*)', key)
+    return re.compile(''.join('.*' if p == '**' else '[^/]*' if p == '*' else re.escape(p) for p in parts) + '$')
+
+
+def params_file_values(paths: Sequence[str], node_name: str) -> dict[str, dict[str, Any]]:
+    """Per params file, the flat parameters it gives the node ``node_name`` (fully qualified).
+
+    Read safely (size-bounded, no aliases); a file rcl parsed but that is refused here is an error.
+    """
+    values: dict[str, dict[str, Any]] = {}
     for path in paths:
-        try:
-            doc = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
-        except (OSError, yaml.YAMLError):
-            continue   # rcl has read it already and reports its own errors
-        for body in (doc.values() if isinstance(doc, dict) else ()):
-            params = body.get('ros__parameters') if isinstance(body, dict) else None
-            if isinstance(params, dict) and 'polynomial' in params and 'serial_number' in params:
-                serials[path] = str(params['serial_number'])
-    return serials
+        doc = read_yaml(path, 'params file')
+        flat: dict[str, Any] = {}
+        for key, body in (doc.items() if isinstance(doc, Mapping) else ()):
+            params = body.get('ros__parameters') if isinstance(body, Mapping) else None
+            if isinstance(params, Mapping) and _entry_pattern(str(key)).match(node_name):
+                flat.update(flatten(params))
+        values[path] = flat
+    return values
 
 
 class _Collection:
     """One static bias collection, which the reader thread feeds and callers wait for."""
 
-    __slots__ = ('collector', 'done', 'result', 'error', 'last_sample')
+    __slots__ = ('collector', 'result', 'error', 'last_sample', 'waiting')
 
     def __init__(self, collector: StaticBiasCollector) -> None:
         self.collector = collector
-        self.done = threading.Event()
         self.result: StaticBias | None = None
         self.error = ''
         self.last_sample = time.monotonic()
+        self.waiting: list[Any] = []   # request headers of the calls to answer when it ends
 
 
 class GyroNode(Node):
     """Owns the serial driver; compensates and publishes every frame."""
 
     def __init__(self, argv: Sequence[str] = ()) -> None:
-        super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True)
-        self.settings = check_settings({name: self._declare(name, default, description)
-                                        for name, (default, description) in PARAMETERS.items()})
+        super().__init__(NODE_NAME)
+        self._files = params_file_values(params_files(argv), self.get_fully_qualified_name())
+        # Known now: the node's own, a calibration's, rclpy's (use_sim_time); QoS overrides once the publisher is made.
+        self._check_known_names(lambda name: name in PARAMETERS or name in KVH_FOG_PARAMETERS
+                                or is_calibration_key(name) or self.has_parameter(name)
+                                or name.startswith('qos_overrides.'))
+        self.settings = check_settings({name: self._override(name, entry[0]) for name, entry in PARAMETERS.items()})
+        for name in PARAMETERS:
+            # Read-only: the node reads them once at startup, so a later change is refused, not ignored.
+            self.declare_parameter(name, getattr(self.settings, name), descriptor(name), ignore_override=True)
         self.kvh_fog = self._kvh_fog_config()
-        self.calibration, self.calibration_source = self._load_calibration(params_files(argv))
+        self.calibration, self.calibration_source = self._load_calibration()
         if self.settings.protocol == KVH_FOG:
             check_kvh_fog_calibration(self.calibration, self.calibration_source)
         self._compensator = Compensator(self.calibration, RunStart(self.settings.powered_on_at_start))
         self._lock = threading.Lock()
         self._closing = threading.Event()
         self._collection: _Collection | None = None
+        self._finished: list[_Collection] = []   # ended, their replies not sent yet
         # How the last collection ended: none yet, ok or refused; while one runs, the state is 'collecting'.
         self._bias_outcome = 'none'
         self._bias_refusal = ''
@@ -235,15 +328,22 @@ class GyroNode(Node):
         self._last_temp_c = math.nan
         self._temp_range = self.calibration.temperature_range_c
         # Frames outside the calibrated range: the latest temperature alone would hide a glitch.
-        self._outside_range = 0
-        self._outside_range_reported = 0   # as of the last diagnostics
-        self._implausible = 0
+        self._outside_range_reported = 0   # frames clamped (Compensator.clamped) as of the last diagnostics
+        self._dropped = {IMPLAUSIBLE_TEMPERATURE: 0, NOT_FINITE: 0}
+        self._dropped_reported = dict(self._dropped)
         self._implausible_reported = 0
+        self._last_drop_error = ''
         self._rate_window = (time.monotonic(), 0)
         self._lost_reported = self._invalid_reported = 0   # kvh_fog: as of the last diagnostics
+        self._log_lock = threading.Lock()
         self._log: RawLogWriter | None = None
+        self._log_stream: Any = None
+        self._log_file = ''
+        self._log_error = ''
+        self._log_failed_at = 0.0
+        self._log_rows_lost = 0
         if self.settings.log_path:
-            self._open_log(self.settings.log_path)
+            self._open_log(self.settings.log_path, at_startup=True)
 
         self._imu = Imu()
         self._imu.header.frame_id = self.settings.frame_id
@@ -253,15 +353,29 @@ class GyroNode(Node):
         self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[8] = self.settings.yaw_rate_stddev ** 2
         self._temperature = Float64()
-        self._imu_pub = self.create_publisher(Imu, 'imu/data_raw', 10)
+        # Reliable, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
+        try:
+            self._imu_pub = self.create_publisher(Imu, IMU_TOPIC, 10,
+                                                  qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        except Exception as e:   # rclpy raises several types for a bad override; all end here
+            raise ParameterError(f'QoS override of {IMU_TOPIC}: {e}') from None
+        self._check_known_names(self.has_parameter)
         self._temp_pub = self.create_publisher(Float64, 'imu/temperature', 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        # The service waits for its collection: in its own reentrant group it blocks neither
-        # the diagnostics timer nor another call.
-        self.create_service(Trigger, 'imu/static_bias', self._on_static_bias,
-                            callback_group=ReentrantCallbackGroup())
+        # The reply is deferred: the callback returns at once and the executor sends the reply
+        # through send_response, which this node takes over to hold it until the collection ends.
+        # (rclpy 7 re-runs a waiting coroutine callback in a busy loop, so an async callback is not used.)
+        # Deep queues: the replies to every joined call go out at once, and a reliable writer keeping
+        # the default last 10 would drop all but 10 of them.
+        self._service = self.create_service(Trigger, 'imu/static_bias', lambda request, response: response,
+                                            qos_profile=QoSProfile(depth=SERVICE_QUEUE_DEPTH))
+        self._send_reply = self._service.send_response
+        self._service.send_response = self._defer_reply
+        self._replies = self.create_guard_condition(self._send_replies)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._publish_diagnostics,
                           callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(0.5, self._watch_collection)
+        self.create_timer(LOG_RETRY_S, self._retry_log)
 
         if self.settings.static_bias_on_startup:
             self._start_collection()
@@ -269,62 +383,145 @@ class GyroNode(Node):
             f'calibration loaded: {self.calibration.serial_number} from {self.calibration_source}; '
             f'reading {self.settings.port} at {self.settings.baud} baud ({self.settings.protocol})')
         self._driver = Rd2100Driver(self.settings.port, self.settings.baud, self.settings.protocol,
-                                    self._on_frame, on_link=self._on_link, kvh_fog=self.kvh_fog)
+                                    self._on_frame, on_link=self._on_link, on_warning=self._on_driver_warning,
+                                    clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog)
         self._driver.start()
 
     # --- startup -------------------------------------------------------------------------
 
-    def _declare(self, name: str, default: Any, description: str) -> Any:
-        # Declared from the overrides already (automatically_declare_parameters_from_overrides):
-        # check the given value's type, then declare again with the description.
-        value = default
-        if self.has_parameter(name):
-            value = self.get_parameter(name).value
-            self.undeclare_parameter(name)
-            value = _coerce(name, value, default)
-        # Read-only: the node reads them once at startup, so a later change is refused, not ignored.
-        return self.declare_parameter(name, value, ParameterDescriptor(description=description, read_only=True),
-                                      ignore_override=True).value
+    def _where(self, name: str) -> str:
+        """Which params file gave a parameter (the last one, as rcl applies them), else the command line."""
+        files = [path for path, values in self._files.items() if name in values]
+        return files[-1] if files else 'the command line'
+
+    def _check_known_names(self, known: Any) -> None:
+        """Refuse a parameter given to the node that nothing reads, naming the closest valid name."""
+        names = set(PARAMETERS) | set(KVH_FOG_PARAMETERS) | set(CALIBRATION_KEYS) | set(self._parameters)
+        for name in self._parameter_overrides:
+            if not known(name):
+                raise ParameterError(f'unknown parameter {name!r} (from {self._where(name)}){closest(name, names)}')
+
+    def _override(self, name: str, default: Any) -> Any:
+        if name not in self._parameter_overrides:
+            return default
+        return _coerce(name, self._parameter_overrides[name].value, default)
 
     def _kvh_fog_config(self) -> KvhFogConfig:
-        values = {name.removeprefix('kvh_fog.'): self._declare(name, default, description)
-                  for name, (default, description) in KVH_FOG_PARAMETERS.items()}
+        values = {}
+        for name, (default, description) in KVH_FOG_PARAMETERS.items():
+            value = self._override(name, default)
+            self.declare_parameter(name, value, ParameterDescriptor(description=description, read_only=True),
+                                   ignore_override=True)
+            values[name.removeprefix('kvh_fog.')] = value
         try:
             return KvhFogConfig(**values)
         except ValueError as e:
             raise ParameterError(f'parameter {e}') from None
 
-    def _load_calibration(self, files: Sequence[str]) -> tuple[Calibration, str]:
+    def _load_calibration(self) -> tuple[Calibration, str]:
         serial = self.settings.serial_number
-        if not any(self.has_parameter(key) for key in CALIBRATION_KEYS):
-            if not serial:
-                raise ParameterError('parameter serial_number is required: the KVH serial number (such as '
-                                     'NAVC3545) of the packaged calibration to load, unless a calibration '
-                                     'file comes in by --params-file')
+        given = {name: p.value for name, p in self._parameter_overrides.items()
+                 if is_calibration_key(name) and name != 'serial_number'}
+        # Every params file that names a serial must agree with the node's (a node params file and
+        # another gyro's calibration file would otherwise load that gyro's calibration silently).
+        for path, values in self._files.items():
+            file_serial = values.get('serial_number')
+            if file_serial is not None and serial and str(file_serial) != serial:
+                what = (f'the calibration in {path} is' if 'polynomial.coefficients' in values
+                        else f'the parameters in {path} are')
+                raise ParameterError(f'parameter serial_number is {serial!r} but {what} for '
+                                     f'{str(file_serial)!r}: refusing a calibration of another gyro')
+        if given:
+            if self.settings.calibration_file:
+                raise ParameterError(f'parameter calibration_file is set and a calibration came in as parameters '
+                                     f'(from {self._where("polynomial.coefficients")}): give one or the other')
+            files = sorted({self._where(name) for name in given})
+            where = 'parameters (' + ', '.join(files) + ')'
+            calibration = from_parameters({**given, 'serial_number': serial}, where)
+        elif self.settings.calibration_file:
+            path = resolve_calibration_url(self.settings.calibration_file)
+            calibration, where = load_calibration(path, expected_serial=serial or None), str(path)
+        elif not serial:
+            raise ParameterError('parameter serial_number is required: the KVH serial number (such as '
+                                 'NAVC3545) of the packaged calibration to load, unless calibration_file is '
+                                 'set or a calibration file comes in by --params-file')
+        else:
             try:
                 path = find_calibration_file(serial)
-                return load_calibration(path, expected_serial=serial), str(path)
             except CalibrationError as e:
                 raise ParameterError(f'parameter serial_number: {e}') from None
-        where = 'parameters (' + (', '.join(files) or 'command line') + ')'
-        for path, file_serial in params_file_serials(files).items():
-            if file_serial != serial:
-                raise ParameterError(f'parameter serial_number is {serial!r} but the calibration in {path} '
-                                     f'is for {file_serial!r}: refusing a calibration of another gyro')
-        values = {name: param.value for name, param in self.get_parameters_by_prefix('').items()}
-        return from_parameters(values, where), where
+            calibration, where = load_calibration(path, expected_serial=serial), str(path)
+        for name, value in calibration.to_parameters().items():
+            if name != 'serial_number':
+                self.declare_parameter(name, value, ParameterDescriptor(
+                    description=f'calibration of {calibration.serial_number} (from {where})', read_only=True),
+                    ignore_override=True)
+        return calibration, where
 
-    def _open_log(self, log_path: str) -> None:
+    # --- raw log -------------------------------------------------------------------------
+
+    def _log_target(self, log_path: str) -> Path:
         path = Path(log_path)
         if path.is_dir():
             stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')
             path = path / f'{self.calibration.serial_number}_{stamp}.csv'
+        return path
+
+    def _open_log(self, log_path: str, at_startup: bool = False) -> None:
+        path = self._log_target(log_path)
         try:
             stream = open(path, 'x', encoding='utf-8')
+            writer = RawLogWriter(stream)
         except OSError as e:
-            raise ParameterError(f'parameter log_path: cannot create {path}: {e.strerror}') from None
-        self._log = RawLogWriter(stream)
+            if at_startup:
+                raise ParameterError(f'parameter log_path: cannot create {path}: {e.strerror}') from None
+            self._log_error = f'cannot create {path}: {e.strerror or e}'
+            self._log_failed_at = time.monotonic()
+            return
+        with self._log_lock:
+            self._log, self._log_stream, self._log_file = writer, stream, str(path)
+            self._log_error = ''
         self.get_logger().info(f'logging raw frames to {path}')
+
+    def _write_log(self, t: float, raw_rate: int, raw_temp: int) -> None:
+        with self._log_lock:
+            log = self._log
+            if log is None:
+                if self.settings.log_path:
+                    self._log_rows_lost += 1
+                return
+            try:
+                log.write(t, raw_rate, raw_temp)
+            except (OSError, ValueError) as e:
+                self._log_rows_lost += 1
+                self._stop_log(f'writing {self._log_file} failed: {e}')
+
+    def _stop_log(self, error: str) -> None:
+        """Stop logging after a failure (lock held): one console error, an ERROR status, a retry on a timer."""
+        log, self._log = self._log, None
+        self._log_error = error
+        self._log_failed_at = time.monotonic()
+        try:
+            log.close()
+        except (OSError, ValueError):
+            pass   # the rows not flushed are lost with the file system that refused them
+        self.get_logger().error(f'raw log stopped, publishing goes on: {error}; retrying every {LOG_RETRY_S:g} s')
+
+    def _check_log_file(self) -> None:
+        """A log file deleted (or replaced) while open would swallow every row without an error."""
+        with self._log_lock:
+            if self._log is None:
+                return
+            try:
+                same = os.path.samestat(os.stat(self._log_file), os.fstat(self._log_stream.fileno()))
+            except OSError:
+                same = False
+            if not same:
+                self._stop_log(f'{self._log_file} was deleted or replaced while logging')
+
+    def _retry_log(self) -> None:
+        if self.settings.log_path and self._log is None and self._log_error and not self._closing.is_set():
+            self._open_log(self.settings.log_path)
 
     # --- per frame (driver reader thread) ------------------------------------------------
 
@@ -338,31 +535,43 @@ class GyroNode(Node):
 
     def _handle_frame(self, frame: Frame) -> None:
         sample = frame.sample
-        compensator = self._compensator
-        rate_dps, temp_c = compensator.scale(sample.raw_rate, sample.raw_temp)
         stamp_ns = frame.stamp_ns
-        t = stamp_ns * 1e-9
-        if self._log is not None:
-            self._log.write(t, sample.raw_rate, sample.raw_temp)   # the log keeps what the wire said
+        self._publish(sample.raw_rate, sample.raw_temp, stamp_ns, frame.steady_ns * 1e-9)
+        # After publishing: a log that fails (full disk) must not delay or stop the messages.
+        self._write_log(stamp_ns * 1e-9, sample.raw_rate, sample.raw_temp)   # the log keeps what the wire said
+
+    def _publish(self, raw_rate: int, raw_temp: int, stamp_ns: int, t: float) -> None:
+        compensator = self._compensator
+        rate_dps, temp_c = compensator.scale(raw_rate, raw_temp)
         if not plausible(temp_c):
-            self._implausible += 1
+            self._dropped[IMPLAUSIBLE_TEMPERATURE] += 1
             return
-        error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals
+        try:
+            error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals
+        except ArithmeticError as e:
+            error_dps = math.nan
+            self._last_drop_error = f'{type(e).__name__}: {e}'
+        if not math.isfinite(error_dps):
+            self._dropped[NOT_FINITE] += 1
+            return
         collection = self._collection
         if collection is not None:
             collection.last_sample = time.monotonic()
             if collection.collector.add(rate_dps, error_dps, t, temp_c, compensator.last_causal_dps):
                 self._finish_collection(collection)
+        corrected = compensator.correct(rate_dps, error_dps)   # with the bias this frame may have completed
         imu = self._imu
         imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        imu.angular_velocity.z = math.radians(compensator.correct(rate_dps, error_dps))
+        imu.angular_velocity.z = math.radians(corrected)
         self._imu_pub.publish(imu)
         self._temperature.data = temp_c
         self._temp_pub.publish(self._temperature)
         self._last_temp_c = temp_c
         low, high = self._temp_range
-        if not low <= temp_c <= high:
-            self._outside_range += 1
+        if not low <= temp_c <= high:   # the Compensator clamped it and counted it
+            self.get_logger().warning(f'gyro temperature {temp_c:.2f} degC is outside the calibrated range '
+                                      f'{low:g}..{high:g} degC: compensated as at the nearest end of it',
+                                      throttle_duration_sec=TEMPERATURE_WARNING_PERIOD_S)
         self._published += 1
 
     def _on_link(self, connected: bool, message: str) -> None:
@@ -370,6 +579,9 @@ class GyroNode(Node):
             self.get_logger().info(f'gyro link up: {message}')
         else:
             self.get_logger().warning(f'gyro link down: {message}')
+
+    def _on_driver_warning(self, message: str) -> None:
+        self.get_logger().warning(message)
 
     # --- static bias ---------------------------------------------------------------------
 
@@ -407,22 +619,46 @@ class GyroNode(Node):
                 self.get_logger().warning(f'static bias refused, previous bias kept: {error}')
             collection.result = bias
             collection.error = error
-            collection.done.set()
+            self._finished.append(collection)
+        self._replies.trigger()   # the replies go out on the executor
 
-    def _on_static_bias(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+    def _defer_reply(self, response: Trigger.Response, header: Any) -> None:
+        """Take the place of the service's send_response: join (or start) the collection; reply when it ends."""
+        if self._closing.is_set():
+            response.success, response.message = False, 'refused: the node is shutting down'
+            self._send_reply(response, header)
+            return
         collection = self._start_collection()
-        while not collection.done.wait(0.2):
-            if self._closing.is_set():
-                self._end_collection(collection, None, 'the node is shutting down')
-            elif time.monotonic() - collection.last_sample > COLLECTION_STALL_S:
-                self._end_collection(collection, None, f'no frame from the gyro for {COLLECTION_STALL_S:.0f} s '
-                                                       f'(link: {self._driver.stats.last_error or "no data"})')
-        response.success = collection.result is not None
+        with self._lock:
+            if self._collection is collection:
+                collection.waiting.append(header)
+                return
+        self._send_reply(self._reply(collection), header)   # it ended meanwhile
+
+    @staticmethod
+    def _reply(collection: _Collection) -> Trigger.Response:
         if collection.result is not None:
-            response.message = collection.result.describe()
-        else:
-            response.message = f'refused, previous bias kept: {collection.error}'
-        return response
+            return Trigger.Response(success=True, message=collection.result.describe())
+        return Trigger.Response(success=False, message=f'refused, previous bias kept: {collection.error}')
+
+    def _send_replies(self) -> None:
+        with self._lock:
+            finished, self._finished = self._finished, []
+        for collection in finished:
+            response = self._reply(collection)
+            for header in collection.waiting:
+                self._send_reply(response, header)
+
+    def _watch_collection(self) -> None:
+        """Give up a collection that gets no frames (the replies say why), or one the shutdown cuts short."""
+        collection = self._collection
+        if collection is None:
+            return
+        if self._closing.is_set():
+            self._end_collection(collection, None, 'the node is shutting down')
+        elif collection.waiting and time.monotonic() - collection.last_sample > COLLECTION_STALL_S:
+            self._end_collection(collection, None, f'no frame from the gyro for {COLLECTION_STALL_S:.0f} s '
+                                                   f'(link: {self._driver.stats.last_error or "no data"})')
 
     # --- diagnostics ---------------------------------------------------------------------
 
@@ -430,10 +666,14 @@ class GyroNode(Node):
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [self._link_status(), self._bias_status(), self._temperature_status()]
+        if self.settings.log_path:
+            self._check_log_file()
+            msg.status.append(self._log_status())
         self._diag_pub.publish(msg)
 
     def _status(self, name: str, level: bytes, message: str, values: dict[str, Any]) -> DiagnosticStatus:
-        return DiagnosticStatus(level=level, name=f'{self.get_name()}: {name}', message=message,
+        # The fully qualified name: two gyros in two namespaces report apart.
+        return DiagnosticStatus(level=level, name=f'{self.get_fully_qualified_name()}: {name}', message=message,
                                 hardware_id=f'KVH {"FOG" if self.settings.protocol == KVH_FOG else "RD2100"} '
                                             f'{self.calibration.serial_number}',
                                 values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
@@ -451,6 +691,15 @@ class GyroNode(Node):
             'lost_frames': stats.lost_frames}
         for reason, count in stats.rejected_by_reason.items():
             values[f'rejected_{reason}'] = count
+        # Frames read but not published, per reason: since the last report, and in all.
+        dropped = dict(self._dropped)
+        recent = {reason: count - self._dropped_reported[reason] for reason, count in dropped.items()}
+        self._dropped_reported = dropped
+        values['dropped'] = sum(dropped.values())
+        for reason, count in dropped.items():
+            values[f'dropped_{reason}'] = count
+        if dropped[NOT_FINITE]:
+            values['last_not_finite_error'] = self._last_drop_error or 'a non-finite compensated rate'
         # kvh_fog: frames the gyro numbered but that never came, and frames it flagged invalid, since the last report.
         invalid = stats.rejected_by_reason.get(AXIS_INVALID, 0)
         lost, self._lost_reported = stats.lost_frames - self._lost_reported, stats.lost_frames
@@ -459,11 +708,24 @@ class GyroNode(Node):
             return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
         if rate_hz == 0.0:
             return self._status('link', DiagnosticStatus.WARN, 'connected, no frames', values)
+        # An implausible temperature is the temperature status's ERROR; the others would show nowhere else.
+        if any(count for reason, count in recent.items() if reason != IMPLAUSIBLE_TEMPERATURE):
+            not_published = ', '.join(f'{count} {reason}' for reason, count in recent.items() if count)
+            return self._status('link', DiagnosticStatus.ERROR, f'connected, {rate_hz:.1f} Hz; frames not '
+                                f'published since the last report: {not_published}', values)
         if lost or flagged:
             return self._status('link', DiagnosticStatus.WARN,
                                 f'connected, {rate_hz:.1f} Hz; since the last report {lost} frames lost (sequence '
                                 f'gaps), {flagged} flagged invalid by the gyro', values)
         return self._status('link', DiagnosticStatus.OK, f'connected, {rate_hz:.1f} Hz', values)
+
+    def _log_status(self) -> DiagnosticStatus:
+        with self._log_lock:
+            values = {'file': self._log_file, 'rows_not_logged': self._log_rows_lost, 'last_error': self._log_error}
+            if self._log is None:
+                return self._status('raw log', DiagnosticStatus.ERROR,
+                                    f'not logging: {self._log_error}; retrying every {LOG_RETRY_S:g} s', values)
+        return self._status('raw log', DiagnosticStatus.OK, f'logging to {values["file"]}', values)
 
     def _bias_status(self) -> DiagnosticStatus:
         with self._lock:   # one consistent snapshot: the reader thread may end a collection meanwhile
@@ -475,6 +737,9 @@ class GyroNode(Node):
             'calc_static_bias_drift_dps': f'{bias.calc_static_bias_drift_dps:.6f}',
             'samples': bias.samples, 'rate_std_dps': f'{bias.rate_std_dps:.6f}',
             'age_s': f'{time.monotonic() - bias_time:.0f}' if bias.samples else 'none',
+            # The temperature-rate refinement: pending while the bias window is kept, then its change.
+            'refinement': ('pending' if bias.window is not None and self._compensator.refinable
+                           else f'{bias.refined_dps:+.6f} dps' if bias.refined_dps else 'none'),
             'last_refusal': refusal}
         if collection is not None:
             progress = f'{collection.collector.count}/{self.settings.bias_samples}'
@@ -491,9 +756,9 @@ class GyroNode(Node):
     def _temperature_status(self) -> DiagnosticStatus:
         temp = self._last_temp_c
         low, high = self._temp_range
-        outside = self._outside_range
+        outside = self._compensator.clamped
         recent, self._outside_range_reported = outside - self._outside_range_reported, outside
-        implausible = self._implausible
+        implausible = self._dropped[IMPLAUSIBLE_TEMPERATURE]
         dropped, self._implausible_reported = implausible - self._implausible_reported, implausible
         values = {'temperature_c': f'{temp:.2f}', 'calibrated_min_c': low, 'calibrated_max_c': high,
                   'frames_outside_range': outside, 'frames_implausible_temperature': implausible}
@@ -505,7 +770,8 @@ class GyroNode(Node):
             parts = [f'{temp:.2f} degC is outside the calibrated range {low}..{high} degC']
         elif recent:
             level = DiagnosticStatus.WARN
-            parts.append(f'{recent} frames since the last report were outside the calibrated range {low}..{high} degC')
+            parts.append(f'{recent} frames since the last report were outside the calibrated range {low}..{high} degC '
+                         '(compensated at its edge)')
         if dropped:
             level = DiagnosticStatus.ERROR
             parts.append(f'{dropped} frames since the last report claimed a temperature outside '
@@ -521,14 +787,28 @@ class GyroNode(Node):
         """Stop the driver (no frame after this) and close the raw log."""
         self._closing.set()
         self._driver.stop()
-        if self._log is not None:
-            self._log.close()
-            self._log = None
+        collection = self._collection
+        if collection is not None:   # the calls waiting for it hear why, rather than time out
+            self._end_collection(collection, None, 'the node is shutting down')
+            try:
+                self._send_replies()
+            except Exception as e:   # the context may be shut down already (SIGINT): nothing more to say
+                self.get_logger().warning(f'static bias replies not sent at shutdown: {type(e).__name__}: {e}')
+        with self._log_lock:
+            log, self._log = self._log, None
+        if log is not None:
+            try:
+                log.close()
+            except (OSError, ValueError) as e:
+                self.get_logger().error(f'closing the raw log {self._log_file}: {e}')
 
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``gyro_node``; returns the exit code."""
     argv = sys.argv if args is None else args
+    if any(arg in ('-h', '--help') for arg in argv[1:argv.index('--ros-args') if '--ros-args' in argv else None]):
+        print(usage())
+        return 0
     node: GyroNode | None = None
     try:
         rclpy.init(args=argv)

@@ -49,8 +49,10 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class BiasWindow:
-    """The samples a static bias was taken over, kept to refine it; ``causal_dps`` is the mean
-    of the temperature-rate terms over them, as the causal filter gave them."""
+    """The samples a static bias was taken over, kept to refine it.
+
+    ``causal_dps`` is the mean of the temperature-rate terms over them, as the causal filter gave them.
+    """
 
     t: NDArray[np.float64]
     rate_dps: NDArray[np.float64]

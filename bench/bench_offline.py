@@ -45,6 +45,7 @@ class Run:
     """One child process: wall time, peak resident memory, exit status, and what it printed on stderr."""
 
     wall_s: float
+    cpu_s: float      # user + system time of the child
     peak_mib: float
     status: int
     stderr: str
@@ -64,7 +65,7 @@ def run_child(args: list[str], cap_gib: float) -> Run:
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - start
     proc.returncode = os.waitstatus_to_exitcode(status)
-    return Run(wall, usage.ru_maxrss / 1024, proc.returncode, stderr)
+    return Run(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024, proc.returncode, stderr)
 
 
 def write_raw_log(path: Path, hours: float, rate_hz: float, chunk_s: float = 3600.0) -> int:
@@ -92,8 +93,12 @@ def bench_apply(args: argparse.Namespace, work: Path) -> None:
     cal = dataclasses.replace(load_packaged_calibration(SERIAL), terms=(
         Term('temperature_rate', 'power', (0.24,), (1,)), Term('time', 'exp_decay', (0.02,), (), 1200.0)))
     write_calibration(work / 'CAL.yaml', cal)
-    print('| log | rows | CSV MB | apply wall s | rows/s | peak RSS MiB |')
-    print('|---|---:|---:|---:|---:|---:|')
+    # The fixed cost of starting Python and importing the tools, taken off for the rate.
+    startup = min((run_child(['apply', '--help'], args.cap_gib) for _ in range(3)), key=lambda r: r.cpu_s)
+    print(f'start-up (`calibrate apply --help`): {startup.wall_s:.2f} s wall, {startup.cpu_s:.2f} s CPU, '
+          f'{startup.peak_mib:.0f} MiB\n')
+    print('| log | rows | CSV MB | apply wall s | apply CPU s | rows per CPU s after start-up | peak RSS MiB |')
+    print('|---|---:|---:|---:|---:|---:|---:|')
     for hours in args.hours:
         for rate_hz in args.rate_hz:
             log = work / f'raw-{hours:g}h-{rate_hz:g}hz.csv'
@@ -104,13 +109,14 @@ def bench_apply(args: argparse.Namespace, work: Path) -> None:
             log.unlink()
             (work / 'out.csv').unlink(missing_ok=True)
             ok = '' if run.status == 0 else f' (exit {run.status}: {run.stderr.strip()[-200:]})'
-            print(f'| {hours:g} h x {rate_hz:g} Hz | {rows:,} | {size:,.0f} | {run.wall_s:.1f} | '
-                  f'{rows / run.wall_s:,.0f} | {run.peak_mib:,.0f}{ok} |', flush=True)
+            print(f'| {hours:g} h x {rate_hz:g} Hz | {rows:,} | {size:,.0f} | {run.wall_s:.1f} | {run.cpu_s:.1f} | '
+                  f'{rows / (run.cpu_s - startup.cpu_s):,.0f} | {run.peak_mib:,.0f}{ok} |', flush=True)
 
 
 def bench_fit(args: argparse.Namespace, work: Path) -> None:
-    print('| log | rows | simulate wall s | simulate peak MiB | fit wall s | fit peak MiB | fit MiB per M rows |')
-    print('|---|---:|---:|---:|---:|---:|---:|')
+    print('| log | rows | simulate wall s | simulate peak MiB | fit wall s | fit CPU s | fit peak MiB | '
+          'fit MiB per M rows |')
+    print('|---|---:|---:|---:|---:|---:|---:|---:|')
     measured: list[tuple[int, float]] = []
     for spec in args.runs:
         hours, rate_hz = (float(v) for v in spec.split(':'))
@@ -119,7 +125,7 @@ def bench_fit(args: argparse.Namespace, work: Path) -> None:
             slope, intercept = np.polyfit(*np.array(measured).T, 1)
             expected = (slope * rows + intercept) / 1024
             if expected > args.max_gib:
-                print(f'| {hours:g} h x {rate_hz:g} Hz | {rows:,} | | | skipped | {expected:.1f} GiB expected | |')
+                print(f'| {hours:g} h x {rate_hz:g} Hz | {rows:,} | | | skipped | | {expected:.1f} GiB expected | |')
                 continue
         log = work / 'sim.csv'
         sim = run_child(['simulate', '--serial', SERIAL, '--hours', f'{hours:g}', '--rate-hz', f'{rate_hz:g}',
@@ -127,7 +133,7 @@ def bench_fit(args: argparse.Namespace, work: Path) -> None:
                          '--out', str(log), '--force'], args.cap_gib)
         if sim.status != 0:
             print(f'| {hours:g} h x {rate_hz:g} Hz | {rows:,} | {sim.wall_s:.1f} | {sim.peak_mib:,.0f} | '
-                  f'simulate failed: {sim.stderr.strip()[-200:]} | | |', flush=True)
+                  f'simulate failed: {sim.stderr.strip()[-200:]} | | | |', flush=True)
             continue
         fit = run_child(['fit', str(log), '--rows', '3', '--columns', '4', '--serial', SERIAL, '--force',
                          '--out', str(work / 'CAL.yaml'), '--report', str(work / 'REPORT.json')], args.cap_gib)
@@ -135,7 +141,8 @@ def bench_fit(args: argparse.Namespace, work: Path) -> None:
         if fit.status == 0:
             measured.append((rows, fit.peak_mib))
         print(f'| {hours:g} h x {rate_hz:g} Hz | {rows:,} | {sim.wall_s:.1f} | {sim.peak_mib:,.0f} | '
-              f'{fit.wall_s:.1f} | {fit.peak_mib:,.0f}{ok} | {fit.peak_mib / rows * 1e6:,.0f} |', flush=True)
+              f'{fit.wall_s:.1f} | {fit.cpu_s:.1f} | {fit.peak_mib:,.0f}{ok} | {fit.peak_mib / rows * 1e6:,.0f} |',
+              flush=True)
     if len(measured) >= 2:
         slope, intercept = np.polyfit(*np.array(measured).T, 1)
         print(f'\nfit peak memory ~ {intercept:.0f} MiB + {slope * 1e6:.0f} MiB per million rows '

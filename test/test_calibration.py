@@ -154,3 +154,120 @@ def test_flatten_matches_the_dump() -> None:
     cal = load_packaged_calibration('NAVC4377')
     doc = yaml.safe_load(dump_calibration(cal))
     assert flatten(doc['/**']['ros__parameters']) == cal.to_parameters()
+
+
+def _cal_text(extra: str = '', serial: str = 'NAVC4058') -> str:
+    return find_calibration_file(serial).read_text(encoding='utf-8') + extra
+
+
+@pytest.mark.parametrize('extra, message', [
+    ('    extnded:\n      signals: [time]\n', "unknown key 'extnded.signals' \\(did you mean 'extended.signals'\\?\\)"),
+    ('    polynomial_rows: 3\n', "unknown key 'polynomial_rows' \\(did you mean 'polynomial.rows'\\?\\)"),
+    ('    extended:\n      signals: [time]\n      time: {form: exp_decay, time_constant_s: 9.0, coefficients: [0.1],'
+     ' time_constnt_s: 1.0}\n', "unknown key 'extended.time.time_constnt_s' \\(did you mean "
+     "'extended.time.time_constant_s'\\?\\)"),
+    ('    extended:\n      signals: [rate]\n      time: {form: exp_decay, time_constant_s: 9.0, coefficients: [0.1]}\n',
+     "unknown key 'extended.time.form'"),
+])
+def test_unknown_keys_are_refused_with_the_closest_name(tmp_path: Path, extra: str, message: str) -> None:
+    """A misspelt key used to drop the fitted terms silently (issue 9)."""
+    path = tmp_path / 'cal.yaml'
+    path.write_text(_cal_text(extra))
+    with pytest.raises(CalibrationError, match=f'^{re.escape(str(path))}: {message}'):
+        load_calibration(path)
+
+
+@pytest.mark.parametrize('extended, key', [
+    ('{signals: [rate], rate: {form: power, powers: [400], coefficients: [1.0e-9]}}', 'extended.rate'),
+    ('{signals: [rate], rate: {form: exp_decay, time_constant_s: 0.001, coefficients: [0.01]}}', 'extended.rate'),
+    ('{signals: [temperature_rate], temperature_rate: {form: exp_decay, time_constant_s: 0.0001, '
+     'coefficients: [0.01]}}', 'extended.temperature_rate'),
+    ('{signals: [time], time: {form: power, powers: [60], coefficients: [1.0e-9]}}', 'extended.time'),
+])
+def test_terms_that_overflow_in_the_envelope_are_refused(tmp_path: Path, extended: str, key: str) -> None:
+    """A power [400] or an exp_decay of a signal that goes negative overflows: the node dropped every frame."""
+    path = tmp_path / 'cal.yaml'
+    path.write_text(_cal_text(f'    extended: {extended}\n'))
+    with pytest.raises(CalibrationError, match=f'^{re.escape(str(path))}: {key}: the .* term overflows'):
+        load_calibration(path)
+
+
+def test_terms_finite_in_the_envelope_are_kept(tmp_path: Path) -> None:
+    """A 1 ms warm-up decays to 0 (the time since power-on is never negative); a rate cross term."""
+    path = tmp_path / 'cal.yaml'
+    path.write_text(_cal_text('    extended: {signals: [time_since_power_on, temperature_lag], time_since_power_on: '
+                              '{form: exp_decay, time_constant_s: 0.001, coefficients: [0.01]}, temperature_lag: '
+                              '{form: power, powers: [2], rate_powers: [0, 3], time_constant_s: 60.0, '
+                              'coefficients: [0.1, 0.2]}}\n'))
+    assert [t.signal for t in load_calibration(path).terms] == ['time_since_power_on', 'temperature_lag']
+
+
+def test_polynomial_that_overflows_is_refused() -> None:
+    params = _params()
+    params.update({'polynomial.rows': 200, 'polynomial.columns': 1, 'polynomial.coefficients': [1.0] * 200})
+    with pytest.raises(CalibrationError, match='^x.yaml: polynomial.coefficients: the polynomial overflows'):
+        from_parameters(params, 'x.yaml')
+
+
+def test_yaml_alias_bomb_fails_fast_naming_the_file(tmp_path: Path) -> None:
+    """600 bytes of nested aliases: refused at the first alias, not expanded (issue 10)."""
+    lines = ['a0: &a0 [x, x, x, x, x, x, x, x, x]']
+    lines += [f'a{i}: &a{i} [' + ', '.join([f'*a{i - 1}'] * 9) + ']' for i in range(1, 12)]
+    bomb = tmp_path / 'bomb.yaml'
+    bomb.write_text('/**:\n  ros__parameters:\n' + ''.join(f'    {line}\n' for line in lines))
+    assert 500 < bomb.stat().st_size < 800
+    with pytest.raises(CalibrationError, match=f'^{re.escape(str(bomb))}: not valid YAML: found alias \\*a0') as info:
+        load_calibration(bomb)
+    assert len(str(info.value)) < 600
+
+
+def test_large_and_binary_files_are_refused_briefly(tmp_path: Path) -> None:
+    big = tmp_path / 'big.yaml'
+    big.write_text('/**:\n  ros__parameters:\n    serial_number: "' + 'x' * (2 << 20) + '"\n')
+    with pytest.raises(CalibrationError, match='larger than 1048576 bytes'):
+        load_calibration(big)
+    binary = tmp_path / 'binary.yaml'
+    binary.write_bytes(b'\xd0\xff' * 100)
+    with pytest.raises(CalibrationError, match=f'^{re.escape(str(binary))}: not UTF-8'):
+        load_calibration(binary)
+    long_line = tmp_path / 'long.yaml'
+    long_line.write_text('a: [' + 'b' * 100_000 + ']]\n')
+    with pytest.raises(CalibrationError) as info:
+        load_calibration(long_line)
+    assert str(info.value).startswith(str(long_line)) and len(str(info.value)) < 600
+
+
+def test_known_keys_follow_to_parameters() -> None:
+    """The known keys are what to_parameters writes, for terms of every form."""
+    from art_gyro_calibration.calibration import CALIBRATION_KEYS, TERM_FIELDS, is_calibration_key
+    assert set(_params()) <= CALIBRATION_KEYS
+    assert TERM_FIELDS == {'form', 'coefficients', 'powers', 'rate_powers', 'time_constant_s'}
+    assert is_calibration_key('extended.supply_v.powers') and not is_calibration_key('extnded.signals')
+
+
+def test_calibration_urls_resolve(tmp_path: Path) -> None:
+    from art_gyro_calibration.calibration import resolve_calibration_url
+    assert resolve_calibration_url('package://art_gyro_calibration/config/NAVC3545.yaml').read_text() == \
+        find_calibration_file('NAVC3545').read_text()
+    assert resolve_calibration_url(f'file://{tmp_path}/x.yaml') == tmp_path / 'x.yaml'
+    assert resolve_calibration_url(str(tmp_path / 'y.yaml')) == tmp_path / 'y.yaml'
+    with pytest.raises(CalibrationError, match='no config/NAVC0000.yaml in'):
+        resolve_calibration_url('package://art_gyro_calibration/config/NAVC0000.yaml')
+
+
+def test_calibrate_apply_refuses_what_the_node_refuses(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The same check in calibrate apply: a misspelt key and an overflowing term, file and key named."""
+    pytest.importorskip('scipy')
+    from art_gyro_calibration.analysis.cli import main
+    log = tmp_path / 'LOG.csv'
+    log.write_text('t,raw_rate,raw_temp\n' + ''.join(f'{i * 0.1:.6f},3,500\n' for i in range(200)))
+    for name, extra, message in (
+            ('misspelt.yaml', '    extnded:\n      signals: [time]\n', "unknown key 'extnded.signals'"),
+            ('overflow.yaml', '    extended: {signals: [rate], rate: {form: power, powers: [400], '
+                              'coefficients: [1.0e-9]}}\n', 'extended.rate: the power term overflows')):
+        path = tmp_path / name
+        path.write_text(_cal_text(extra))
+        assert main(['apply', str(log), '--calibration', str(path), '--out', str(tmp_path / f'{name}.csv')]) == 1
+        err = capsys.readouterr().err
+        assert f'{path}: {message}' in err, err
+        assert not (tmp_path / f'{name}.csv').exists()

@@ -1,5 +1,6 @@
 """``calibrate`` end to end on a small simulated log: simulate, fit, apply, and the node's per-sample path."""
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -9,10 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration
+from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration, write_calibration
 from art_gyro_calibration.analysis.cli import main
-from art_gyro_calibration.compensation import Compensator, apply_calibration
+from art_gyro_calibration.compensation import Compensator, RunStart, apply_calibration
 from art_gyro_calibration.log import RawLogWriter, read_log
+from art_gyro_calibration.terms import Term
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -46,7 +48,14 @@ def test_fit_writes_calibration_report_and_plots(fitted):
     assert report['noise_floor_dps'] > 0
     assert (fitted / 'REPORT.md').read_text().startswith('# Calibration of NAVC4058')
     pngs = sorted(p.name for p in (fitted / 'plots').glob('*.png'))
-    assert pngs == ['error-vs-rate.png', 'heading-360.png', 'residual-temperature_rate.png']
+    assert pngs == ['error-vs-rate.png', 'heading-360.png', 'residual-temperature_rate.png', 'residual-vs-signals.png']
+    # The loop's statistics in physical units, the alarm, and the forms tried.
+    assert report['model_adequate'] is True and report['adequacy']['budget_dph'] > 0
+    assert report['materiality_dph'] == pytest.approx(report['bias_instability_dph'])
+    shupe = report['effects'][0]
+    assert 0 < shupe['p_value'] <= 0.05 and shupe['effect_dph'] > report['materiality_dph']
+    assert {'temperature_lag', 'time_since_power_on', 'rate_x_temperature_rate'} <= set(report['forms_tried'])
+    assert report['screens'][0]['draws'] == 200 and report['findings_not_written'] == []
     assert all((fitted / 'plots' / p).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' for p in pngs)
 
 
@@ -104,7 +113,7 @@ def test_excluded_signal_is_not_used(fitted):
                  '--exclude', 'temperature_rate', '--max-effects', '1',
                  '--out', str(d / 'X.yaml'), '--report', str(d / 'X.json')]) == 0
     report = json.loads((d / 'X.json').read_text())
-    assert all(c['signal'] != 'temperature_rate' for screen in report['screens'] for c in screen)
+    assert all(c['signal'] != 'temperature_rate' for screen in report['screens'] for c in screen['candidates'])
 
 
 def test_python_dash_m_is_calibrate():
@@ -174,20 +183,22 @@ def test_apply_streams_chunks_equal_to_the_whole_log(fitted, tmp_path, capsys):
     """Chunked apply (the static bias spanning chunks, implausible rows dropped) equals the in-memory path."""
     from art_gyro_calibration.analysis.streaming import apply_to_csv
     _raw_log(tmp_path / 'log.csv', 5000, bad_temp_rows=(3, 150, 151, 4000))
-    cal = load_calibration(fitted / 'CAL.yaml')
-    assert [t.signal for t in cal.terms] == ['temperature_rate']
+    cal = dataclasses.replace(load_packaged_calibration('NAVC4058'), terms=(
+        Term('temperature_rate', 'power', (2.0,), (1,)), Term('time_since_power_on', 'exp_decay', (0.05,), (), 2.0),
+        Term('rate_change', 'power', (0.002,), (1,))))
+    write_calibration(tmp_path / 'CAL.yaml', cal)
     log = read_log(tmp_path / 'log.csv', cal.rate_scale_factor, cal.temp_scale_factor)
-    whole = apply_calibration(log, cal, 250)
+    whole = apply_calibration(log, cal, 250, start=RunStart(powered_on_at_start=True))
     assert np.count_nonzero(~whole.kept) == 4 and len(whole.corrected_dps) == 4996
     with open(tmp_path / 'chunked.csv', 'wb') as out:
-        done = apply_to_csv(tmp_path / 'log.csv', cal, 250, out, chunk_rows=97)
+        done = apply_to_csv(tmp_path / 'log.csv', cal, 250, out, chunk_rows=97, start=RunStart(True))
     assert (done.rows, done.dropped, done.bias) == (5000, 4, whole.bias)
     data = np.loadtxt(tmp_path / 'chunked.csv', delimiter=',', skiprows=1)
     np.testing.assert_allclose(data[:, 0], log.t[whole.kept], rtol=0, atol=0.5e-6 + np.spacing(log.t[-1]))
     np.testing.assert_allclose(data[:, 3], whole.comp_dps, rtol=0, atol=0.5e-9 + 1e-12)
     np.testing.assert_allclose(data[:, 4], whole.corrected_dps, rtol=0, atol=0.5e-9 + 1e-12)
-    assert main(['apply', str(tmp_path / 'log.csv'), '--calibration', str(fitted / 'CAL.yaml'),
-                 '--out', str(tmp_path / 'cli.csv'), '--bias-samples', '250']) == 0
+    assert main(['apply', str(tmp_path / 'log.csv'), '--calibration', str(tmp_path / 'CAL.yaml'),
+                 '--out', str(tmp_path / 'cli.csv'), '--bias-samples', '250', '--powered-on-at-start']) == 0
     assert (tmp_path / 'cli.csv').read_bytes() == (tmp_path / 'chunked.csv').read_bytes()
     assert '4996 of 5000 rows; 4 dropped as the node drops them' in capsys.readouterr().out
 
@@ -201,9 +212,10 @@ def test_apply_never_overwrites_its_input_and_asks_before_replacing(fitted, tmp_
     _raw_log(log, 1000)
     original = log.read_bytes()
     (tmp_path / 'link.csv').symlink_to(log)
+    os.link(log, tmp_path / 'hard.csv')
     (tmp_path / 'sub').mkdir()
     cal = str(fitted / 'CAL.yaml')
-    for out in (log, tmp_path / 'link.csv', tmp_path / 'sub' / '..' / 'log.csv', cal):
+    for out in (log, tmp_path / 'link.csv', tmp_path / 'hard.csv', tmp_path / 'sub' / '..' / 'log.csv', cal):
         for force in ([], ['--force']):
             assert main(['apply', str(log), '--calibration', cal, '--out', str(out), *force]) == 1
             assert 'is the input' in capsys.readouterr().err

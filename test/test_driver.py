@@ -3,6 +3,7 @@
 import threading
 import time
 
+import numpy as np
 import pytest
 
 from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver, WireStamper
@@ -97,12 +98,121 @@ def test_stamper_subtracts_wire_time_and_never_goes_back():
     stamper = WireStamper(9600, 8)
     byte_ns = 1_041_666
     now = 10_000_000_000
-    # Three frames read in one 24-byte chunk: the first left the gyro 24 byte times before the read returned.
-    stamps = [stamper.stamp(now, 24, end) for end in (8, 16, 24)]
-    assert stamps == [now - 24 * byte_ns, now - 16 * byte_ns, now - 8 * byte_ns]
-    # A read that returns with an earlier clock (a late, delayed chunk) does not go back.
-    assert stamper.stamp(now - 5 * byte_ns, 8, 8) == now - 8 * byte_ns
-    assert stamper.stamp(now + 100 * byte_ns, 8, 8) == now + 92 * byte_ns
+    offset = 1_700_000_000_000_000_000   # the wall clock against the monotonic one
+    # Three frames read in one 24-byte chunk, no period known yet: spaced by their wire time.
+    stamps = [s for s, _ in stamper.stamp(now + offset, now, 24, [8, 16, 24])]
+    assert stamps == [offset + now - 24 * byte_ns, offset + now - 16 * byte_ns, offset + now - 8 * byte_ns]
+    # A read that returns with an earlier time (a late, delayed chunk) does not go back.
+    (late, _), = stamper.stamp(now - 5 * byte_ns + offset, now - 5 * byte_ns, 8, [8])
+    assert late > stamps[-1]
+
+
+def _steady_gyro(stamper: WireStamper, clock, period_ns: int, frames: int, start_ns: int = 0):
+    """Feed ``frames`` single-frame chunks a period apart; the stamps."""
+    out = []
+    for k in range(frames):
+        mono = start_ns + k * period_ns
+        out += stamper.stamp(clock(mono), mono, 8, [8])
+    return out
+
+
+def test_stamper_spaces_a_burst_after_a_stall_by_the_gyro_period():
+    """Frames queued while the reader stalled were stamped 8 ms apart at 9600 baud instead of 100 ms (issue 9)."""
+    period = 100_000_000
+    stamper = WireStamper(9600, 8)
+    _steady_gyro(stamper, lambda m: m, period, 50)
+    assert stamper.period_ns == pytest.approx(period, rel=1e-6)
+    # A 3 s stall: the 30 frames sent meanwhile arrive in one read, the last just before it returned.
+    sent = [50 * period + k * period for k in range(30)]
+    read = sent[-1] + 8 * stamper.byte_ns
+    burst = stamper.stamp(read, read, 240, list(range(8, 241, 8)))
+    assert [s for s, _ in burst] == pytest.approx(sent, abs=1_000_000)   # within 1 ms of when they were sent
+    assert stamper.period_ns == pytest.approx(period, rel=1e-3)
+
+
+@pytest.mark.parametrize('step_s', [-10.0, 10.0])
+def test_stamper_re_anchors_once_on_a_clock_step(step_s):
+    """A backward step froze the stamps for as long as the step (999 equal stamps at 100 Hz, issue 9)."""
+    period = 10_000_000
+    step = int(step_s * 1e9)
+    stamper = WireStamper(115200, 8)
+    wall = 1_700_000_000_000_000_000
+    before = _steady_gyro(stamper, lambda m: wall + m, period, 100)
+    assert stamper.step_ns == 0
+    mono = 100 * period
+    first = stamper.stamp(wall + step + mono, mono, 8, [8])
+    assert stamper.step_ns == step and stamper.steps_ns == step
+    after = first + _steady_gyro(stamper, lambda m: wall + step + m, period, 999, start_ns=mono + period)
+    assert stamper.step_ns == 0
+    stamps = np.array([s for s, _ in before + after])
+    steps = np.diff(stamps)
+    # One jump of the step, every other interval the gyro's period: integrating by stamps loses nothing.
+    assert np.count_nonzero(np.abs(steps - period) > 1000) == 1
+    assert steps[99] == pytest.approx(period + step, abs=1000)
+    # The steady time goes on as if nothing happened.
+    steady = np.array([t for _, t in before + after])
+    assert np.all(np.abs(np.diff(steady) - period) < 1000)
+
+
+def test_driver_stamps_a_stalled_burst_by_the_period_and_reports_a_clock_step(recorder):
+    """On a pty: the callback stalls for a second (the frames queue), the injected clock steps back 10 s."""
+    offset = [0]
+    warnings = []
+    stall_at = 60
+    stalled = threading.Event()
+
+    def on_frame(frame):
+        recorder.on_frame(frame)
+        if recorder.count() == stall_at:
+            time.sleep(1.0)
+            stalled.set()
+
+    with FakeRd2100('NAVC3545', rate_hz=50, seed=8) as fake:
+        driver = Rd2100Driver(fake.path, 9600, 'binary', on_frame, on_warning=warnings.append,
+                              clock_ns=lambda: time.time_ns() + offset[0])
+        driver.start()
+        try:
+            assert wait_for(stalled.is_set)
+            assert wait_for(recorder.more_than(stall_at + 60))
+            offset[0] = -10_000_000_000
+            n = recorder.count()
+            assert wait_for(recorder.more_than(n + 30))
+        finally:
+            driver.stop()
+    with recorder.lock:
+        stamps = np.array([f.stamp_ns for f in recorder.frames])
+    steps = np.diff(stamps) * 1e-9
+    # The stall's 50 queued frames are 20 ms apart like all the others (wire time would give 8 ms).
+    burst = steps[stall_at:stall_at + 45]
+    assert np.median(burst) == pytest.approx(0.02, rel=0.1), burst
+    # One backward jump of about 10 s, said once.
+    assert np.count_nonzero(steps < 0) == 1 and steps.min() == pytest.approx(-10.0, abs=0.2)
+    assert len([w for w in warnings if 'the clock stepped by -' in w]) == 1, warnings
+
+
+@pytest.mark.parametrize('garbage, expected', [
+    (b'', 'nothing received from'),
+    (bytes(range(0, 256, 3)) * 4, 'bytes skipped so far'),
+])
+def test_no_frames_after_opening_is_warned_once(garbage, expected, tmp_path):
+    """A wrong baud or protocol used to give "gyro link up" and then nothing on the console (issue 9)."""
+    warnings = []
+    silent = FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: no frames
+    try:
+        driver = Rd2100Driver(silent.path, 9600, 'binary', lambda f: None, on_warning=warnings.append)
+        driver.start()
+        try:
+            assert wait_for(lambda: driver.stats.connected)
+            silent.inject(garbage)
+            assert wait_for(lambda: warnings)
+            time.sleep(0.3)
+        finally:
+            driver.stop()
+    finally:
+        silent.stop()
+    assert len(warnings) == 1 and expected in warnings[0] and silent.path in warnings[0], warnings
+    if garbage:
+        assert 'check the baud rate (9600) and the protocol (binary)' in warnings[0]
 
 
 def test_garbage_is_counted_and_frames_keep_flowing(make_driver, recorder):

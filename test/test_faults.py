@@ -13,6 +13,7 @@ from __future__ import annotations
 import random
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -21,7 +22,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from rosproc import Listener, domain_id, node_with_listener, wait_until  # noqa: E402
+from rosproc import REPO, Listener, domain_id, node_env, node_with_listener, stop_node, wait_until  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
@@ -193,11 +194,11 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
                              and counter(s, 'frames_implausible_temperature') == 2,
                              'the implausible and the out-of-range frames counted', proc, output)
         errors = [s.message for m in listener.history() for s in m.status
-                  if s.name == 'gyro_node: temperature' and s.level == ERROR]
+                  if s.name == '/gyro_node: temperature' and s.level == ERROR]
         assert any('2 frames since the last report claimed a temperature outside' in e for e in errors), errors
         # The latest temperature is fine again, but the report of the period said what happened.
         warnings = [s.message for m in listener.history() for s in m.status
-                    if s.name == 'gyro_node: temperature' and s.level in (WARN, ERROR)]
+                    if s.name == '/gyro_node: temperature' and s.level in (WARN, ERROR)]
         assert any('were outside the calibrated range 10.0..50.0 degC' in w for w in warnings), warnings
         # A sustained out-of-range temperature shows as WARN with the value.
         fake.simulator.raw_temp = 1100   # 55 degC
@@ -251,6 +252,11 @@ def test_link_faults_missing_port_wrong_baud_ten_replugs_and_sigterm(tmp_path: P
                                            'the garbage counted, no frames', proc, output)
             assert garbled['message'] == 'connected, no frames' and counter(garbled, 'frames') == 0, garbled
             assert counter(garbled, 'published') == 0 and not listener.temperatures()
+            # The console says so, with the likely cause (it said "gyro link up" and then nothing).
+            warning = wait_until(lambda: [line for line in output.read_text().splitlines()
+                                          if 'no valid frame from' in line], 'the no-frames warning', proc, output)
+            assert len(warning) == 1 and 'bytes skipped so far' in warning[0], warning
+            assert 'check the baud rate (115200) and the protocol (binary)' in warning[0], warning
 
             # The right baud: frames flow from the first one.
             fake.start()
@@ -346,6 +352,9 @@ def test_ascii_line_faults_nan_and_absurd_temperatures(tmp_path: Path, loopback:
         listener.wait_status('temperature', lambda s: counter(s, 'frames_implausible_temperature') == 2
                              and counter(s, 'frames_outside_range') == 0, 'the absurd temperatures counted',
                              proc, output)
+        # Frames read but not published, by reason, in the link status too.
+        dropped = listener.wait_status('link', lambda s: counter(s, 'dropped') == 2, 'the drops counted', proc, output)
+        assert counter(dropped, 'dropped_implausible_temperature') == 2 and counter(dropped, 'dropped_not_finite') == 0
         assert [c for c in counts(listener.temperatures()) if c >= TEMP_BASE + PERIOD or c < TEMP_BASE] == []
         # Garbage without a line end runs into the next line: that one frame, and only it, is lost.
         inject_alone(fake, b'\x07garbage')
@@ -355,3 +364,59 @@ def test_ascii_line_faults_nan_and_absurd_temperatures(tmp_path: Path, loopback:
         assert counter(listener.wait_status('link', lambda s: counter(s, 'rejected_malformed') > len(malformed),
                                             'the spoilt line counted', proc, output),
                        'rejected_malformed') == len(malformed) + 1
+
+
+def test_log_failures_stop_logging_not_publishing(tmp_path: Path, loopback: None) -> None:
+    """A full disk (file size limit: EFBIG) and a log file deleted while open: reported; publishing goes on.
+
+    The log was written before the message, and every frame retried the failed flush: a full disk
+    stopped publishing while /diagnostics said "connected"; a deleted log was lost without a word.
+    """
+    import resource
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    logs = tmp_path / 'logs'
+    logs.mkdir()
+    limit = 64 * 1024   # bytes per file: about 2,500 rows (40 s at 50 Hz would be too slow: 200 Hz)
+
+    def small_files() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    fake = FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'), rate_hz=200.0)
+    fake.simulator = SequenceCounts(200.0)
+    listener = Listener(domain)
+    with open(output, 'wb') as out:
+        proc = subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.node', '--ros-args',
+                                 '--disable-external-lib-logs', *node_args(fake.path, 'static_bias_on_startup:=false',
+                                                                           f'log_path:={logs}')],
+                                env=node_env(domain), cwd=REPO, stdout=out, stderr=subprocess.STDOUT,
+                                preexec_fn=small_files)
+    try:
+        with fake:
+            wait_until(lambda: list(logs.glob('*.csv')), 'the log file', proc, output)
+            first = next(logs.glob('*.csv'))
+            # Deleted while open: noticed, said, and a new file started.
+            wait_until(lambda: first.stat().st_size > 1000, 'rows in the log', proc, output)
+            first.unlink()
+            deleted = listener.wait_status('raw log', lambda s: 'deleted' in s['last_error'], 'the deletion reported',
+                                           proc, output)
+            assert deleted['level'] == ERROR or 'deleted' in deleted['last_error']
+            assert 'was deleted or replaced while logging' in output.read_text()
+            wait_until(lambda: list(logs.glob('*.csv')), 'a new log file', proc, output)
+            # File too large (as a full disk): logging stops with an ERROR, frames keep flowing, none lost.
+            start = len(listener.temperatures())
+            failed = listener.wait_status('raw log', lambda s: 'File too large' in s['last_error'],
+                                          'the write error reported', proc, output)
+            assert int(failed['rows_not_logged']) > 0
+            wait_frames(listener, 400, proc, output)
+            assert gaps(residues(listener.temperatures(start))) == 0
+            link = listener.wait_status('link', lambda s: s['level'] == OK, 'the link OK', proc, output)
+            assert float(link['frame_rate_hz']) > 100.0
+            text = output.read_text()
+            assert text.count('raw log stopped, publishing goes on: writing') >= 1
+            assert 'Traceback' not in text
+    finally:
+        try:
+            stop_node(proc, signal.SIGINT, output)
+        finally:
+            listener.close()

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.analysis.importers import (DEG_PER_MRAD, RecordError, StaticRecord, read_cats_netcdf,
-                                                     runs, segment_labels, static_log, still_mask, write_static_log)
+                                                     read_phone_netcdf, runs, segment_labels, static_log, still_mask,
+                                                     write_static_log)
 from art_gyro_calibration.log import read_log
 
 HOUR = 3600.0
@@ -109,10 +110,61 @@ def test_read_cats_netcdf_converts_mrad_per_s_and_names_channels(tmp_path):
 
 def test_read_cats_netcdf_refuses_other_files(tmp_path):
     path = tmp_path / 'cats.nc'
-    _write_cats(path, units=b'deg/s')
-    with pytest.raises(RecordError, match='expected mrad/s'):
+    _write_cats(path, units=b'rpm')
+    with pytest.raises(RecordError, match="in 'rpm', expected one of mrad/s, rad/s, deg/s"):
         read_cats_netcdf(path)
     text = tmp_path / 'not.nc'
     text.write_text('t,rate\n')
     with pytest.raises(RecordError, match='cannot read as NetCDF-4/HDF5'):
         read_cats_netcdf(text)
+
+
+def _write_phone(path, n=50, hz=10, kinds=(b'output',) * 3 + (b'measured',) * 3, step=1):
+    import h5py
+    rng = np.random.default_rng(5)
+    omega = rng.normal(size=(n, 6))
+    with h5py.File(path, 'w') as f:
+        f['timestamp'] = np.arange(0, n * step, step, dtype=np.int64)
+        f['gyroscope_type'] = np.array(kinds, dtype=object)
+        f['angular_velocity'] = omega
+        f['angular_velocity'].attrs['units'] = b'rad/s'
+        if hz:
+            f['angular_velocity'].attrs['sampling_rate'] = np.array([hz])
+        f['acceleration'] = rng.normal(size=(n, 3))
+        f['magnetic_density'] = rng.normal(size=(n, 6))
+    return omega
+
+
+def test_read_phone_netcdf_takes_both_gyro_streams_and_counts_time(tmp_path):
+    path = tmp_path / 'phone.nc'
+    omega = _write_phone(path)
+    record = read_phone_netcdf(path)
+    assert np.allclose(record.t, np.arange(50) / 10.0)
+    assert np.all(np.isnan(record.temp_c))  # a phone logs no temperature
+    assert np.allclose(record.channels['gyro_z'], np.degrees(omega[:, 2]))
+    assert np.allclose(record.channels['gyro_measured_x'], np.degrees(omega[:, 3]))
+    assert {'acc_x', 'mag_z'} <= set(record.channels) and 'mag_measured_x' not in record.channels
+
+
+@pytest.mark.parametrize('change, message', [
+    (dict(kinds=(b'measured',) * 3 + (b'output',) * 3), 'three output then three measured'),
+    (dict(hz=0), 'no positive sampling_rate'),
+    (dict(step=2), 'does not count samples one by one'),
+])
+def test_read_phone_netcdf_refuses_what_it_cannot_read(tmp_path, change, message):
+    path = tmp_path / 'phone.nc'
+    _write_phone(path, **change)
+    with pytest.raises(RecordError, match=message):
+        read_phone_netcdf(path)
+
+
+def test_a_record_without_temperature_needs_a_stand_in_said_out_loud():
+    t = np.arange(100.0)
+    record = StaticRecord(t, np.full(100, np.nan), {'gyro_x': np.full(100, 0.3)}, 'phone')
+    with pytest.raises(RecordError, match='temperature is not a finite number at still sample 0'):
+        static_log(record, 'gyro_x')
+    log = static_log(record, 'gyro_x', temperature_c=20.0)
+    assert np.all(log.temp_c == 20.0) and np.all(log.rate_dps == 0.3)
+    warm = StaticRecord(t, np.full(100, 25.0), {'gyro_x': np.zeros(100)}, 'tag')
+    with pytest.raises(RecordError, match='has a temperature; a stand-in of 20.0 degC would replace it'):
+        static_log(warm, 'gyro_x', temperature_c=20.0)

@@ -74,7 +74,7 @@ def test_node_reads_a_kvh_fog_unit_counts_lost_and_invalid_frames_and_logs_deg_s
         assert link['rejected_bad_crc'] == link['rejected_repeated_sequence'] == '0'
         history = listener.history()
         assert any(s.level == WARN and '5 frames lost' in s.message
-                   for array in history for s in array.status if s.name == 'gyro_node: link'), history[-1]
+                   for array in history for s in array.status if s.name == '/gyro_node: link'), history[-1]
 
         # The gyro flags its z axis invalid: those frames are not published, and are counted.
         before = listener.count()
@@ -168,7 +168,7 @@ def test_kvh_fog_params_file_sets_valid_node_parameters() -> None:
     params = parameter_dict_from_yaml_file(str(REPO / 'config' / 'kvh_fog.params.yaml'))
     values = {name: parameter_value_to_python(p.value) for name, p in params.items()}
     assert set(values) <= set(PARAMETERS) | set(KVH_FOG_PARAMETERS)
-    settings = check_settings({**{n: d for n, (d, _) in PARAMETERS.items()},
+    settings = check_settings({**{n: d for n, (d, *_) in PARAMETERS.items()},
                                **{n: v for n, v in values.items() if n in PARAMETERS}})
     assert settings.protocol == 'kvh_fog' and settings.serial_number == EXAMPLE
     kvh = KvhFogConfig(**{n.removeprefix('kvh_fog.'): v for n, v in values.items() if n in KVH_FOG_PARAMETERS})

@@ -11,7 +11,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = REPO / 'art_gyro_calibration'
-ANALYSIS_ONLY = ('scipy', 'matplotlib', 'h5py')
+ANALYSIS_ONLY = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl')
 RUNTIME_MODULES = ('node', 'monitor', 'driver', 'frame', 'fake_rd2100', 'compensation', 'calibration',
                    'static_bias', 'signals', 'terms', 'model', 'log')
 # Imports of the analysis-only packages fail in the child, as on a robot without the extra.
@@ -83,7 +83,7 @@ def test_install_metadata_keeps_the_runtime_lean() -> None:
     setup = (REPO / 'setup.py').read_text(encoding='utf-8')
     requires = setup.split('install_requires=')[1].split(']')[0]
     assert not [p for p in ANALYSIS_ONLY if p in requires], requires
-    assert "extras_require={'analysis': ['scipy', 'matplotlib', 'h5py']}" in setup
+    assert "extras_require={'analysis': ['scipy', 'matplotlib', 'h5py', 'threadpoolctl']}" in setup
     manifest = (REPO / 'package.xml').read_text(encoding='utf-8')
     exec_depends = [line for line in manifest.splitlines() if '<exec_depend>' in line]
     assert not [line for line in exec_depends if any(p in line for p in ANALYSIS_ONLY)], exec_depends

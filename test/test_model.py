@@ -102,8 +102,11 @@ def _transcribed_program(serial: str, raw_rate: np.ndarray, raw_temp: np.ndarray
 
 
 def _unclamped(serial: str) -> Calibration:
-    """The packaged calibration trusted over the whole -10..60 degC of these runs: the report's program has no
-    clamp, so it is compared where ours does not clamp either (test_compensation checks the clamp)."""
+    """The packaged calibration, trusted over the whole -10..60 degC of these runs.
+
+    The report's program has no clamp, so it is compared where ours does not clamp either
+    (test_compensation checks the clamp).
+    """
     return dataclasses.replace(load_packaged_calibration(serial), temperature_range_c=(-10.0, 60.0))
 
 

@@ -5,6 +5,7 @@ Each node start-up costs seconds: the checks are grouped per node process.
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -74,6 +75,11 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
         refused = listener.wait_status('static bias', lambda s: s['state'] == 'refused', 'the refusal',
                                        proc, output)
         assert refused['static_bias_drift_dps'] == bias['static_bias_drift_dps']
+        # What run_demo.sh waits with: a refused bias is exit 1.
+        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--wait-static-bias',
+                               '--timeout', str(TIMEOUT_S), '--ros-args', '-r', '__ns:=/robot'],
+                              env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S * 2)
+        assert wait.returncode == 1 and '/robot/gyro_node: static bias: refused' in wait.stderr, wait
         assert rates_dps(listener.wait_imu(10, proc, output)).mean() == pytest.approx(turning_dps, abs=0.01)
 
         # Still again: a new static bias, its values in the reply.
@@ -126,6 +132,9 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
         temperature = listener.wait_status('temperature', lambda s: s['level'] == b'\x01',
                                            'the temperature warning', proc, output)
         assert 'outside the calibrated range' in temperature['message']
+        # Said on the console too (a user without ros2cli sees no /diagnostics), once a minute at most.
+        warned = [line for line in output.read_text().splitlines() if 'gyro temperature 5.00 degC is outside' in line]
+        assert len(warned) == 1, warned
         bias = listener.status('static bias')
         assert bias['state'] == 'none' and bias['level'] == b'\x01'
         assert 'calibration loaded: NAVC4058 from parameters' in output.read_text()
@@ -134,14 +143,18 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
                               env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
         lines = echo.stdout.splitlines()
         assert echo.returncode == 0 and len(lines) == 3, echo.stdout + echo.stderr
-        assert all(' imu_link: yaw rate ' in line and 'deg/s' in line and ' 5.00 degC' in line
-                   for line in lines[1:]), lines
+        # No temperature before one arrived ('nan degC' made this test flaky), then the gyro's.
+        assert all(' imu_link: yaw rate ' in line and 'deg/s' in line and 'nan' not in line for line in lines), lines
+        assert all(line.endswith('temperature   5.00 degC') or 'temperature' not in line for line in lines), lines
         # Its --static-bias calls the service: the first static bias of this node.
         call = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--static-bias'],
                               env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
         assert call.returncode == 0 and call.stdout.startswith('StaticBiasDrift='), call.stdout + call.stderr
         assert 'over 10 samples' in call.stdout
         listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
+        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--wait-static-bias'],
+                              env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S * 2)
+        assert wait.returncode == 0 and wait.stdout.startswith('/gyro_node: static bias: StaticBiasDrift='), wait
     # Every frame received is in the raw log, in counts, with the stamps in seconds.
     files = list(logs.glob('NAVC4058_*.csv'))
     assert len(files) == 1
@@ -149,6 +162,27 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
     assert len(log) >= 10
     assert np.all(log.temp_c == pytest.approx(5.0))
     assert abs(log.t[-1] - time.time()) < 30.0
+
+
+def _calibration_with(tmp_path: Path, extra: str) -> list[str]:
+    (tmp_path / 'cal.yaml').write_text((REPO / 'config' / 'NAVC4058.yaml').read_text() + extra)
+    return ['--params-file', str(tmp_path / 'cal.yaml'), '-p', 'port:=/nonexistent']
+
+
+def _misspelt_key(tmp_path: Path) -> list[str]:
+    return _calibration_with(tmp_path, '    extnded:\n      signals: [time]\n')
+
+
+def _overflowing_term(tmp_path: Path) -> list[str]:
+    return _calibration_with(tmp_path, '    extended:\n      signals: [rate]\n      rate: {form: power, '
+                                       'powers: [400], coefficients: [1.0e-9]}\n')
+
+
+def _alias_bomb(tmp_path: Path) -> list[str]:
+    lines = ['a0: &a0 [x, x, x, x, x, x, x, x, x]']
+    lines += [f'a{i}: &a{i} [' + ', '.join([f'*a{i - 1}'] * 9) + ']' for i in range(1, 12)]
+    (tmp_path / 'bomb.yaml').write_text('/**:\n  ros__parameters:\n' + ''.join(f'    {line}\n' for line in lines))
+    return ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={tmp_path}/bomb.yaml']
 
 
 def _malformed(tmp_path: Path) -> list[str]:
@@ -165,14 +199,43 @@ def _malformed(tmp_path: Path) -> list[str]:
     (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'baud:=fast'], 'parameter baud must be an integer'),
     (lambda p: ['-p', 'serial_number:=NAVC9999'], 'parameter serial_number: no calibration file NAVC9999.yaml'),
     (lambda p: [], 'parameter serial_number is required'),
-], ids=['malformed', 'other_serial', 'protocol', 'baud_type', 'unknown_serial', 'no_serial'])
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'bais_samples:=5'],
+     "unknown parameter 'bais_samples' (from the command line) (did you mean 'bias_samples'?)"),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'bias_sample:=5'],
+     "unknown parameter 'bias_sample' (from the command line) (did you mean 'bias_samples'?)"),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'yaw_rate_stddev:=1e200'],
+     'parameter yaw_rate_stddev must be in 1e-07..1, got 1e+200'),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'yaw_rate_stddev:=1e-200'],
+     'parameter yaw_rate_stddev must be in 1e-07..1, got 1e-200'),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'bias_samples:=100000000'],
+     'parameter bias_samples must be in 2..1000000, got 100000000'),
+    (lambda p: ['--params-file', str(REPO / 'config' / 'gyro_node.params.yaml'),
+                '--params-file', str(REPO / 'config' / 'NAVC4058.yaml')],
+     "parameter serial_number is 'NAVC4058' but the parameters in {repo}/config/gyro_node.params.yaml are for "
+     "'NAVC3545'"),
+    (_misspelt_key, "unknown parameter 'extnded.signals' (from {tmp}/cal.yaml) (did you mean 'extended.signals'?)"),
+    (_overflowing_term, '{tmp}/cal.yaml): extended.rate: the power term overflows'),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={REPO}/config/NAVC4058.yaml'],
+     "{repo}/config/NAVC4058.yaml: serial_number is 'NAVC4058', expected 'NAVC3545'"),
+    (_alias_bomb, '{tmp}/bomb.yaml: not valid YAML: found alias'),
+    (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'qos_overrides./imu/data_raw.publisher.reliability:=sometimes'],
+     'QoS override of imu/data_raw:'),
+], ids=['malformed', 'other_serial', 'protocol', 'baud_type', 'unknown_serial', 'no_serial', 'misspelt', 'misspelt2',
+        'stddev_huge', 'stddev_tiny', 'samples_huge', 'two_params_files', 'calibration_key', 'overflow',
+        'calibration_file_serial', 'alias_bomb', 'qos'])
 def test_node_refuses_bad_parameters(tmp_path: Path, args: Callable[[Path], list[str]], message: str) -> None:
     """A bad calibration or parameter: one line naming it, no traceback, and a non-zero exit."""
     output = tmp_path / 'node.log'
     proc = start_node(domain_id(), output, *args(tmp_path))
-    assert proc.wait(TIMEOUT_S) != 0
+    try:
+        code = proc.wait(TIMEOUT_S)
+    except subprocess.TimeoutExpired:   # it accepted them: stop it, it must not outlive the test
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f'the node ran instead of refusing:\n{output.read_text()}') from None
+    assert code != 0
     text = output.read_text()
-    assert text.startswith('gyro_node: error: ') and message.format(repo=REPO) in text, text
+    assert text.startswith('gyro_node: error: ') and message.format(repo=REPO, tmp=tmp_path) in text, text
     assert 'Traceback' not in text
 
 
@@ -184,8 +247,101 @@ def test_example_params_file_sets_every_node_parameter_validly() -> None:
     assert check_settings(values).serial_number == 'NAVC3545'
 
 
+def test_help_lists_every_parameter_with_default_and_range() -> None:
+    """gyro_node --help printed nothing useful (issue 9)."""
+    result = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.node', '--help'], cwd=REPO,
+                            capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert result.returncode == 0 and result.stdout.startswith('usage: gyro_node'), result.stdout + result.stderr
+    for name, (default, *_) in PARAMETERS.items():
+        assert f'  {name} ({type(default).__name__}, default {default!r}' in result.stdout, name
+    assert 'bias_samples (int, default 100, 2..1000000)' in result.stdout
+    assert 'yaw_rate_stddev (float, default 0.001, 1e-07..1)' in result.stdout
+
+
+def test_parameters_are_read_only_with_ranges_and_calibration_file_loads(tmp_path: Path, loopback: None) -> None:
+    """calibration_file loads a calibration by path; every parameter, calibration ones too, refuses a change."""
+    from rcl_interfaces.srv import DescribeParameters, SetParameters
+    from rclpy.parameter import Parameter
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    with (FakeRd2100('NAVC4058', profile='0', seed=6) as fake,
+          node_with_listener(domain, output, '-p', f'calibration_file:=file://{REPO}/config/NAVC4058.yaml',
+                             '-p', f'port:={fake.path}', '-p', 'static_bias_on_startup:=false',
+                             '-p', 'qos_overrides./imu/data_raw.publisher.reliability:=best_effort')
+          as (proc, listener)):
+        # A best-effort publisher reaches no reliable subscriber (the listener's): the temperature shows it runs.
+        wait_until(listener.temperatures, 'a temperature message', proc, output)
+        assert listener.count() == 0
+        assert f'calibration loaded: NAVC4058 from {REPO}/config/NAVC4058.yaml' in output.read_text()
+        node = listener.node
+        setter = node.create_client(SetParameters, '/gyro_node/set_parameters')
+        describer = node.create_client(DescribeParameters, '/gyro_node/describe_parameters')
+        wait_until(lambda: setter.service_is_ready() and describer.service_is_ready(), 'the parameter services')
+        names = ['bias_samples', 'yaw_rate_stddev', 'baud', 'polynomial.coefficients', 'rate_scale_factor',
+                 'qos_overrides./imu/data_raw.publisher.reliability']
+        described = describer.call_async(DescribeParameters.Request(names=names))
+        wait_until(described.done, 'the descriptors')
+        d = {n: x for n, x in zip(names, described.result().descriptors)}
+        assert all(x.read_only for x in d.values())
+        assert (d['bias_samples'].integer_range[0].from_value, d['bias_samples'].integer_range[0].to_value) == \
+            (2, 1_000_000)
+        assert d['yaw_rate_stddev'].floating_point_range[0].from_value == 1e-7
+        assert '115200' in d['baud'].additional_constraints
+        request = SetParameters.Request(parameters=[Parameter('bias_samples', value=5).to_parameter_msg(),
+                                                    Parameter('rate_scale_factor', value=1.0).to_parameter_msg()])
+        future = setter.call_async(request)
+        wait_until(future.done, 'the set_parameters reply')
+        assert [r.successful for r in future.result().results] == [False, False]
+        # The QoS override applies: the publisher is best effort.
+        infos = node.get_publishers_info_by_topic('/imu/data_raw')
+        assert infos and infos[0].qos_profile.reliability == rclpy.qos.ReliabilityPolicy.BEST_EFFORT
+
+
 def test_params_files_are_found_among_the_ros_arguments_only() -> None:
     """The --params-file paths of a command line, not an application argument of the same spelling."""
     argv = ['gyro_node', '--params-file', 'app.yaml', '--ros-args', '-p', 'a:=1', '--params-file', 'x.yaml',
             '--params-file', 'y.yaml', '--', '--params-file', 'z.yaml']
     assert params_files(argv) == ['x.yaml', 'y.yaml']
+
+
+def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, loopback: None) -> None:
+    """use_sim_time: stamps on /clock; /clock stepped back 10 s: one jump back and a warning, not a freeze."""
+    import threading
+    from builtin_interfaces.msg import Time
+    from rosgraph_msgs.msg import Clock
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    sim_start, offset = 1000.0, [0.0]
+    stop = threading.Event()
+    with (FakeRd2100('NAVC3545', rate_hz=50, profile='0', seed=7) as fake,
+          node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
+                             '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false',
+                             '-p', 'use_sim_time:=true') as (proc, listener)):
+        clock = listener.node.create_publisher(Clock, '/clock', 10)
+        origin = time.monotonic()
+
+        def tick() -> None:
+            while not stop.wait(0.01):
+                t = sim_start + offset[0] + time.monotonic() - origin
+                clock.publish(Clock(clock=Time(sec=int(t), nanosec=int(t % 1 * 1e9))))
+
+        ticker = threading.Thread(target=tick, daemon=True)
+        ticker.start()
+        try:
+            # Before the first /clock the node's time is 0; once it runs, the stamps are on it.
+            wait_until(lambda: (m := listener.imu_since(0)) and m[-1].header.stamp.sec >= int(sim_start),
+                       'stamps on the simulated clock', proc, output)
+            before = listener.count()
+            listener.wait_imu(50, proc, output)
+            offset[0] = -10.0
+            listener.wait_imu(100, proc, output)
+        finally:
+            stop.set()
+            ticker.join()
+        stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in listener.imu_since(before)])
+    assert np.all(stamps < sim_start + 600) and np.all(stamps > sim_start - 600)   # not the wall clock
+    steps = np.diff(stamps)
+    assert np.count_nonzero(steps < 0) == 1 and steps.min() == pytest.approx(-10.0, abs=0.5), steps
+    # Elsewhere the stamps advance at the gyro's period, give or take the 10 ms granularity of /clock.
+    assert np.median(steps[steps > 0]) == pytest.approx(0.02, abs=0.005)
+    assert re.search(r'the clock stepped by -(9\.9\d\d|10\.0\d\d) s', output.read_text())

@@ -49,6 +49,9 @@ def test_colcon_installs_the_ros_layout(install: Path) -> None:
         assert os.access(install / 'lib' / PACKAGE / exe, os.X_OK), exe
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages' / PACKAGE).is_file()
     assert (install / 'share' / PACKAGE / 'package.xml').is_file()
+    assert (install / 'share' / PACKAGE / 'launch' / 'gyro.launch.py').is_file()
+    # What README's colcon instructions source: colcon-core writes setup.sh (setup.bash needs colcon-bash).
+    assert (install.parent / 'setup.sh').is_file()
     installed = sorted(p.name for p in (install / 'share' / PACKAGE / 'config').glob('*.yaml'))
     assert installed == sorted(p.name for p in (REPO / 'config').glob('*.yaml'))
     assert 'NAVC3545.yaml' in installed

@@ -75,7 +75,7 @@ def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
 
 def _fit(args: argparse.Namespace) -> int:
     from art_gyro_calibration.analysis.report import build_report, write_report
-    with Outputs([args.log], args.force) as outputs:
+    with Outputs([args.log, *args.validate], args.force) as outputs:
         out = outputs.claim(args.out)
         report_path = outputs.claim(args.report, beside=[Path(args.report).with_suffix('.md')])
         plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
@@ -85,8 +85,13 @@ def _fit(args: argparse.Namespace) -> int:
                             rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
                             settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
                             exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
-                            draws=args.draws)
+                            draws=args.draws, from_power_on=not args.not_from_power_on)
         report = build_report(log, result, args.bias_samples, source=str(args.log))
+        if not report['model_adequate']:
+            adequacy = report['adequacy']
+            print(f'calibrate fit: warning: the model does not fit: {adequacy["excess_dph"]:.2f} deg/h beyond the '
+                  'noise budget, held out, over 10-minute means; see REPORT.md and the residual against each '
+                  'signal (--plots)', file=sys.stderr)
         calibration, found = result.extended, ', '.join(e.signal for e in result.effects) or 'nothing'
         if args.validate:
             calibration, found = _validate(args, result, report, found)
@@ -266,6 +271,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='other runs of the same gyro (with ref_rate, at rest over their first --bias-samples rows): '
                         'replay the calibrations on them as the node would, report the field errors, and drop '
                         'a term they are better without')
+    p.add_argument('--not-from-power-on', action='store_true',
+                   help='the log does not start at the gyro\'s power-on: no warm-up is sought')
     p.add_argument('--validate-powered-on-at-start', action='store_true',
                    help='the --validate runs began at the gyro\'s power-on (default: unknown, a warm-up term '
                         'is not applied, as the node does by default)')
@@ -322,7 +329,7 @@ def _positive_int(text: str) -> int:
 
 
 # What the offline tools need beyond the node's runtime: the pip extra "analysis".
-ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'h5py')
+ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl')
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -335,7 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         # A robot's install has the node's runtime only: say what to add instead of a traceback.
         print(f'calibrate: error: the offline tools need {e.name}, which this installation lacks: '
-              'pip install "art_gyro_calibration[analysis]" (scipy, matplotlib, h5py)', file=sys.stderr)
+              'pip install "art_gyro_calibration[analysis]" (scipy, matplotlib, h5py, threadpoolctl)', file=sys.stderr)
         return 1
     except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:
         print(f'calibrate {args.command}: error: {e}', file=sys.stderr)

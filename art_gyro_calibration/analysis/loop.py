@@ -9,13 +9,16 @@ loadable by the node and by ``calibrate apply``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import functools
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.calibration import TEMP_SCALE_FACTOR, Calibration
+from art_gyro_calibration.compensation import RunStart
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.analysis.metrics import (DEFAULT_SETTLE_S, Segments, correlation_time_s, noise_floor,
@@ -92,8 +95,25 @@ class LoopResult:
     bias_instability_dph: float = 0.0
     adequacy: Adequacy | None = None
     findings: tuple[Effect, ...] = ()   # effects found but not written (heading: the node has no absolute heading)
+    start: RunStart = RunStart(powered_on_at_start=True)   # how the fitted log began, for replaying it
 
 
+def _one_blas_thread(function: Callable[..., LoopResult]) -> Callable[..., LoopResult]:
+    """Run ``function`` with BLAS on one thread.
+
+    The loop's products are small (bins x a few columns): a multi-threaded BLAS spends
+    its time spin-waiting, 20 times slower on a loaded machine (measured: 85 ms against
+    3.6 ms for one screen's per-fold sums at load average 9).
+    """
+    @functools.wraps(function)
+    def wrapped(*args: Any, **kwargs: Any) -> LoopResult:
+        from threadpoolctl import threadpool_limits   # the analysis extra: imported when the loop runs
+        with threadpool_limits(limits=1, user_api='blas'):
+            return function(*args, **kwargs)
+    return wrapped
+
+
+@_one_blas_thread
 def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DEFAULT_SERIAL,
                rate_scale_factor: float = DEFAULT_RATE_SCALE_FACTOR, temp_scale_factor: float = TEMP_SCALE_FACTOR,
                filters: SignalFilters = SignalFilters(), settle_s: float = DEFAULT_SETTLE_S,
@@ -111,7 +131,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     shortest held-out block of time; each round lengthens it to the correlation time of
     what the model leaves (a real gyro's bias wanders for hours). An effect must reach
     ``materiality_dph`` over the logged envelope; by default the bias instability of what
-    the ART polynomial leaves (the floor of its Allan deviation). ``from_power_on``: the log
+    the ART polynomial leaves (:func:`noise_levels`). ``from_power_on``: the log
     starts at the gyro's power-on (a warm-up is a candidate only then). A heading effect
     is fitted against the angle of the rate the ART polynomial corrects, and reported in
     ``findings``, never written: the node has no absolute heading.
@@ -140,8 +160,9 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     still = bool(np.ptp(log.ref_rate) == 0.0)
     binned = Binned(signals, error, segments, rows, columns, folds, bin_s, block_s)
     every_row = Binned(signals, error, segments, rows, columns, folds, 0.0, block_s)
-    instability_dph = bias_instability_dph(Screen(binned).residual() / binned.sqrt_counts, bin_s)
-    materiality = instability_dph if materiality_dph is None else materiality_dph
+    noise = noise_levels(binned, Screen(binned).residual() / binned.sqrt_counts, bin_s)
+    instability_dph = noise.instability_dps * DEG_PER_H_PER_DPS
+    materiality = noise.materiality_dph if materiality_dph is None else materiality_dph
     options = dict(draws=draws, alpha=alpha, bin_s=bin_s, materiality_dph=materiality, seed=seed,
                    noise_floor_dps=floor, binned=binned, still=still)
     excluded = [*exclude, *(RATE_SIGNALS if still else ())]
@@ -197,7 +218,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         held_out_rms_art_dps=held_out_rms(every_row),
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
-        adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading))
+        adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading),
+        start=RunStart(powered_on_at_start=from_power_on))
 
 
 def held_out_rms(rows: Binned, specs: Sequence[TermSpec] = ()) -> float:
@@ -206,40 +228,98 @@ def held_out_rms(rows: Binned, specs: Sequence[TermSpec] = ()) -> float:
     return float(np.sqrt(r @ r / rows.rows_total))
 
 
-def bias_instability_dph(bin_means: NDArray[np.float64], bin_s: float) -> float:
-    """Bias instability (deg/h) of a residual's bin means: the floor of their Allan deviation / 0.664.
+# Stretches where the temperature holds (|dT/dt| below this, degC/s) for at least THERMAL_STILL_S: there
+# no thermal effect, modelled or not, moves the bias, and what is left is the gyro's own wander.
+THERMAL_STILL_RATE = 3e-3
+THERMAL_STILL_S = 180.0
 
-    The bins of steady segments are taken as one series (the rests between them are short);
-    the floor is sought from one minute on, where the white noise has averaged down.
+
+def thermally_still_runs(binned: Binned) -> NDArray[np.int64] | None:
+    """Per bin, a label of its stretch of steady temperature (-1 for none); None if under 10 minutes in all."""
+    rate = binned.signals.temperature_rate[binned.index[binned.starts]]
+    still = np.abs(rate) <= THERMAL_STILL_RATE
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], still.astype(np.int8), [0]))))
+    labels = np.full(len(still), -1)
+    t = binned.bin_times()
+    total = 0.0
+    for k, (a, b) in enumerate(zip(edges[::2], edges[1::2])):
+        if t[b - 1] - t[a] >= THERMAL_STILL_S:
+            labels[a:b] = k
+            total += t[b - 1] - t[a]
+    return labels if total >= 2 * THERMAL_STILL_S else None
+
+
+@dataclass(frozen=True)
+class NoiseLevels:
+    """What the gyro's own noise leaves in a residual's bin means, deg/s."""
+
+    instability_dps: float   # bias instability: the floor of the Allan deviation / 0.664
+    wander_dps: float        # spread of the means of the stretches where the temperature holds (0 if too few)
+
+    @property
+    def materiality_dph(self) -> float:
+        """The smallest effect worth a term by default: the bias instability, deg/h.
+
+        (Not the wander: every effect not yet modelled that is not thermal, a supply voltage
+        say, wanders in the still stretches too, and would raise the bar against itself.)
+        """
+        return self.instability_dps * DEG_PER_H_PER_DPS
+
+
+def noise_levels(binned: Binned, bin_means: NDArray[np.float64], bin_s: float) -> NoiseLevels:
+    """Bias instability and slow wander of a residual's bin means.
+
+    Over the stretches where the temperature holds, if the log has 10 minutes of them (an
+    unmodelled thermal effect would otherwise pass for noise); else over all the bins as
+    one series (the rests between steady segments are short). The Allan floor is sought
+    from one minute on, where the white noise has averaged down; the wander is the spread
+    of the stretches' means (a gyro's bias wanders there too; a thermal effect does not).
     """
-    adev = allan_deviation(bin_means, 1.0 / max(bin_s, 1e-9))
+    runs = thermally_still_runs(binned)
+    wander = 0.0
+    values = bin_means
+    if runs is not None:
+        keep = runs >= 0
+        weights = binned.sqrt_counts ** 2
+        labels = np.unique(runs[keep])
+        means = np.array([np.average(bin_means[runs == k], weights=weights[runs == k]) for k in labels])
+        wander = float(np.std(means)) if len(means) > 1 else 0.0
+        values, runs = bin_means[keep], runs[keep]
+    adev = allan_deviation(values, 1.0 / max(bin_s, 1e-9), runs)
     usable = adev.adev[adev.tau_s >= min(60.0, adev.tau_s[-1])]
-    return float(usable.min() / 0.664 * DEG_PER_H_PER_DPS)
+    return NoiseLevels(float(usable.min() / 0.664), wander)
 
 
 # The residual's block means may exceed their noise budget by this factor before the alarm:
 # the budget's bias instability is itself estimated from the same residual.
-ADEQUACY_RATIO = 5.0
+ADEQUACY_RATIO = 3.0
 ADEQUACY_BLOCK_S = 600.0
 
 
 def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s: float,
              materiality_dph: float) -> Adequacy:
-    """The lack-of-fit alarm: whether the held-out residual's 10-minute means stay within the noise budget."""
+    """The lack-of-fit alarm: whether the held-out residual's 10-minute means stay within the noise budget.
+
+    The budget of a 10-minute mean: the white noise over its rows, the bias instability and
+    the slow wander of :func:`noise_levels`. The model is inadequate when the residual is
+    beyond :data:`ADEQUACY_RATIO` times its budget by more than the materiality.
+    """
     residual = held_out_residual(binned, specs) / binned.sqrt_counts   # held-out bin means, deg/s
+    weights = binned.sqrt_counts ** 2
     t = binned.bin_times()
     block = np.floor((t - t[0]) / ADEQUACY_BLOCK_S).astype(np.int64)
-    counts = np.bincount(block, weights=binned.sqrt_counts ** 2)
-    sums = np.bincount(block, weights=residual * binned.sqrt_counts ** 2)
+    counts = np.bincount(block, weights=weights)
+    sums = np.bincount(block, weights=residual * weights)
     full = counts >= 0.5 * counts.max()
     means = sums[full] / counts[full]
     rms = float(np.sqrt(np.mean((means - means.mean()) ** 2)))
-    instability = bias_instability_dph(residual, bin_s) / DEG_PER_H_PER_DPS
-    budget = float(np.sqrt(floor_dps ** 2 / np.mean(counts[full]) + (0.664 * instability) ** 2))
-    excess = float(np.sqrt(max(rms ** 2 - (ADEQUACY_RATIO * budget) ** 2, 0.0)))
+    noise = noise_levels(binned, residual, bin_s)
+    budget = float(np.sqrt(floor_dps ** 2 / np.mean(counts[full]) + (0.664 * noise.instability_dps) ** 2
+                           + noise.wander_dps ** 2))
+    excess = float(np.sqrt(max(rms ** 2 - budget ** 2, 0.0)))
     adequate = not (rms > ADEQUACY_RATIO * budget and excess * DEG_PER_H_PER_DPS > materiality_dph)
     return Adequacy(adequate, ADEQUACY_BLOCK_S, rms * DEG_PER_H_PER_DPS, budget * DEG_PER_H_PER_DPS,
-                    excess * DEG_PER_H_PER_DPS, instability * DEG_PER_H_PER_DPS)
+                    excess * DEG_PER_H_PER_DPS, noise.instability_dps * DEG_PER_H_PER_DPS)
 
 
 def _maybe_square(spec: TermSpec, binned: Binned, specs: list[TermSpec], materiality_dph: float) -> TermSpec:

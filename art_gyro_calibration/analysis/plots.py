@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from collections.abc import Callable
 from pathlib import Path
 
@@ -24,7 +25,6 @@ from numpy.typing import NDArray  # noqa: E402
 from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.analysis.loop import LoopResult  # noqa: E402
 from art_gyro_calibration.analysis.metrics import heading_errors_360  # noqa: E402
-from art_gyro_calibration.model import ErrorModel  # noqa: E402
 from art_gyro_calibration.analysis.report import STAGES, stage_errors  # noqa: E402
 
 BAND_C = 10.0
@@ -48,7 +48,45 @@ def plot_all(log: GyroLog, result: LoopResult, bias_samples: int, out_dir: str |
              _heading_360(errors, result, out / f'{prefix}heading-360.png')]
     for i, effect in enumerate(result.effects):
         paths.append(_residual(result, i, out / f'{prefix}residual-{effect.signal}.png'))
+    paths.append(_residual_vs_signals(result, out / f'{prefix}residual-vs-signals.png'))
     return paths
+
+
+# The signals a person checks what the final model leaves against (and every extra column of the log).
+LOOK_AT = ('temperature', 'temperature_rate', 'time', 'rate', 'rate_change', 'angle')
+
+
+def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
+    """What the final model leaves against each signal, binned: where the lack-of-fit alarm sends a person."""
+    rows = result.segments.rows()
+    residual = (result.error - result.extended.model.error(result.signals))[rows] * 3600.0
+    names = [*LOOK_AT, *result.signals.extras]
+    fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7), squeeze=False)
+    for ax, name in zip(axes.ravel(), names):
+        x = result.signals.get(name)[rows]
+        # Bins of equal width, not of equal count: sorting by a noisy measured signal (the rate at
+        # rest) would sort the residual's own noise into a slope.
+        edges = np.linspace(x.min(), x.max(), 41)
+        k = np.clip(np.searchsorted(edges, x, side='right') - 1, 0, 39)
+        counts = np.bincount(k, minlength=40)
+        sums = np.bincount(k, weights=residual - residual.mean(), minlength=40)
+        full = counts >= 50
+        centres = 0.5 * (edges[:-1] + edges[1:])
+        ax.plot(centres[full], sums[full] / counts[full], 'o-', ms=3)
+        ax.axhline(0.0, color='grey', lw=0.8)
+        ax.set_xlabel(name)
+        ax.grid(True, alpha=0.3)
+    for ax in axes.ravel()[len(names):]:
+        ax.set_visible(False)
+    for ax in axes[:, 0]:
+        ax.set_ylabel('residual, binned (deg/h)')
+    adequacy = result.adequacy
+    verdict = '' if adequacy is None else (' (adequate)' if adequacy.model_adequate else ' (DOES NOT FIT)')
+    fig.suptitle(f'what the final model leaves, against each signal{verdict}')
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
 
 
 def _per_stage(path: Path, ylabel: str, draw: Callable[[plt.Axes, str], None]) -> Path:
@@ -103,19 +141,20 @@ def _residual(result: LoopResult, i: int, path: Path) -> Path:
     """What the extended model less term ``i`` leaves, against the term's signal, binned."""
     model = result.extended.model
     effect = result.effects[i]
-    without = ErrorModel(model.polynomial, model.terms[:i] + model.terms[i + 1:])
+    without = replace(model, terms=model.terms[:i] + model.terms[i + 1:])
     rows = result.segments.rows()
     x = result.signals.for_term(effect.term)[rows]
     partial = (result.error - without.error(result.signals))[rows]
+    # The term on the same samples (a term with rate powers is no curve of its signal alone).
+    term = model.term_error(effect.term, result.signals)[rows]
     order = np.argsort(x, kind='stable')
     chunks = np.array_split(order, min(60, len(order)))
     bx = np.array([x[c].mean() for c in chunks])
     by = np.array([partial[c].mean() for c in chunks])
-    grid = np.linspace(x.min(), x.max(), 200)
+    bt = np.array([term[c].mean() for c in chunks])
     fig, ax = plt.subplots(figsize=(7, 4.5))
     ax.plot(bx, by, 'o', ms=4, label='residual of the model without this term (binned means)')
-    term = effect.term.evaluate(grid)
-    ax.plot(grid, term - term.mean() + by.mean(), '-', label=effect.term.describe())
+    ax.plot(bx, bt - bt.mean() + by.mean(), '-', label=effect.term.describe())
     ax.set_xlabel(effect.signal)
     ax.set_ylabel('residual (deg/s)')
     ax.set_title(f'traced effect: {effect.signal}')

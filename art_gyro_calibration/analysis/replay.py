@@ -44,8 +44,9 @@ def replay(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_S
            settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart()) -> Replay:
     """Apply ``calibration`` to ``log`` as the node does and measure it from the end of the static bias.
 
-    The rows the node would drop (:func:`compensation.plausible`) are left out. Raises
-    :class:`static_bias.MotionError` when the run's first ``bias_samples`` rows show motion.
+    ``start``: how the run began, as the node is told (a warm-up applies only from a declared
+    power-on). The rows the node would drop (:func:`compensation.plausible`) are left out.
+    Raises :class:`static_bias.MotionError` when the run's first ``bias_samples`` rows show motion.
     """
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: a replay measures against the rate table\'s true rate')

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -20,16 +21,17 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
-from art_gyro_calibration.analysis.loop import LoopResult
+from art_gyro_calibration.analysis.loop import Effect, LoopResult
 from art_gyro_calibration.analysis.metrics import error_metrics
 from art_gyro_calibration.analysis.replay import Validation
+from art_gyro_calibration.analysis.trace import FORMS_TRIED
 from art_gyro_calibration.static_bias import static_bias
 
 STAGES = ('uncalibrated', 'art', 'extended')
 
 
 def stage_errors(log: GyroLog, result: LoopResult, bias_samples: int) -> dict[str, NDArray[np.float64]]:
-    """Corrected rate minus table rate, per row, for each stage."""
+    """Corrected rate minus table rate, per row, for each stage, the log started as the loop took it."""
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: errors need the rate table\'s true rate')
     n = bias_samples
@@ -38,33 +40,15 @@ def stage_errors(log: GyroLog, result: LoopResult, bias_samples: int) -> dict[st
     bias = static_bias(log.rate_dps[:n], np.zeros(n))
     return {
         'uncalibrated': log.rate_dps - bias.static_bias_drift_dps - log.ref_rate,
-        'art': apply_calibration(log, result.art, n).corrected_dps - log.ref_rate,
-        'extended': apply_calibration(log, result.extended, n).corrected_dps - log.ref_rate,
+        'art': apply_calibration(log, result.art, n, start=result.start).corrected_dps - log.ref_rate,
+        'extended': apply_calibration(log, result.extended, n, start=result.start).corrected_dps - log.ref_rate,
     }
 
 
 def build_report(log: GyroLog, result: LoopResult, bias_samples: int, source: str = '') -> dict[str, Any]:
     """The report as plain data (JSON-ready)."""
     errors = stage_errors(log, result, bias_samples)
-    effects = []
-    for effect in result.effects:
-        term, score = effect.term, effect.score
-        entry: dict[str, Any] = {
-            'signal': term.signal,
-            'description': term.describe(),
-            'form': term.form,
-            'coefficients': list(term.coefficients),
-            'held_out_rms_without_dps': effect.held_out_rms_without_dps,
-            'held_out_rms_with_dps': effect.held_out_rms_with_dps,
-            'held_out_improvement_dps2': score.improvement_dps2,
-            'chance_max_improvement_dps2': score.null_max_dps2,
-            'fraction_of_noise_floor_variance': score.fraction_of_floor,
-        }
-        if term.form == 'power':
-            entry['powers'] = list(term.powers)
-        if term.form == 'exp_decay':
-            entry['time_constant_s'] = term.time_constant_s
-        effects.append(entry)
+    adequacy = result.adequacy
     return {
         'source': source,
         'serial_number': result.extended.serial_number,
@@ -76,16 +60,48 @@ def build_report(log: GyroLog, result: LoopResult, bias_samples: int, source: st
                        'art_coefficients': result.art.polynomial.coefficients.tolist(),
                        'extended_coefficients': result.extended.polynomial.coefficients.tolist()},
         'noise_floor_dps': result.noise_floor_dps,
+        'bias_instability_dph': result.bias_instability_dph,
+        'materiality_dph': result.materiality_dph,
+        'model_adequate': adequacy.model_adequate if adequacy else True,
+        'adequacy': asdict(adequacy) if adequacy else None,
         'held_out_rms_dps': {'art': result.held_out_rms_art_dps, 'extended': result.held_out_rms_extended_dps},
         'held_out_block_s': result.held_out_block_s,
-        'effects': effects,
+        'effects': [_effect(e) for e in result.effects],
+        'findings_not_written': [_effect(e) for e in result.findings],
+        'forms_tried': FORMS_TRIED,
         'errors': {stage: error_metrics(errors[stage], result.segments).to_dict() for stage in STAGES},
-        'screens': [[{'signal': c.signal, 'held_out_improvement_dps2': c.improvement_dps2,
-                      'chance_max_improvement_dps2': c.null_max_dps2,
-                      'fraction_of_noise_floor_variance': c.fraction_of_floor,
-                      'significant': c.significant} for c in found.candidates]
+        'screens': [{'chance_threshold_dps2': found.threshold_dps2, 'draws': found.draws,
+                     'candidates': [{'signal': c.signal, 'held_out_improvement_dps2': c.improvement_dps2,
+                                     'chance_max_improvement_dps2': c.null_max_dps2, 'p_value': c.p_value,
+                                     'effect_dph': c.effect_dph, 'stands_for': c.stands_for,
+                                     'fraction_of_noise_floor_variance': c.fraction_of_floor,
+                                     'significant': c.significant} for c in found.candidates]}
                     for found in result.rounds],
     }
+
+
+def _effect(effect: Effect) -> dict[str, Any]:
+    """One effect found, as the report lists it."""
+    term, score = effect.term, effect.score
+    entry: dict[str, Any] = {
+        'signal': term.signal,
+        'description': term.describe(),
+        'form': term.form,
+        'coefficients': list(term.coefficients),
+        'held_out_rms_without_dps': effect.held_out_rms_without_dps,
+        'held_out_rms_with_dps': effect.held_out_rms_with_dps,
+        'held_out_improvement_dps2': score.improvement_dps2,
+        'chance_max_improvement_dps2': score.null_max_dps2,
+        'p_value': score.p_value,
+        'effect_dph': score.effect_dph,
+        'fraction_of_noise_floor_variance': score.fraction_of_floor,
+    }
+    if term.form == 'power':
+        entry['powers'] = list(term.powers)
+        entry['rate_powers'] = list(term.rate_powers)
+    if term.form == 'exp_decay' or term.time_constant_s:
+        entry['time_constant_s'] = term.time_constant_s
+    return entry
 
 
 def markdown_summary(report: dict[str, Any]) -> str:
@@ -101,14 +117,28 @@ def markdown_summary(report: dict[str, Any]) -> str:
         lines.append(f'| {stage} | {e["rms_dps"]:.5f} | {e["systematic_rms_dps"]:.5f} | '
                      f'{e["heading_360_deg_max"]:.4f} |')
     held = report['held_out_rms_dps']
-    lines += ['', f'Held-out rms: ART {held["art"]:.5f} deg/s, extended {held["extended"]:.5f} deg/s.', '']
+    lines += ['', f'Held-out rms: ART {held["art"]:.5f} deg/s, extended {held["extended"]:.5f} deg/s. An effect '
+              f'counts if it beats chance (200 phase-randomised residuals, the best of all candidates, 5 %) and '
+              f'reaches {report["materiality_dph"]:.2f} deg/h over the logged envelope (the bias instability).', '']
     if not report['effects']:
         lines.append('Effects beyond the ART polynomial: nothing found.')
     else:
         lines += ['Effects beyond the ART polynomial (held-out rms without -> with the term):', '']
         for e in report['effects']:
             lines.append(f'- **{e["signal"]}**: {e["description"]}; {e["held_out_rms_without_dps"]:.5f} -> '
-                         f'{e["held_out_rms_with_dps"]:.5f} deg/s')
+                         f'{e["held_out_rms_with_dps"]:.5f} deg/s; {e["effect_dph"]:.2f} deg/h, chance '
+                         f'p = {e["p_value"]:.3f}')
+    for e in report['findings_not_written']:
+        lines.append(f'- found, **not written**: {e["description"]} ({e["effect_dph"]:.2f} deg/h): the node has no '
+                     'absolute heading to apply it with')
+    adequacy = report['adequacy']
+    if adequacy and not adequacy['model_adequate']:
+        lines += ['', f'**Warning: the model does not fit.** What it leaves, held out, over 10-minute means is '
+                      f'{adequacy["residual_rms_dph"]:.2f} deg/h against a noise budget of '
+                      f'{adequacy["budget_dph"]:.2f} deg/h ({adequacy["excess_dph"]:.2f} deg/h beyond it): an effect '
+                      'none of the forms tried '
+                      'describes. Look at the residual against each signal (--plots).']
+    lines += ['', 'Forms tried: ' + '; '.join(f'{name} ({what})' for name, what in report['forms_tried'].items()) + '.']
     if 'validation' in report:
         lines += validation_markdown(report['validation'])
     return '\n'.join(lines) + '\n'

@@ -53,9 +53,13 @@ DEFAULT_BLOCK_S = 900.0
 DEG_PER_H_PER_DPS = 3600.0
 # A log column whose fitted effect a derived signal's explains to this R^2 stands for that signal.
 STANDS_FOR_CORRELATION = 0.9
+# A richer form goes after a simpler significant one that explains this share of its effect (R^2).
+SIMPLER_FIRST = 0.5
 TIME_CONSTANT_GRID_SIZE = 8
 MAX_TIME_CONSTANT_RUNS = 4.0
 MIN_TIME_CONSTANT_S = 30.0
+# Golden-section steps refining a time constant between grid neighbours: 0.618**12 of the bracket.
+GOLDEN_STEPS = 12
 
 
 # The physical forms the screen tries, by candidate name (one family of shapes each). A name is
@@ -197,6 +201,9 @@ class Binned:
         self.block_s = min(block_s, duration / (2 * n_folds))
         fold = np.floor((t_bin - t_bin[0]) / self.block_s).astype(np.int64) % n_folds
         self.folds = [np.flatnonzero(fold == k) for k in range(n_folds)]
+        # The bins in fold order, and where each fold ends: per-fold sums then run on slices, not copies.
+        self.order = np.concatenate(self.folds)
+        self.bounds = np.cumsum([0] + [len(k) for k in self.folds])
 
     def _bin(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
         """Bin sums of steady-row ``values`` divided by sqrt(count): a mean weighted to unit noise."""
@@ -216,9 +223,15 @@ class Binned:
         """Time (s) of each bin's first row."""
         return self._t_bin
 
-    def fold_sums(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Per fold ``a_k' b_k`` over the bins of fold k, shape (K, a columns, b columns)."""
-        return np.stack([a[k].T @ b[k] for k in self.folds])
+    def fold_sums(self, a: NDArray[np.float64], b: NDArray[np.float64], ordered: bool = False) -> NDArray[np.float64]:
+        """Per fold ``a_k' b_k`` over the bins of fold k, shape (K, a columns, b columns).
+
+        ``ordered``: ``a`` and ``b`` are already in fold order (``x[binned.order]``).
+        """
+        if not ordered:
+            a, b = a[self.order], b[self.order]
+        edges = self.bounds
+        return np.stack([a[i:j].T @ b[i:j] for i, j in zip(edges[:-1], edges[1:])])
 
 
 class Screen:
@@ -234,6 +247,8 @@ class Screen:
         self.e = binned.base[:, -1]
         self.width = self.x.shape[1]
         self.gram = binned.fold_sums(self.x, self.x)
+        self._xe = self.x.T @ self.e
+        self._ee = float(self.e @ self.e)
         self._base_sse: float | None = None
 
     def weighted(self, spec: TermSpec) -> NDArray[np.float64]:
@@ -255,19 +270,29 @@ class Screen:
     def fit_with(self, spec: TermSpec) -> tuple[float, NDArray[np.float64]]:
         """SSE over all bins of the base plus ``spec``, and the candidate's coefficients (scaled basis)."""
         c = self.weighted(spec)
-        design = np.column_stack([self.x, c])
-        beta = solve_normal(design.T @ design, design.T @ self.e)
-        r = self.e - design @ beta
-        return float(r @ r), beta[self.width:]
+        cx = c.T @ self.x
+        gram = np.block([[self.gram.sum(axis=0), cx.T], [cx, c.T @ c]])
+        rhs = np.concatenate([self._xe, c.T @ self.e])
+        beta = solve_normal(gram, rhs)
+        return float(self._ee - beta @ rhs), beta[self.width:]
 
     def training_sse(self, spec: TermSpec) -> float:
         """SSE of the base model plus ``spec`` fitted to all folds (for choosing a time constant)."""
         return self.fit_with(spec)[0]
 
+    def beyond_base(self, means: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Bin means of candidate columns less what the base model's columns can give of them."""
+        x = self.x / self.sqrt_counts[:, None]
+        return means - x @ solve_normal(x.T @ x, x.T @ means)
+
     def effect_dph(self, spec: TermSpec) -> float:
-        """Worst-case size of the fitted candidate over the logged envelope: half its range of bin means, deg/h."""
+        """Worst-case size of the fitted candidate over the logged envelope, deg/h.
+
+        Half the range of what it adds beyond the base model (its part the polynomial could
+        absorb is no effect), over the bin means.
+        """
         _, beta = self.fit_with(spec)
-        contribution = self.binned.candidate_means([spec])[:, 0, :] @ beta
+        contribution = self.beyond_base(self.binned.candidate_means([spec])[:, 0, :]) @ beta
         return float(0.5 * np.ptp(contribution) * DEG_PER_H_PER_DPS)
 
     def held_out_improvements(self, families: dict[str, Sequence[TermSpec]],
@@ -277,9 +302,16 @@ class Screen:
         Each fold picks the family's variant (a time constant) that fits its training blocks
         best, for each target apart, so the choice itself is held out.
         """
-        fold_sums = self.binned.fold_sums
-        cross_x = fold_sums(self.x, targets)
-        yy = np.stack([np.einsum('nt,nt->t', targets[k], targets[k]) for k in self.binned.folds])
+        order = self.binned.order
+
+        def fold_sums(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+            return self.binned.fold_sums(a, b, ordered=True)
+
+        targets = targets[order]
+        x = self.x[order]
+        cross_x = fold_sums(x, targets)
+        edges = self.binned.bounds
+        yy = np.stack([np.einsum('nt,nt->t', targets[i:j], targets[i:j]) for i, j in zip(edges[:-1], edges[1:])])
         base_held, _ = _cv_sse(self.gram, cross_x, yy)
         p = self.width
         out = {}
@@ -287,11 +319,11 @@ class Screen:
             held = []
             trained = []
             for spec in variants:
-                c = self.weighted(spec)
+                c = self.weighted(spec)[order]
                 w = c.shape[1]
                 gram = np.empty((len(self.binned.folds), p + w, p + w))
                 gram[:, :p, :p] = self.gram
-                gram[:, p:, :p] = fold_sums(c, self.x)
+                gram[:, p:, :p] = fold_sums(c, x)
                 gram[:, :p, p:] = np.swapaxes(gram[:, p:, :p], 1, 2)
                 gram[:, p:, p:] = fold_sums(c, c)
                 h, tr = _cv_sse(gram, np.concatenate([cross_x, fold_sums(c, targets)], axis=1), yy)
@@ -349,15 +381,20 @@ class TraceResult:
 
     @property
     def best(self) -> CandidateScore | None:
-        """The significant candidate that removes most error, or None: nothing found.
+        """The significant candidate to add next, or None: nothing found.
 
-        A log column the node cannot read loses to a derived signal it stands for.
+        The one least likely by chance; among those tied at that (the strongest effects all
+        beat every draw), the simplest, then the one that removes most. A candidate that a
+        simpler significant one stands for gives way to it.
         """
         found = [c for c in self.candidates if c.significant]
         if not found:
             return None
+        least = min(c.p_value for c in found)
+        pick = min((c for c in found if c.p_value <= least),
+                   key=lambda c: (_complexity(c.spec), -c.improvement_dps2))
         named = {c.signal: c for c in found}
-        return named.get(found[0].stands_for, found[0])
+        return named.get(pick.stands_for, pick)
 
 
 def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
@@ -408,7 +445,9 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
     candidates = []
     for name, values in table.items():
         real, null = float(values[0]), values[1:]
-        spec = families[name][0] if len(families[name]) == 1 else _best_variant(screen, families[name])
+        # A time constant is refined only where it may matter: for a candidate that beats chance.
+        spec = families[name][0] if len(families[name]) == 1 else \
+            _best_variant(screen, families[name], refine=real > threshold)
         size = screen.effect_dph(spec)
         candidates.append(CandidateScore(
             name, spec, real, float(null.mean()), float(null.std()), float(null.max()), real / floor_var,
@@ -421,29 +460,48 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
 
 
 def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[CandidateScore]:
-    """Mark a log column whose fitted effect is that of a derived signal (one the node computes itself)."""
-    derived = [c for c in candidates if c.spec.signal in DERIVED_SIGNALS and c.significant]
+    """Mark a significant candidate that a simpler significant one should go before.
+
+    A log column gives way to a derived signal (one the node computes) that explains its
+    fitted effect (R^2 >= :data:`STANDS_FOR_CORRELATION` beyond the base); a richer form to a
+    simpler one (fewer columns, or no time constant) that explains at least
+    :data:`SIMPLER_FIRST` of it: a lagged temperature's terms contain the Shupe term, a long
+    decay looks like a drift. The simpler one is named (:attr:`TraceResult.best`), and the
+    next round asks what the richer form adds beyond it.
+    """
+    found = [c for c in candidates if c.significant]
     out = []
     for c in candidates:
-        if c.spec.signal not in DERIVED_SIGNALS and derived:
+        if c.significant:
             mine = screen.binned.candidate_means([c.spec])[:, 0, :]
-            alike = [(_alike(screen, mine, screen.binned.candidate_means([d.spec])[:, 0, :]), d.signal)
-                     for d in derived]
-            likeness, name = max(alike)
-            if likeness >= STANDS_FOR_CORRELATION:
-                c = replace(c, stands_for=name)
+            alike = []
+            for d in found:
+                if c.spec.signal not in DERIVED_SIGNALS and d.spec.signal in DERIVED_SIGNALS:
+                    needed = STANDS_FOR_CORRELATION
+                elif d is not c and _complexity(d.spec) < _complexity(c.spec):
+                    needed = SIMPLER_FIRST
+                else:
+                    continue
+                likeness = _alike(screen, mine, screen.binned.candidate_means([d.spec])[:, 0, :])
+                if likeness >= needed:
+                    alike.append((likeness, d.signal))
+            if alike:
+                c = replace(c, stands_for=max(alike)[1])
         out.append(c)
     return out
 
 
+def _complexity(spec: TermSpec) -> float:
+    """Columns, and half a column more for a time constant: a drift beats a decay that looks like it.
+
+    (A term without a time constant is also the start-up-safe one: a linear drift needs no origin.)
+    """
+    return spec.width + (0.5 if spec.time_constant_s > 0.0 else 0.0)
+
+
 def _alike(screen: Screen, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
     """How much of ``a``'s columns ``b``'s span (R^2), both after removing what the base model spans."""
-    x = screen.x / screen.sqrt_counts[:, None]
-
-    def rest(m: NDArray[np.float64]) -> NDArray[np.float64]:
-        return m - x @ solve_normal(x.T @ x, x.T @ m)
-
-    ra, rb = rest(a), rest(b)
+    ra, rb = screen.beyond_base(a), screen.beyond_base(b)
     explained = rb @ solve_normal(rb.T @ rb, rb.T @ ra)
     total = float(np.sum(ra * ra))
     return float(np.sum(explained * explained)) / total if total > 0.0 else 0.0
@@ -460,10 +518,12 @@ def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[n
     return out
 
 
-def _best_variant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
-    """The best variant on all the data; its time constant, if it has one, refined by golden-section search."""
+def _best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
+    """The best variant on all the data; its time constant, if it has one and ``refine``, by golden-section search."""
     sse = [screen.training_sse(v) for v in variants]
     template = variants[int(np.argmin(sse))]
+    if not refine:
+        return template
     shape = replace(template, time_constant_s=0.0)
     kin = [(e, v) for e, v in zip(sse, variants) if replace(v, time_constant_s=0.0) == shape]
     if len(kin) < 2:
@@ -479,7 +539,7 @@ def _best_variant(screen: Screen, variants: Sequence[TermSpec]) -> TermSpec:
     golden = (np.sqrt(5.0) - 1) / 2
     a, b = lo + (1 - golden) * (hi - lo), lo + golden * (hi - lo)
     fa, fb = cost(a), cost(b)
-    for _ in range(20):
+    for _ in range(GOLDEN_STEPS):
         if fa < fb:
             hi, b, fb = b, a, fa
             a = lo + (1 - golden) * (hi - lo)
