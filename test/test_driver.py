@@ -141,17 +141,37 @@ def test_stamper_re_anchors_once_on_a_clock_step(step_s):
     assert stamper.step_ns == 0
     mono = 100 * period
     first = stamper.stamp(wall + step + mono, mono, 8, [8])
+    assert stamper.step_ns == 0   # one read is no step yet (see the glitch test)
+    second = stamper.stamp(wall + step + mono + period, mono + period, 8, [8])
     assert stamper.step_ns == step and stamper.steps_ns == step
-    after = first + _steady_gyro(stamper, lambda m: wall + step + m, period, 999, start_ns=mono + period)
+    after = first + second + _steady_gyro(stamper, lambda m: wall + step + m, period, 998,
+                                          start_ns=mono + 2 * period)
     assert stamper.step_ns == 0
     stamps = np.array([s for s, _ in before + after])
     steps = np.diff(stamps)
     # One jump of the step, every other interval the gyro's period: integrating by stamps loses nothing.
     assert np.count_nonzero(np.abs(steps - period) > 1000) == 1
-    assert steps[99] == pytest.approx(period + step, abs=1000)
+    assert steps[100] == pytest.approx(period + step, abs=1000)
     # The steady time goes on as if nothing happened.
     steady = np.array([t for _, t in before + after])
     assert np.all(np.abs(np.diff(steady) - period) < 1000)
+
+
+def test_a_clock_that_goes_back_and_forth_for_one_read_is_no_step():
+    """A simulated /clock applied out of order once (10 s back, then forward again) moves no stamp.
+
+    The node stamped two jumps of -10 s in one sim-time run: one /clock message handled after a newer one.
+    """
+    period = 10_000_000
+    stamper = WireStamper(115200, 8)
+    wall = 1_700_000_000_000_000_000
+    before = _steady_gyro(stamper, lambda m: wall + m, period, 100)
+    mono = 100 * period
+    glitch = stamper.stamp(wall - 10_000_000_000 + mono, mono, 8, [8])
+    after = glitch + _steady_gyro(stamper, lambda m: wall + m, period, 100, start_ns=mono + period)
+    assert stamper.steps_ns == 0
+    steps = np.diff([s for s, _ in before + after])
+    assert np.all(np.abs(steps - period) < 1000)
 
 
 def test_driver_stamps_a_stalled_burst_by_the_period_and_reports_a_clock_step(recorder):

@@ -341,7 +341,8 @@ def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, 
         stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in listener.imu_since(before)])
     assert np.all(stamps < sim_start + 600) and np.all(stamps > sim_start - 600)   # not the wall clock
     steps = np.diff(stamps)
-    assert np.count_nonzero(steps < 0) == 1 and steps.min() == pytest.approx(-10.0, abs=0.5), steps
+    assert np.count_nonzero(steps < 0) == 1 and steps.min() == pytest.approx(-10.0, abs=0.5), steps[steps < 0]
     # Elsewhere the stamps advance at the gyro's period, give or take the 10 ms granularity of /clock.
     assert np.median(steps[steps > 0]) == pytest.approx(0.02, abs=0.005)
-    assert re.search(r'the clock stepped by -(9\.9\d\d|10\.0\d\d) s', output.read_text())
+    # The step as measured between two reads of a /clock published every 10 ms and delivered late.
+    assert re.search(r'the clock stepped by -(9\.[7-9]\d\d|10\.[0-2]\d\d) s', output.read_text())
