@@ -55,7 +55,7 @@ class Compensator:
     """
 
     __slots__ = ('calibration', '_bias', '_model', '_tracker', '_rate_scale', '_temp_scale', '_range',
-                 '_refinable', '_refinement', 'clamped', 'last_causal_dps')
+                 '_refinable', '_refinement', 'clamped')
 
     def __init__(self, calibration: Calibration, start: RunStart = RunStart()) -> None:
         check_signals_available(calibration)
@@ -69,8 +69,6 @@ class Compensator:
         self._refinement: Refinement | None = None
         self._bias: StaticBias = NO_BIAS
         self.clamped = 0
-        # The temperature-rate terms' part of the last error: a static bias collection keeps it.
-        self.last_causal_dps = 0.0
 
     @property
     def refinable(self) -> bool:
@@ -105,9 +103,14 @@ class Compensator:
                 self._bias, self._refinement = refinement.refined(), None
             else:
                 refinement.add(t, temp_c)
-        if self._refinable:
-            self.last_causal_dps = self._model.refinable_error_one(tracker)
         return self._model.error_one(tracker)
+
+    def causal_dps(self) -> float:
+        """The temperature-rate terms' part of the last error (a static bias collection keeps it; 0 without them).
+
+        Asked only while a collection runs: the hot path does not pay for it.
+        """
+        return self._model.refinable_error_one(self._tracker) if self._refinable else 0.0
 
     def correct(self, rate_dps: float, error_dps: float) -> float:
         """``CompRate`` with the current static bias."""

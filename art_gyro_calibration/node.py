@@ -557,7 +557,7 @@ class GyroNode(Node):
         collection = self._collection
         if collection is not None:
             collection.last_sample = time.monotonic()
-            if collection.collector.add(rate_dps, error_dps, t, temp_c, compensator.last_causal_dps):
+            if collection.collector.add(rate_dps, error_dps, t, temp_c, compensator.causal_dps()):
                 self._finish_collection(collection)
         corrected = compensator.correct(rate_dps, error_dps)   # with the bias this frame may have completed
         imu = self._imu

@@ -37,7 +37,7 @@ def _per_sample(calibration: Calibration, log: GyroLog, start: RunStart) -> np.n
     out = []
     for t, rate, temp in zip(log.t, log.rate_dps, log.temp_c):
         error = comp.error(t, rate, temp)
-        if collector is not None and collector.add(rate, error, t, temp, comp.last_causal_dps):
+        if collector is not None and collector.add(rate, error, t, temp, comp.causal_dps()):
             comp.bias, collector = collector.result(), None
         out.append(comp.correct(rate, error))
     return np.array(out[BIAS_SAMPLES - 1:])
