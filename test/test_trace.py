@@ -13,7 +13,7 @@ import pytest
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.analysis.loop import close_loop
 from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run
-from art_gyro_calibration.analysis.trace import phase_surrogates
+from art_gyro_calibration.analysis.trace import mirrored_spectrum, phase_surrogates
 
 HOURS, RATE_HZ = 6.0, 2.0
 
@@ -116,7 +116,7 @@ def test_phase_surrogates_keep_the_spectrum_and_lose_the_alignment():
     """Each surrogate has the amplitude spectrum of the mirrored series; together they are uncorrelated with it."""
     rng = np.random.default_rng(0)
     x = np.cumsum(rng.normal(size=512))
-    s = phase_surrogates(x, 200, rng)
+    s = phase_surrogates(mirrored_spectrum(x), 200, rng)
     mirrored = np.abs(np.fft.rfft(np.concatenate([x, x[::-1]]) - x.mean()))
     for k in range(3):
         full = np.concatenate([s[:, k], s[::-1, k]])

@@ -58,8 +58,8 @@ SIMPLER_FIRST = 0.5
 TIME_CONSTANT_GRID_SIZE = 8
 MAX_TIME_CONSTANT_RUNS = 4.0
 MIN_TIME_CONSTANT_S = 30.0
-# Golden-section steps refining a time constant between grid neighbours: 0.618**12 of the bracket.
-GOLDEN_STEPS = 12
+# Golden-section steps refining a time constant between grid neighbours: 0.618**8 = 5 % of the bracket.
+GOLDEN_STEPS = 8
 
 
 # The physical forms the screen tries, by candidate name (one family of shapes each). A name is
@@ -335,20 +335,26 @@ class Screen:
         return out
 
 
-def phase_surrogates(x: NDArray[np.float64], count: int, rng: np.random.Generator) -> NDArray[np.float64]:
-    """``count`` series with the amplitude spectrum of ``x`` and random phases, shape (len(x), count).
+def mirrored_spectrum(x: NDArray[np.float64]) -> NDArray[np.complex128]:
+    """The spectrum :func:`phase_surrogates` randomises: of ``x`` less its mean, followed by its mirror image.
+
+    Mirrored, a wander that ends far from where it began is no jump at the wrap, and the
+    surrogates keep its trends.
+    """
+    return np.fft.rfft(np.concatenate([x, x[::-1]]) - x.mean())
+
+
+def phase_surrogates(spectrum: NDArray[np.complex128], count: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """``count`` series with the amplitude ``spectrum`` (:func:`mirrored_spectrum`) and random phases, (n, count).
 
     A slow bias wander keeps its slowness (its spectrum), but loses any alignment with a
     candidate: the null of "the candidate explains nothing", with the residual's own memory.
-    The series is mirrored before the transform: a wander that ends far from where it
-    began is then no jump at the wrap, and the surrogates keep its trends.
     """
-    n = len(x)
-    spectrum = np.fft.rfft(np.concatenate([x, x[::-1]]) - x.mean())
     phases = rng.uniform(0.0, 2.0 * np.pi, (len(spectrum), count))
     phases[0] = 0.0
     phases[-1] = 0.0   # the Nyquist term of the (even) mirrored length stays real
-    return np.fft.irfft(spectrum[:, None] * np.exp(1j * phases), 2 * n, axis=0)[:n]
+    n2 = 2 * (len(spectrum) - 1)
+    return np.fft.irfft(spectrum[:, None] * np.exp(1j * phases), n2, axis=0)[:n2 // 2]
 
 
 @dataclass(frozen=True)
@@ -428,10 +434,11 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
                 if v[0].signal not in taken or joined(taken[v[0].signal], v[0]) is not None}
     families = {name: v for name, v in families.items() if np.ptp(binned.candidate_means(v), axis=0).max() > 0.0}
     residual = screen.residual()
+    spectrum = mirrored_spectrum(residual)
     scores = {name: [] for name in families}
     for start in range(0, draws + 1, SURROGATE_BATCH):
         count = min(SURROGATE_BATCH, draws + 1 - start)
-        targets = phase_surrogates(residual, count, rng)
+        targets = phase_surrogates(spectrum, count, rng)
         if start == 0:
             targets[:, 0] = residual   # column 0: the residual as logged
         for name, improvement in screen.held_out_improvements(families, targets).items():
