@@ -27,7 +27,7 @@ from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors,
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import Applied, RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
-from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
+from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_SAMPLES
 from art_gyro_calibration.terms import Term
 
 
@@ -41,7 +41,8 @@ class Replay:
 
 
 def replay(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_SAMPLES,
-           settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart()) -> Replay:
+           settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart(),
+           max_mean_dps: float = DEFAULT_MAX_MEAN_DPS) -> Replay:
     """Apply ``calibration`` to ``log`` as the node does and measure it from the end of the static bias.
 
     ``start``: how the run began, as the node is told (a warm-up applies only from a declared
@@ -50,7 +51,7 @@ def replay(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_S
     """
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: a replay measures against the rate table\'s true rate')
-    applied = apply_calibration(log, calibration, bias_samples, start=start)
+    applied = apply_calibration(log, calibration, bias_samples, max_mean_dps, start=start)
     seen = log if applied.kept.all() else log.slice(applied.kept)
     error = applied.corrected_dps - seen.ref_rate
     return Replay(applied, error, field_errors(seen.t, error, steady_segments(seen.t, seen.ref_rate, settle_s),
