@@ -50,8 +50,8 @@ class RunStart:
 class Compensator:
     """Per-sample compensation with the signals the extended terms need, kept causally.
 
-    ``clamped`` counts the samples whose temperature was outside the calibrated range;
-    ``refined`` is the static bias refinement's change once it happened (see ``bias``).
+    ``clamped`` counts the samples whose temperature was outside the calibrated range; a
+    refinement, once it happened, shows in ``bias.refined_dps`` (see ``bias``).
     """
 
     __slots__ = ('calibration', '_bias', '_model', '_tracker', '_rate_scale', '_temp_scale', '_range',
