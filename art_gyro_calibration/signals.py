@@ -68,6 +68,7 @@ class SignalState:
     temperature_level: float    # level of the temperature_rate filter (smoothed temperature)
     rate_level: float           # level of the rate_change filter (smoothed rate)
     lag_levels: tuple[tuple[float, float], ...] = ()   # (time constant, level) of each lagged temperature
+    angle_rate: float | None = None   # the rate the angle integrates, when not the measured one
 
 
 @dataclass(frozen=True)
@@ -92,26 +93,27 @@ class Signals:
     powered_on_at_start: bool = True
     angle_rate: NDArray[np.float64] | None = None
     _lags: dict[float, NDArray[np.float64]] = field(default_factory=dict, compare=False, repr=False)
+    _levels: dict[str, float | None] = field(default_factory=dict, compare=False, repr=False)
 
     @cached_property
     def temperature_rate(self) -> NDArray[np.float64]:
         """Filtered temperature rate of change, degC/s."""
-        return (self.temperature - self._temperature_level) / self.filters.temperature_rate_tau_s
+        return self._derivative(self.temperature, 'temperature_level', self.filters.temperature_rate_tau_s)
 
     @cached_property
     def rate_change(self) -> NDArray[np.float64]:
         """Filtered rate of change of the measured rate, deg/s^2."""
-        return (self.rate - self._rate_level) / self.filters.rate_change_tau_s
+        return self._derivative(self.rate, 'rate_level', self.filters.rate_change_tau_s)
 
-    @cached_property
-    def _temperature_level(self) -> NDArray[np.float64]:
-        level = None if self.previous is None else self.previous.temperature_level
-        return self._smoothed(self.temperature, level, self.filters.temperature_rate_tau_s)
+    def _derivative(self, x: NDArray[np.float64], level_name: str, tau_s: float) -> NDArray[np.float64]:
+        """``(x - level) / tau`` of the first-order filter; only the last level is kept (for :meth:`end_state`).
 
-    @cached_property
-    def _rate_level(self) -> NDArray[np.float64]:
-        level = None if self.previous is None else self.previous.rate_level
-        return self._smoothed(self.rate, level, self.filters.rate_change_tau_s)
+        A long log's level would be one more array as long as the log, held for one number.
+        """
+        start = None if self.previous is None else getattr(self.previous, level_name)
+        level = self._smoothed(x, start, tau_s)
+        self._levels[level_name] = float(level[-1]) if len(level) else start
+        return (x - level) / tau_s
 
     def _smoothed(self, x: NDArray[np.float64], level: float | None, tau_s: float) -> NDArray[np.float64]:
         """Level of the first-order filter of ``x`` at each sample, continuing from ``level``.
@@ -150,19 +152,17 @@ class Signals:
     @cached_property
     def angle(self) -> NDArray[np.float64]:
         """Angle turned in degrees, trapezoidal integral of ``angle_rate`` (by default the measured rate)."""
-        if self.angle_rate is not None:
-            if self.previous is not None:
-                raise ValueError('the angle of a corrected rate is computed over a whole log, not chunk by chunk')
-            rate = self.angle_rate
-            return np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(self.t)))) \
-                if len(rate) else np.zeros(0)
+        rate = self.rate if self.angle_rate is None else self.angle_rate
         if self.previous is None:
-            if not len(self.rate):
+            if not len(rate):
                 return np.zeros(0)
-            start, t, rate = 0.0, self.t, self.rate
+            start, t = 0.0, self.t
         else:
+            before = self.previous.rate if self.angle_rate is None else self.previous.angle_rate
+            if before is None:
+                raise ValueError('the angle of a corrected rate continues only from a state that has that rate')
             start = self.previous.angle
-            t, rate = np.concatenate(([self.previous.t], self.t)), np.concatenate(([self.previous.rate], self.rate))
+            t, rate = np.concatenate(([self.previous.t], self.t)), np.concatenate(([before], rate))
         # One running sum from the start value, so a chunked log adds in the same order as a whole one.
         out = np.cumsum(np.concatenate(([start], 0.5 * (rate[1:] + rate[:-1]) * np.diff(t))))
         return out if self.previous is None else out[1:]
@@ -180,9 +180,16 @@ class Signals:
             return self.previous
         return SignalState(t0=float(self.t[0]) if self.previous is None else self.previous.t0,
                            t=float(self.t[-1]), rate=float(self.rate[-1]), temperature=float(self.temperature[-1]),
-                           angle=float(self.angle[-1]), temperature_level=float(self._temperature_level[-1]),
-                           rate_level=float(self._rate_level[-1]),
-                           lag_levels=tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items())))
+                           angle=float(self.angle[-1]),
+                           temperature_level=self._level_at_end('temperature_rate', 'temperature_level'),
+                           rate_level=self._level_at_end('rate_change', 'rate_level'),
+                           lag_levels=tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items())),
+                           angle_rate=None if self.angle_rate is None else float(self.angle_rate[-1]))
+
+    def _level_at_end(self, derivative: str, level: str) -> float:
+        """The level after the last sample of the filter of ``derivative`` (computed if not yet)."""
+        getattr(self, derivative)
+        return float(self._levels[level])
 
     @property
     def rate_abs(self) -> NDArray[np.float64]:

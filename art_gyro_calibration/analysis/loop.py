@@ -159,7 +159,6 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     # from its rate would explain the error with itself, so none is a candidate.
     still = bool(np.ptp(log.ref_rate) == 0.0)
     binned = Binned(signals, error, segments, rows, columns, folds, bin_s, block_s)
-    every_row = Binned(signals, error, segments, rows, columns, folds, 0.0, block_s)
     noise = noise_levels(binned, Screen(binned).residual() / binned.sqrt_counts, bin_s)
     instability_dph = noise.instability_dps * DEG_PER_H_PER_DPS
     materiality = noise.materiality_dph if materiality_dph is None else materiality_dph
@@ -172,7 +171,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     while len(rounds) < max_effects:
         # Held-out blocks at least as long as what the current model leaves stays correlated:
         # shorter ones share a slow residual with their neighbours, and any slow signal seems to predict it.
-        current = art_fit if not specs else fit_model(signals, error, rows, columns, specs, index)
+        current = art_fit if not specs else fit_model(signals, error, rows, columns, specs, index,
+                                                      ranges=binned.ranges)
         residual[index] = current.residual
         binned.refold(max(block_s, correlation_time_s(signals.t, residual, segments)))
         found = trace_residual(signals, error, segments, rows, columns, specs,
@@ -191,41 +191,35 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     # A square is judged once every effect is in the model, so it cannot stand in for one not yet found.
     specs = [_maybe_square(spec, binned, specs[:i] + specs[i + 1:], materiality)
              for i, spec in enumerate(specs)]
-    every_row.refold(binned.block_s, binned.n_folds)  # held-out errors on the blocks of the last round
-    # Every effect must lower the held-out error of the final model, every row counted: one
-    # that passed its screen only given candidates that did not make it is dropped.
+    # Every effect must lower the held-out error of the final model, every row counted (on the blocks
+    # of the last round): one that passed its screen only given candidates that did not make it is dropped.
+    every_row = binned.row_folds(specs)
     while True:
-        held_out_all = held_out_rms(every_row, specs)
-        without = [held_out_rms(every_row, specs[:i] + specs[i + 1:]) for i in range(len(specs))]
+        held_out_all = every_row.held_out_rms(specs)
+        without = [every_row.held_out_rms(specs[:i] + specs[i + 1:]) for i in range(len(specs))]
         if not specs or min(without) > held_out_all:
             break
         weakest = int(np.argmin(without))
         del specs[weakest], scores[weakest]
-    final = fit_model(signals, error, rows, columns, specs, index)
+    final = fit_model(signals, error, rows, columns, specs, index, ranges=binned.ranges)
     effects = [Effect(term, score, rms_without, held_out_all)
                for term, score, rms_without in zip(final.model.terms, scores, without)]
     # A heading effect helped fit the rest; the file gets the model refitted without it.
     heading = [e for e in effects if e.term.signal in HEADING_SIGNALS]
     written = [spec for spec in specs if spec.signal not in HEADING_SIGNALS]
     if heading:
-        final = fit_model(signals, error, rows, columns, written, index)
+        final = fit_model(signals, error, rows, columns, written, index, ranges=binned.ranges)
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
     art = Calibration(serial_number, rate_scale_factor, art_fit.model.polynomial,
                       (low, high if high > low else low + 1.0), temp_scale_factor, (), filters)
     return LoopResult(
         art=art, extended=replace(art, polynomial=final.model.polynomial, terms=final.model.terms),
         effects=tuple(e for e in effects if e not in heading), rounds=tuple(rounds), noise_floor_dps=floor,
-        held_out_rms_art_dps=held_out_rms(every_row),
+        held_out_rms_art_dps=every_row.held_out_rms(),
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
         adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading),
         start=RunStart(powered_on_at_start=from_power_on))
-
-
-def held_out_rms(rows: Binned, specs: Sequence[TermSpec] = ()) -> float:
-    """Held-out RMS error (deg/s) of the polynomial + ``specs``; ``rows`` binned with ``bin_s=0``: every steady row."""
-    r = held_out_residual(rows, specs)
-    return float(np.sqrt(r @ r / rows.rows_total))
 
 
 # Stretches where the temperature holds (|dT/dt| below this, degC/s) for at least THERMAL_STILL_S: there

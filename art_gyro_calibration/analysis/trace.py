@@ -30,13 +30,14 @@ every time constant then follows from small matrices and one product with the bi
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from art_gyro_calibration.analysis.fit import Design, TermSpec, centred, fit_model, solve_normal
+from art_gyro_calibration.analysis.chunks import Chunk, chunks
+from art_gyro_calibration.analysis.fit import Design, Ranges, TermSpec, centring, fit_model, solve_normal
 from art_gyro_calibration.analysis.metrics import Segments, noise_floor
 from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, Signals
 
@@ -169,20 +170,28 @@ class Binned:
     Folds: the bins are grouped into blocks of ``block_s`` of time, dealt to the folds in
     turn, so every fold holds whole blocks of time from the whole run (a warm-up in the
     first hour or a temperature extreme is then in several folds). A short log gets fewer
-    folds (down to :data:`MIN_FOLDS`) rather than blocks shorter than asked for.
+    folds (down to :data:`MIN_FOLDS`) rather than blocks shorter than asked for. Every
+    per-row quantity is summed into the bins chunk by chunk (``chunk_rows`` rows,
+    :mod:`art_gyro_calibration.analysis.chunks`): memory holds the bins, not a matrix per row.
     """
 
     def __init__(self, signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
-                 folds: int = DEFAULT_FOLDS, bin_s: float = DEFAULT_BIN_S, block_s: float = DEFAULT_BLOCK_S) -> None:
+                 folds: int = DEFAULT_FOLDS, bin_s: float = DEFAULT_BIN_S, block_s: float = DEFAULT_BLOCK_S,
+                 chunk_rows: int | None = None) -> None:
         self.signals = signals
         self.index = segments.rows()
-        self.starts, counts = _bins(segments, signals.t, bin_s)
-        if len(counts) < 4 * MIN_FOLDS:
-            raise ValueError(f'{len(counts)} bins of steady data are too few for {MIN_FOLDS} folds')
-        self.sqrt_counts = np.sqrt(counts)
-        self.rows_total = int(counts.sum())
-        poly = Design(signals, rows, columns, (), self.index).matrix
-        self.base = self._bin(np.column_stack([poly, np.asarray(error, dtype=float)[self.index]]))
+        self.starts, self._counts = _bins(segments, signals.t, bin_s)
+        if len(self._counts) < 4 * MIN_FOLDS:
+            raise ValueError(f'{len(self._counts)} bins of steady data are too few for {MIN_FOLDS} folds')
+        self.sqrt_counts = np.sqrt(self._counts)
+        self.rows_total = int(self._counts.sum())
+        self.chunk_rows = chunk_rows
+        self.error = np.asarray(error, dtype=float)
+        self.ranges: Ranges = {}   # the centring of every term's columns over the steady rows
+        self._polynomial = Design(signals, rows, columns, (), self.index, self.ranges, chunk_rows)
+        self.base = self._bin_sums(lambda chunk: np.column_stack(
+            [self._polynomial.matrix(chunk), self.error[chunk.start + chunk.rows]]), rows * columns + 1) \
+            / self.sqrt_counts[:, None]
         self._t_bin = signals.t[self.index[self.starts]]
         self.max_folds = folds
         self.n_folds = folds
@@ -199,25 +208,71 @@ class Binned:
             n_folds = int(np.clip(duration // (2 * block_s), MIN_FOLDS, self.max_folds))
         self.n_folds = n_folds
         self.block_s = min(block_s, duration / (2 * n_folds))
-        fold = np.floor((t_bin - t_bin[0]) / self.block_s).astype(np.int64) % n_folds
+        fold = self._fold_of(t_bin)
         self.folds = [np.flatnonzero(fold == k) for k in range(n_folds)]
         # The bins in fold order, and where each fold ends: per-fold sums then run on slices, not copies.
         self.order = np.concatenate(self.folds)
         self.bounds = np.cumsum([0] + [len(k) for k in self.folds])
 
-    def _bin(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Bin sums of steady-row ``values`` divided by sqrt(count): a mean weighted to unit noise."""
-        return np.add.reduceat(values, self.starts, axis=0) / self.sqrt_counts.reshape(-1, *([1] * (values.ndim - 1)))
+    def _fold_of(self, t: NDArray[np.float64]) -> NDArray[np.int64]:
+        """The fold of the block of time each of ``t`` falls in."""
+        return np.floor((t - self._t_bin[0]) / self.block_s).astype(np.int64) % self.n_folds
+
+    def _bin_sums(self, columns: Callable[[Chunk], NDArray[np.float64]], width: int) -> NDArray[np.float64]:
+        """Bin sums of ``columns`` (a chunk's selected rows -> their values), over the log's chunks.
+
+        ``columns`` sees every chunk, steady rows in it or not (a lag's recursion runs
+        through all); a bin cut by a chunk's edge adds its two parts.
+        """
+        out = np.zeros((len(self.starts), width))
+        for chunk in chunks(self.signals, self.index, self.chunk_rows):
+            values = columns(chunk)
+            if len(chunk.rows):
+                a, b = chunk.positions.start, chunk.positions.stop
+                first = int(np.searchsorted(self.starts, a, side='right')) - 1
+                last = int(np.searchsorted(self.starts, b, side='left'))
+                out[first:last] += np.add.reduceat(values, np.maximum(self.starts[first:last] - a, 0), axis=0)
+        return out
 
     def candidate_means(self, variants: Sequence[TermSpec]) -> NDArray[np.float64]:
         """Bin means of the scaled candidate bases, shape (bins, variants, width); each computed once."""
-        cols = []
-        for spec in variants:
-            if spec not in self._means:
-                _, _, basis = centred(spec.basis(self.signals)[self.index])
-                self._means[spec] = self._bin(basis) / self.sqrt_counts[:, None]
-            cols.append(self._means[spec])
-        return np.stack(cols, axis=1)
+        missing = [spec for spec in dict.fromkeys(variants) if spec not in self._means]
+        if missing:
+            self._add_means(missing)
+        return np.stack([self._means[spec] for spec in variants], axis=1)
+
+    def _add_means(self, specs: Sequence[TermSpec]) -> None:
+        """Bin means of the centred bases of ``specs``, in one pass over the log.
+
+        The centring (:func:`centring`, over all steady rows) is known only at the end: each
+        basis is summed less a provisional offset (its first rows' midpoint, within its
+        range), and the bin sums are moved to the final offset after, with no digits lost.
+        """
+        provisional: dict[TermSpec, NDArray[np.float64]] = {}
+        low: dict[TermSpec, NDArray[np.float64]] = {}
+        high: dict[TermSpec, NDArray[np.float64]] = {}
+
+        def columns(chunk: Chunk) -> NDArray[np.float64]:
+            parts = []
+            for spec in specs:
+                basis = spec.basis(chunk.signals)[chunk.rows]
+                if len(basis):
+                    lo, hi = basis.min(axis=0), basis.max(axis=0)
+                    if spec not in provisional:
+                        provisional[spec], low[spec], high[spec] = 0.5 * (hi + lo), lo, hi
+                    low[spec], high[spec] = np.minimum(low[spec], lo), np.maximum(high[spec], hi)
+                    basis = basis - provisional[spec]
+                parts.append(basis)
+            return np.hstack(parts)
+
+        sums = self._bin_sums(columns, sum(spec.width for spec in specs))
+        p = 0
+        for spec in specs:
+            offset, scale = centring(low[spec], high[spec])
+            self.ranges[spec] = offset, scale
+            centred_sums = (sums[:, p:p + spec.width] - self._counts[:, None] * (offset - provisional[spec])) / scale
+            self._means[spec] = centred_sums / self.sqrt_counts[:, None] / self.sqrt_counts[:, None]
+            p += spec.width
 
     def bin_times(self) -> NDArray[np.float64]:
         """Time (s) of each bin's first row."""
@@ -232,6 +287,56 @@ class Binned:
             a, b = a[self.order], b[self.order]
         edges = self.bounds
         return np.stack([a[i:j].T @ b[i:j] for i, j in zip(edges[:-1], edges[1:])])
+
+    def row_folds(self, specs: Sequence[TermSpec] = ()) -> RowFolds:
+        """Per-fold sums over every steady row (not bins) of the polynomial and ``specs``, on these folds' blocks."""
+        specs = tuple(dict.fromkeys(specs))
+        design = Design(self.signals, self._polynomial.rows, self._polynomial.columns, specs, self.index,
+                        self.ranges, self.chunk_rows)
+        k, q = self.n_folds, design.width
+        gram, cross, yy = np.zeros((k, q, q)), np.zeros((k, q)), np.zeros(k)
+        for chunk, x in design.chunks():
+            rows = chunk.start + chunk.rows
+            y = self.error[rows]
+            fold = self._fold_of(self.signals.t[rows])
+            for f in np.unique(fold):
+                mine = fold == f
+                gram[f] += x[mine].T @ x[mine]
+                cross[f] += x[mine].T @ y[mine]
+                yy[f] += y[mine] @ y[mine]
+        return RowFolds(specs, self._polynomial.width, gram, cross, yy, self.rows_total, self.block_s)
+
+
+@dataclass(frozen=True)
+class RowFolds:
+    """Per-fold sums over every steady row of the polynomial's and some terms' columns: X'X, X'e and e'e.
+
+    The held-out error of the polynomial with any subset of those terms follows from them
+    (:meth:`held_out_rms`), each fold predicted from the fit to the others, with no matrix
+    of a row per log row.
+    """
+
+    specs: tuple[TermSpec, ...]
+    polynomial_width: int
+    gram: NDArray[np.float64]    # (K, q, q)
+    cross: NDArray[np.float64]   # (K, q)
+    yy: NDArray[np.float64]      # (K,)
+    rows_total: int
+    block_s: float
+
+    def held_out_rms(self, specs: Sequence[TermSpec] = ()) -> float:
+        """Held-out RMS error (deg/s) of the polynomial + ``specs`` (among :attr:`specs`), over every steady row."""
+        starts = np.cumsum([self.polynomial_width] + [spec.width for spec in self.specs])
+        columns = np.concatenate([np.arange(self.polynomial_width)]
+                                 + [np.arange(starts[i], starts[i] + spec.width)
+                                    for spec in specs for i in [self.specs.index(spec)]]).astype(np.int64)
+        gram, cross = self.gram[:, columns][:, :, columns], self.cross[:, columns]
+        total_gram, total_cross = gram.sum(axis=0), cross.sum(axis=0)
+        sse = 0.0
+        for g, c, yy in zip(gram, cross, self.yy):
+            beta = solve_normal(total_gram - g, total_cross - c)
+            sse += yy - 2.0 * beta @ c + beta @ g @ beta
+        return float(np.sqrt(max(sse, 0.0) / self.rows_total))
 
 
 class Screen:
