@@ -65,15 +65,30 @@ def read_log(path: str | os.PathLike[str], rate_scale_factor: float | None = Non
     return concatenate(list(read_log_chunks(path, rate_scale_factor, temp_scale_factor)))
 
 
-def concatenate(chunks: Sequence[GyroLog]) -> GyroLog:
-    """One log of consecutive chunks of it."""
+def concatenate(chunks: list[GyroLog]) -> GyroLog:
+    """One log of consecutive chunks of it; ``chunks`` is emptied.
+
+    Each chunk is copied into the joined columns and let go, first to last: the joined
+    columns fill as the chunks are freed, so the peak stays near the log's size, not twice it.
+    """
     if len(chunks) == 1:
-        return chunks[0]
+        return chunks.pop()
     first = chunks[0]
-    ref = None if first.ref_rate is None else np.concatenate([c.ref_rate for c in chunks])
-    return GyroLog(np.concatenate([c.t for c in chunks]), np.concatenate([c.rate_dps for c in chunks]),
-                   np.concatenate([c.temp_c for c in chunks]), ref,
-                   {k: np.concatenate([c.extras[k] for c in chunks]) for k in first.extras})
+    total = sum(len(c) for c in chunks)
+    names = ['t', 'rate_dps', 'temp_c', *(() if first.ref_rate is None else ('ref_rate',))]
+    columns = {name: np.empty(total, dtype=getattr(first, name).dtype) for name in names}
+    extras = {k: np.empty(total, dtype=v.dtype) for k, v in first.extras.items()}
+    chunks.reverse()
+    at = 0
+    while chunks:
+        chunk = chunks.pop()
+        stop = at + len(chunk)
+        for name, column in columns.items():
+            column[at:stop] = getattr(chunk, name)
+        for name, column in extras.items():
+            column[at:stop] = chunk.extras[name]
+        at = stop
+    return GyroLog(columns['t'], columns['rate_dps'], columns['temp_c'], columns.get('ref_rate'), extras)
 
 
 def read_log_chunks(path: str | os.PathLike[str], rate_scale_factor: float | None = None,

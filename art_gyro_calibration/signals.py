@@ -35,6 +35,13 @@ DEFAULT_TEMPERATURE_RATE_TAU_S = 120.0
 DEFAULT_RATE_CHANGE_TAU_S = 0.5
 
 
+class RateCorrection(Protocol):
+    """What corrects the rate the angle integrates: an error model."""
+
+    def error(self, signals: Signals) -> NDArray[np.float64]:
+        """The error (deg/s) at each sample of ``signals``."""
+
+
 class TermLike(Protocol):
     """What names a term's signal: a term or a term's spec."""
 
@@ -79,9 +86,10 @@ class Signals:
     terms costs no filtering. ``previous`` is the state after the sample before
     ``t[0]`` (None: ``t[0]`` is the log's first sample). ``powered_on_at_start``: the
     log starts at the gyro's power-on (a rate-table log does; a run started on a warm gyro
-    does not). ``angle_rate``: the rate the angle integrates, by default the measured one;
-    the loop gives the rate its ART fit corrects, so that a heading effect is fitted
-    against the heading, not against the polynomial's own error integrated for hours.
+    does not). ``angle_correction``: the angle integrates the measured rate less this
+    model's error (none: the measured rate); the loop gives its ART fit, so that a heading
+    effect is fitted against the heading, not against the polynomial's own error
+    integrated for hours. A model, not a corrected rate: a chunk computes its own rows.
     """
 
     t: NDArray[np.float64]
@@ -91,7 +99,7 @@ class Signals:
     filters: SignalFilters = field(default_factory=SignalFilters)
     previous: SignalState | None = None
     powered_on_at_start: bool = True
-    angle_rate: NDArray[np.float64] | None = None
+    angle_correction: RateCorrection | None = field(default=None, compare=False)
     _lags: dict[float, NDArray[np.float64]] = field(default_factory=dict, compare=False, repr=False)
     _levels: dict[str, float | None] = field(default_factory=dict, compare=False, repr=False)
 
@@ -151,14 +159,14 @@ class Signals:
 
     @cached_property
     def angle(self) -> NDArray[np.float64]:
-        """Angle turned in degrees, trapezoidal integral of ``angle_rate`` (by default the measured rate)."""
-        rate = self.rate if self.angle_rate is None else self.angle_rate
+        """Angle turned in degrees, trapezoidal integral of the measured rate (less ``angle_correction``'s error)."""
+        rate = self._angle_rate
         if self.previous is None:
             if not len(rate):
                 return np.zeros(0)
             start, t = 0.0, self.t
         else:
-            before = self.previous.rate if self.angle_rate is None else self.previous.angle_rate
+            before = self.previous.rate if self.angle_correction is None else self.previous.angle_rate
             if before is None:
                 raise ValueError('the angle of a corrected rate continues only from a state that has that rate')
             start = self.previous.angle
@@ -184,7 +192,12 @@ class Signals:
                            temperature_level=self._level_at_end('temperature_rate', 'temperature_level'),
                            rate_level=self._level_at_end('rate_change', 'rate_level'),
                            lag_levels=tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items())),
-                           angle_rate=None if self.angle_rate is None else float(self.angle_rate[-1]))
+                           angle_rate=None if self.angle_correction is None else float(self._angle_rate[-1]))
+
+    @property
+    def _angle_rate(self) -> NDArray[np.float64]:
+        """The rate the angle integrates."""
+        return self.rate if self.angle_correction is None else self.rate - self.angle_correction.error(self)
 
     def _level_at_end(self, derivative: str, level: str) -> float:
         """The level after the last sample of the filter of ``derivative`` (computed if not yet)."""

@@ -48,7 +48,7 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
                        temperature=signals.temperature[start:stop],
                        extras={k: v[start:stop] for k, v in signals.extras.items()}, filters=signals.filters,
                        previous=state, powered_on_at_start=signals.powered_on_at_start,
-                       angle_rate=None if signals.angle_rate is None else signals.angle_rate[start:stop])
+                       angle_correction=signals.angle_correction)
         high = low + int(np.searchsorted(index[low:], stop, side='left'))
         yield Chunk(part, start, index[low:high] - start, slice(low, high))
         state = part.end_state()   # after the caller's work: the lags it computed continue too

@@ -151,9 +151,11 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     art_fit = fit_model(signals, error, rows, columns, (), index)
     # The heading is the integral of what the gyro reads once corrected (one more pass), not of the raw
     # reading, whose polynomial error and turn-on bias add hundreds of degrees in hours.
-    signals = replace(signals, angle_rate=log.rate_dps - art_fit.model.error(signals))
+    signals = replace(signals, angle_correction=art_fit.model)
     residual = np.zeros(len(error))
     residual[index] = art_fit.residual
+    art_model = art_fit.model
+    del art_fit   # its residual is in ``residual``: one array as long as the log is enough
     floor = noise_floor(residual, segments)
     # A still gyro (one reference rate throughout) reads nothing but its error: a signal derived
     # from its rate would explain the error with itself, so none is a candidate.
@@ -171,9 +173,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     while len(rounds) < max_effects:
         # Held-out blocks at least as long as what the current model leaves stays correlated:
         # shorter ones share a slow residual with their neighbours, and any slow signal seems to predict it.
-        current = art_fit if not specs else fit_model(signals, error, rows, columns, specs, index,
-                                                      ranges=binned.ranges)
-        residual[index] = current.residual
+        if specs:
+            residual[index] = fit_model(signals, error, rows, columns, specs, index, ranges=binned.ranges).residual
         binned.refold(max(block_s, correlation_time_s(signals.t, residual, segments)))
         found = trace_residual(signals, error, segments, rows, columns, specs,
                                exclude=excluded + [s.signal for s in scores], **options)
@@ -210,7 +211,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     if heading:
         final = fit_model(signals, error, rows, columns, written, index, ranges=binned.ranges)
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
-    art = Calibration(serial_number, rate_scale_factor, art_fit.model.polynomial,
+    art = Calibration(serial_number, rate_scale_factor, art_model.polynomial,
                       (low, high if high > low else low + 1.0), temp_scale_factor, (), filters)
     return LoopResult(
         art=art, extended=replace(art, polynomial=final.model.polynomial, terms=final.model.terms),

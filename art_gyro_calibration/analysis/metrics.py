@@ -13,6 +13,7 @@ the heading error integrated over 10 minutes and 1 hour.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,10 +41,15 @@ class Segments:
         return self.stops - self.starts
 
     def rows(self) -> NDArray[np.int64]:
-        """Indices of all steady rows, in order."""
-        if not len(self):
-            return np.zeros(0, dtype=np.int64)
-        return np.concatenate([np.arange(a, b) for a, b in zip(self.starts, self.stops)])
+        """Indices of all steady rows, in order (one read-only array, made once: a long log's is large)."""
+        return self._rows
+
+    @cached_property
+    def _rows(self) -> NDArray[np.int64]:
+        rows = np.concatenate([np.arange(a, b) for a, b in zip(self.starts, self.stops)]) if len(self) \
+            else np.zeros(0, dtype=np.int64)
+        rows.flags.writeable = False
+        return rows
 
     def means(self, values: ArrayLike) -> NDArray[np.float64]:
         """Mean of ``values`` (one per log row) over each segment."""

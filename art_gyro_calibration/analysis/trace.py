@@ -30,7 +30,7 @@ every time constant then follows from small matrices and one product with the bi
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -189,9 +189,11 @@ class Binned:
         self.error = np.asarray(error, dtype=float)
         self.ranges: Ranges = {}   # the centring of every term's columns over the steady rows
         self._polynomial = Design(signals, rows, columns, (), self.index, self.ranges, chunk_rows)
-        self.base = self._bin_sums(lambda chunk: np.column_stack(
-            [self._polynomial.matrix(chunk), self.error[chunk.start + chunk.rows]]), rows * columns + 1) \
-            / self.sqrt_counts[:, None]
+        self.base = np.zeros((len(self.starts), rows * columns + 1))
+        for chunk in self._chunks():
+            values = np.column_stack([self._polynomial.matrix(chunk), self.error[chunk.start + chunk.rows]])
+            self._add_to_bins(self.base, chunk, values)
+        self.base /= self.sqrt_counts[:, None]
         self._t_bin = signals.t[self.index[self.starts]]
         self.max_folds = folds
         self.n_folds = folds
@@ -218,21 +220,17 @@ class Binned:
         """The fold of the block of time each of ``t`` falls in."""
         return np.floor((t - self._t_bin[0]) / self.block_s).astype(np.int64) % self.n_folds
 
-    def _bin_sums(self, columns: Callable[[Chunk], NDArray[np.float64]], width: int) -> NDArray[np.float64]:
-        """Bin sums of ``columns`` (a chunk's selected rows -> their values), over the log's chunks.
+    def _add_to_bins(self, sums: NDArray[np.float64], chunk: Chunk, values: NDArray[np.float64]) -> None:
+        """Add ``values`` of the chunk's steady rows into the bin ``sums`` (a bin the chunk's edge cuts adds twice)."""
+        if len(chunk.rows):
+            a, b = chunk.positions.start, chunk.positions.stop
+            first = int(np.searchsorted(self.starts, a, side='right')) - 1
+            last = int(np.searchsorted(self.starts, b, side='left'))
+            sums[first:last] += np.add.reduceat(values, np.maximum(self.starts[first:last] - a, 0), axis=0)
 
-        ``columns`` sees every chunk, steady rows in it or not (a lag's recursion runs
-        through all); a bin cut by a chunk's edge adds its two parts.
-        """
-        out = np.zeros((len(self.starts), width))
-        for chunk in chunks(self.signals, self.index, self.chunk_rows):
-            values = columns(chunk)
-            if len(chunk.rows):
-                a, b = chunk.positions.start, chunk.positions.stop
-                first = int(np.searchsorted(self.starts, a, side='right')) - 1
-                last = int(np.searchsorted(self.starts, b, side='left'))
-                out[first:last] += np.add.reduceat(values, np.maximum(self.starts[first:last] - a, 0), axis=0)
-        return out
+    def _chunks(self) -> Iterator[Chunk]:
+        """The log's chunks, with their steady rows."""
+        return chunks(self.signals, self.index, self.chunk_rows)
 
     def candidate_means(self, variants: Sequence[TermSpec]) -> NDArray[np.float64]:
         """Bin means of the scaled candidate bases, shape (bins, variants, width); each computed once."""
@@ -242,37 +240,32 @@ class Binned:
         return np.stack([self._means[spec] for spec in variants], axis=1)
 
     def _add_means(self, specs: Sequence[TermSpec]) -> None:
-        """Bin means of the centred bases of ``specs``, in one pass over the log.
+        """Bin means of the centred bases of ``specs``, in one pass over the log, one basis at a time.
 
         The centring (:func:`centring`, over all steady rows) is known only at the end: each
         basis is summed less a provisional offset (its first rows' midpoint, within its
         range), and the bin sums are moved to the final offset after, with no digits lost.
         """
+        sums = {spec: np.zeros((len(self.starts), spec.width)) for spec in specs}
         provisional: dict[TermSpec, NDArray[np.float64]] = {}
         low: dict[TermSpec, NDArray[np.float64]] = {}
         high: dict[TermSpec, NDArray[np.float64]] = {}
-
-        def columns(chunk: Chunk) -> NDArray[np.float64]:
-            parts = []
-            for spec in specs:
+        for chunk in self._chunks():
+            for spec in specs:   # every chunk, steady rows in it or not: a lag's recursion runs through all
                 basis = spec.basis(chunk.signals)[chunk.rows]
                 if len(basis):
                     lo, hi = basis.min(axis=0), basis.max(axis=0)
                     if spec not in provisional:
                         provisional[spec], low[spec], high[spec] = 0.5 * (hi + lo), lo, hi
                     low[spec], high[spec] = np.minimum(low[spec], lo), np.maximum(high[spec], hi)
-                    basis = basis - provisional[spec]
-                parts.append(basis)
-            return np.hstack(parts)
-
-        sums = self._bin_sums(columns, sum(spec.width for spec in specs))
-        p = 0
+                    self._add_to_bins(sums[spec], chunk, basis - provisional[spec])
         for spec in specs:
             offset, scale = centring(low[spec], high[spec])
             self.ranges[spec] = offset, scale
-            centred_sums = (sums[:, p:p + spec.width] - self._counts[:, None] * (offset - provisional[spec])) / scale
-            self._means[spec] = centred_sums / self.sqrt_counts[:, None] / self.sqrt_counts[:, None]
-            p += spec.width
+            sums[spec] -= self._counts[:, None] * (offset - provisional[spec])
+            sums[spec] /= scale
+            self._means[spec] = sums[spec] / self.sqrt_counts[:, None] / self.sqrt_counts[:, None]
+            del sums[spec]
 
     def bin_times(self) -> NDArray[np.float64]:
         """Time (s) of each bin's first row."""
