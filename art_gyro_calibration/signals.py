@@ -102,6 +102,9 @@ class Signals:
     angle_correction: RateCorrection | None = field(default=None, compare=False)
     _lags: dict[float, NDArray[np.float64]] = field(default_factory=dict, compare=False, repr=False)
     _levels: dict[str, float | None] = field(default_factory=dict, compare=False, repr=False)
+    # States at the ends of chunks of the log (by chunk size), lags aside: :mod:`analysis.chunks` makes
+    # each once. Not an init field, so that a replace()d Signals (another angle_correction) starts afresh.
+    chunk_states: dict[int, list[SignalState]] = field(default_factory=dict, init=False, compare=False, repr=False)
 
     @cached_property
     def temperature_rate(self) -> NDArray[np.float64]:
@@ -191,13 +194,17 @@ class Signals:
                            angle=float(self.angle[-1]),
                            temperature_level=self._level_at_end('temperature_rate', 'temperature_level'),
                            rate_level=self._level_at_end('rate_change', 'rate_level'),
-                           lag_levels=tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items())),
+                           lag_levels=self.lag_levels(),
                            angle_rate=None if self.angle_correction is None else float(self._angle_rate[-1]))
 
     @property
     def _angle_rate(self) -> NDArray[np.float64]:
         """The rate the angle integrates."""
         return self.rate if self.angle_correction is None else self.rate - self.angle_correction.error(self)
+
+    def lag_levels(self) -> tuple[tuple[float, float], ...]:
+        """(time constant, level after the last sample) of each lagged temperature computed so far."""
+        return tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items()))
 
     def _level_at_end(self, derivative: str, level: str) -> float:
         """The level after the last sample of the filter of ``derivative`` (computed if not yet)."""

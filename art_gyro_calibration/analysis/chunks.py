@@ -9,12 +9,12 @@ A chunk's causal signals continue from the state the chunk before ended in
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.signals import Signals
+from art_gyro_calibration.signals import Signals, SignalState
 
 # Rows per chunk: a matrix of a dozen columns over a chunk is 25 MiB.
 CHUNK_ROWS = 1 << 18
@@ -41,8 +41,10 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
     if index.size > 1 and np.any(np.diff(index) <= 0):
         raise ValueError('the rows to select must be increasing')
     state = signals.previous
+    known = signals.chunk_states.get(size)
+    ends: list[SignalState] = []
     low = 0
-    for start in range(0, len(signals), size):
+    for k, start in enumerate(range(0, len(signals), size)):
         stop = min(len(signals), start + size)
         part = Signals(t=signals.t[start:stop], rate=signals.rate[start:stop],
                        temperature=signals.temperature[start:stop],
@@ -51,5 +53,13 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
                        angle_correction=signals.angle_correction)
         high = low + int(np.searchsorted(index[low:], stop, side='left'))
         yield Chunk(part, start, index[low:high] - start, slice(low, high))
-        state = part.end_state()   # after the caller's work: the lags it computed continue too
+        # After the caller's work: the lags it computed continue too. The rest of the state (the
+        # filters, the angle) is the same on every pass over the log: computed on the first.
+        if known is None:
+            state = part.end_state()
+            ends.append(state)
+        else:
+            state = replace(known[k], lag_levels=part.lag_levels())
         low = high
+    if known is None and len(ends) == -(-len(signals) // size):
+        signals.chunk_states[size] = [replace(end, lag_levels=()) for end in ends]
