@@ -1,5 +1,6 @@
 """``calibrate fit`` in bounded memory: chunk by chunk it finds what one chunk finds, and holds no matrix per row."""
 
+import dataclasses
 import tracemalloc
 
 import numpy as np
@@ -95,7 +96,7 @@ def test_chunked_signals_equal_the_whole_logs():
     """Chunks continue the causal signals: lags, filters and the angle of a corrected rate."""
     log = simulated(1.0, 2.0)
     whole = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras)
-    whole = type(whole)(**{**whole.__dict__, 'angle_correction': load_packaged_calibration(SERIAL).model})
+    whole = dataclasses.replace(whole, angle_correction=load_packaged_calibration(SERIAL).model)
     index = np.arange(0, len(log), 3)
     seen = []
     for chunk in chunks.chunks(whole, index, 700):
