@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
+from art_gyro_calibration.analysis import chunks
 from art_gyro_calibration.analysis.loop import Effect, LoopResult
 from art_gyro_calibration.analysis.metrics import error_metrics
 from art_gyro_calibration.analysis.replay import Validation
@@ -40,7 +41,17 @@ def stage_error(log: GyroLog, result: LoopResult, bias_samples: int, stage: str)
     if stage == 'uncalibrated':
         return log.rate_dps - static_bias(log.rate_dps[:n], np.zeros(n)).static_bias_drift_dps - log.ref_rate
     calibration = {'art': result.art, 'extended': result.extended}[stage]
-    return apply_calibration(log, calibration, n, start=result.start).corrected_dps - log.ref_rate
+    # Chunk by chunk, as ``calibrate apply`` streams (the same result): the compensation's own arrays
+    # then never span the log, only the errors do.
+    size = chunks.CHUNK_ROWS
+    edges = [0, *range(max(n, size), len(log), size), len(log)]   # the first chunk holds the bias window
+    out = np.empty(len(log))
+    applied = None
+    for start, stop in zip(edges[:-1], edges[1:]):
+        part = log.slice(slice(start, stop))
+        applied = apply_calibration(part, calibration, n, after=applied, start=result.start)
+        out[start:stop] = applied.corrected_dps - part.ref_rate
+    return out
 
 
 def stage_errors(log: GyroLog, result: LoopResult, bias_samples: int) -> dict[str, NDArray[np.float64]]:
