@@ -122,9 +122,11 @@ class Signals:
         A long log's level would be one more array as long as the log, held for one number.
         """
         start = None if self.previous is None else getattr(self.previous, level_name)
-        level = self._smoothed(x, start, tau_s)
-        self._levels[level_name] = float(level[-1]) if len(level) else start
-        return (x - level) / tau_s
+        out = self._smoothed(x, start, tau_s)
+        self._levels[level_name] = float(out[-1]) if len(out) else start
+        np.subtract(x, out, out=out)   # in place: the level is not kept
+        out /= tau_s
+        return out
 
     def _smoothed(self, x: NDArray[np.float64], level: float | None, tau_s: float) -> NDArray[np.float64]:
         """Level of the first-order filter of ``x`` at each sample, continuing from ``level``.
@@ -135,12 +137,15 @@ class Signals:
         if level is None:
             if len(x) < 2:
                 return x.copy()
-            decay = -np.maximum(np.diff(self.t), 0.0) / tau_s   # log of each step's decay factor
-            return np.concatenate((x[:1], first_order_smooth(x, decay)))
+            decay = _log_decay(self.t, tau_s)
+            out = np.empty(len(x))
+            out[0] = x[0]
+            first_order_smooth(x, decay, out[1:])
+            return out
         if not len(x):
             return x.copy()
-        decay = -np.maximum(np.diff(self.t, prepend=self.previous.t), 0.0) / tau_s
-        return first_order_smooth(np.concatenate(([level], x)), decay)
+        return first_order_smooth(np.concatenate(([level], x)), _log_decay(np.concatenate(([self.previous.t], self.t)),
+                                                                           tau_s))
 
     def lagged_temperature(self, tau_s: float) -> NDArray[np.float64]:
         """The temperature through a first-order lag of ``tau_s`` (degC), starting at the first sample's."""
@@ -246,27 +251,36 @@ _CHUNK_LOG_DECAY = 500.0
 _CHUNK_ROWS = 1 << 16
 
 
-def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64]) -> NDArray[np.float64]:
+def _log_decay(t: NDArray[np.float64], tau_s: float) -> NDArray[np.float64]:
+    """Log of each step's decay factor, ``-max(dt, 0) / tau``, in one array (a long log's temporaries add up)."""
+    out = np.diff(t)
+    np.maximum(out, 0.0, out=out)
+    out /= -tau_s
+    return out
+
+
+def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64],
+                       out: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """``s[i] = s[i-1] + (1 - exp(log_decay[i-1])) * (x[i] - s[i-1])`` from ``s[0] = x[0]``, for i >= 1.
 
     The recursion in closed form, ``s_i = s_0 + D_i sum_j a_j (x_j - s_0) / D_j`` with ``D`` the
     cumulative decay, vectorised over chunks short enough that ``1 / D`` stays finite. Each
     rounding error decays with the filter, so the result matches the per-sample loop to
     a few ulps of ``(x - s_0) / a``. Runs with numpy alone (the node's runtime has no scipy).
+    ``out``: where to write the result (len(log_decay) values); no array but it spans ``x``.
     """
     n = len(log_decay)
-    # A step decaying by more than exp(-500) forgets the past: its gain is 1.0 either way.
-    log_decay = np.maximum(log_decay, -_CHUNK_LOG_DECAY)
-    gain = -np.expm1(log_decay)
-    out = np.empty(n)
+    out = np.empty(n) if out is None else out
     level = float(x[0])
     start = 0
     while start < n:
-        span = np.cumsum(log_decay[start:start + _CHUNK_ROWS])
+        # A step decaying by more than exp(-500) forgets the past: its gain is 1.0 either way.
+        step = np.maximum(log_decay[start:start + _CHUNK_ROWS], -_CHUNK_LOG_DECAY)
+        span = np.cumsum(step)
         stop = start + max(1, int(np.searchsorted(-span, _CHUNK_LOG_DECAY, side='right')))
         cumulative = span[:stop - start]
         # On x less the level the chunk starts from: the sum's rounding scales with |x - level|, not |x|.
-        weights = gain[start:stop] * (x[start + 1:stop + 1] - level) * np.exp(-cumulative)
+        weights = -np.expm1(step[:stop - start]) * (x[start + 1:stop + 1] - level) * np.exp(-cumulative)
         out[start:stop] = level + np.exp(cumulative) * np.cumsum(weights)
         level = float(out[stop - 1])
         start = stop

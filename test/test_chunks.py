@@ -6,7 +6,8 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from art_gyro_calibration.analysis import chunks
+from art_gyro_calibration.analysis import chunks, metrics
+from art_gyro_calibration.analysis import fit as fit_module
 from art_gyro_calibration.analysis.loop import close_loop
 from art_gyro_calibration.analysis.report import build_report
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run
@@ -46,6 +47,8 @@ def assert_close(a, b, path=''):
 def test_small_chunks_give_the_one_chunk_calibration(effects, monkeypatch):
     """The same effects, coefficients, p-values, held-out errors and REPORT numbers from 44 chunks as from one.
 
+    Also the per-row temporaries of the metrics taken in pieces of 777 rows instead of one.
+
     The causal signals (a lagged coil temperature, the warm-up, the angle of the corrected
     rate) continue across the chunks' edges, and the bins cut by them add their parts.
     """
@@ -53,6 +56,8 @@ def test_small_chunks_give_the_one_chunk_calibration(effects, monkeypatch):
     assert len(log) < chunks.CHUNK_ROWS
     whole, whole_report = fit(log)
     monkeypatch.setattr(chunks, 'CHUNK_ROWS', 1000)
+    monkeypatch.setattr(metrics, 'PIECE_ROWS', 777)   # noise floor, correlation time, segments in pieces
+    monkeypatch.setattr(fit_module, 'PIECE_ROWS', 777)
     parts, parts_report = fit(log)
 
     assert [e.term.signal for e in parts.effects] == [e.term.signal for e in whole.effects]

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.analysis.chunks import Chunk, chunks
+from art_gyro_calibration.analysis.metrics import PIECE_ROWS
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
 from art_gyro_calibration.signals import Signals
 from art_gyro_calibration.terms import Term, term_basis
@@ -130,6 +131,13 @@ def term_ranges(signals: Signals, specs: Sequence[TermSpec], index: NDArray[np.i
     return {spec: centring(low[spec], high[spec]) for spec in specs}
 
 
+def _spans(index: NDArray[np.int64], *columns: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """Each column's lowest and highest value over the rows ``index``, a piece of the rows at a time."""
+    pieces = range(0, len(index), PIECE_ROWS)
+    return [np.array([min(float(c[index[i:i + PIECE_ROWS]].min()) for i in pieces),
+                      max(float(c[index[i:i + PIECE_ROWS]].max()) for i in pieces)]) for c in columns]
+
+
 class Design:
     """Scaled design of the polynomial and the terms ``specs`` over the rows ``index``, built chunk by chunk.
 
@@ -146,7 +154,7 @@ class Design:
         self.signals, self.chunk_rows = signals, chunk_rows
         self.index = np.arange(len(signals)) if index is None else np.asarray(index)
         self.rows, self.columns, self.specs = rows, columns, tuple(specs)
-        self.scaling = Scaling.of(signals.temperature[self.index], signals.rate[self.index])
+        self.scaling = Scaling.of(*_spans(self.index, signals.temperature, signals.rate))
         ranges = {} if ranges is None else ranges
         missing = [spec for spec in dict.fromkeys(self.specs) if spec not in ranges]
         if missing:
