@@ -38,8 +38,6 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
     """
     size = CHUNK_ROWS if chunk_rows is None else max(int(chunk_rows), 1)
     index = np.asarray(index)
-    if index.size > 1 and np.any(np.diff(index) <= 0):
-        raise ValueError('the rows to select must be increasing')
     state = signals.previous
     known = signals.chunk_states.get(size)
     ends: list[SignalState] = []
@@ -52,6 +50,8 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
                        previous=state, powered_on_at_start=signals.powered_on_at_start,
                        angle_correction=signals.angle_correction)
         high = low + int(np.searchsorted(index[low:], stop, side='left'))
+        if np.any(np.diff(index[low:high]) <= 0) or (low < index.size and index[low] < start):
+            raise ValueError('the rows to select must be increasing')
         yield Chunk(part, start, index[low:high] - start, slice(low, high))
         # After the caller's work: the lags it computed continue too. The rest of the state (the
         # filters, the angle) is the same on every pass over the log: computed on the first.
