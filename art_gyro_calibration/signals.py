@@ -147,6 +147,16 @@ class Signals:
         return first_order_smooth(np.concatenate(([level], x)), _log_decay(np.concatenate(([self.previous.t], self.t)),
                                                                            tau_s))
 
+    def forget(self) -> None:
+        """Drop the derived signals computed so far; they are computed again when asked for.
+
+        Over a long log each is as long as the log: a caller that works chunk by chunk
+        (:mod:`art_gyro_calibration.analysis.chunks`) need not hold them.
+        """
+        for name in ('temperature_rate', 'rate_change', 'angle'):
+            self.__dict__.pop(name, None)
+        self._lags.clear()
+
     def lagged_temperature(self, tau_s: float) -> NDArray[np.float64]:
         """The temperature through a first-order lag of ``tau_s`` (degC), starting at the first sample's."""
         if tau_s not in self._lags:

@@ -162,6 +162,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     still = bool(np.ptp(log.ref_rate) == 0.0)
     binned = Binned(signals, error, segments, rows, columns, folds, bin_s, block_s)
     noise = noise_levels(binned, Screen(binned).residual() / binned.sqrt_counts, bin_s)
+    signals.forget()   # the rest of the loop takes its signals chunk by chunk
     instability_dph = noise.instability_dps * DEG_PER_H_PER_DPS
     materiality = noise.materiality_dph if materiality_dph is None else materiality_dph
     options = dict(draws=draws, alpha=alpha, bin_s=bin_s, materiality_dph=materiality, seed=seed,
