@@ -39,7 +39,7 @@ class RateCorrection(Protocol):
     """What corrects the rate the angle integrates: an error model."""
 
     def error(self, signals: Signals) -> NDArray[np.float64]:
-        """The error (deg/s) at each sample of ``signals``."""
+        """Per sample of ``signals``, what the rate reads too much, deg/s."""
 
 
 class TermLike(Protocol):
