@@ -55,7 +55,8 @@ def test_fit_writes_calibration_report_and_plots(fitted):
     shupe = report['effects'][0]
     assert 0 < shupe['p_value'] <= 0.05 and shupe['effect_dph'] > report['materiality_dph']
     assert {'temperature_lag', 'time_since_power_on', 'rate_x_temperature_rate'} <= set(report['forms_tried'])
-    assert report['screens'][0]['draws'] == 200 and report['findings_not_written'] == []
+    assert report['screens'][0]['draws'] == 200 and report['screens'][0]['alpha'] == 0.01
+    assert report['findings_not_written'] == []
     assert all((fitted / 'plots' / p).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' for p in pngs)
 
 
@@ -124,11 +125,14 @@ def test_python_dash_m_is_calibrate():
     assert done.returncode == 0 and done.stdout.startswith('usage: calibrate apply')
 
 
-def test_usage_errors(capsys):
+@pytest.mark.parametrize('flag, value', [('--rows', '0'), ('--alpha', '0'), ('--alpha', '1.5')])
+def test_usage_errors(capsys, flag, value):
+    args = {'--rows': '3', '--alpha': '0.01', flag: value}
     with pytest.raises(SystemExit) as exc:
-        main(['fit', 'LOG.csv', '--rows', '0', '--columns', '2', '--out', 'c', '--report', 'r'])
+        main(['fit', 'LOG.csv', '--columns', '2', '--out', 'c', '--report', 'r',
+              *[x for pair in args.items() for x in pair]])
     assert exc.value.code == 2
-    assert '--rows' in capsys.readouterr().err
+    assert flag in capsys.readouterr().err
 
 
 def test_record_writes_the_raw_log_through_the_driver(tmp_path, capsys):

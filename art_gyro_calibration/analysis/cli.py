@@ -34,7 +34,7 @@ from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RAT
                                                 LoopResult, close_loop)
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
-from art_gyro_calibration.analysis.trace import DEFAULT_BLOCK_S, DEFAULT_DRAWS
+from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_BLOCK_S, DEFAULT_DRAWS
 
 
 def _apply(args: argparse.Namespace) -> int:
@@ -86,7 +86,7 @@ def _fit(args: argparse.Namespace) -> int:
                             rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
                             settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
                             exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
-                            draws=args.draws, from_power_on=not args.not_from_power_on)
+                            draws=args.draws, alpha=args.alpha, from_power_on=not args.not_from_power_on)
         report = build_report(log, result, args.bias_samples, source=str(args.log))
         if not report['model_adequate']:
             adequacy = report['adequacy']
@@ -260,6 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--seed', type=int, default=0, help='seed of the chance scores (phase-randomised residuals)')
     p.add_argument('--draws', type=_positive_int, default=DEFAULT_DRAWS,
                    help='chance draws per screen (default %(default)s)')
+    p.add_argument('--alpha', type=_level, default=DEFAULT_ALPHA,
+                   help='level of each screen\'s test: the chance of claiming an effect on a log without one '
+                        '(default %(default)s)')
     p.add_argument('--materiality', type=float, metavar='DEG_PER_H',
                    help='smallest effect worth adding, worst case over the logged envelope, deg/h '
                         '(default: the bias instability of what the ART polynomial leaves)')
@@ -320,6 +323,13 @@ def build_parser() -> argparse.ArgumentParser:
 def _force_option(p: argparse.ArgumentParser) -> None:
     p.add_argument('--force', action='store_true',
                    help='replace outputs that exist (an input is never overwritten)')
+
+
+def _level(text: str) -> float:
+    value = float(text)
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f'must be between 0 and 1, got {text}')
+    return value
 
 
 def _positive_int(text: str) -> int:

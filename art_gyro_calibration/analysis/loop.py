@@ -28,7 +28,7 @@ from art_gyro_calibration.terms import Term
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_DRAWS,
                                                  DEFAULT_FOLDS, DEG_PER_H_PER_DPS, Binned, CandidateScore, Screen,
-                                                 TraceResult, held_out_residual, joined, trace_residual)
+                                                 TraceResult, best_variant, held_out_residual, joined, trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
 # Most RD2100s read 0.00305 deg/s per count (report, section 1).
@@ -190,6 +190,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         else:
             specs.append(best.spec)
             scores.append(best)
+        specs = retuned(binned, specs)
     # A square is judged once every effect is in the model, so it cannot stand in for one not yet found.
     specs = [_maybe_square(spec, binned, specs[:i] + specs[i + 1:], materiality)
              for i, spec in enumerate(specs)]
@@ -222,6 +223,26 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
         adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading),
         start=RunStart(powered_on_at_start=from_power_on))
+
+
+# A time constant found in an earlier round is sought again within this factor of it.
+RETUNE_FACTOR = 2.0
+
+
+def retuned(binned: Binned, specs: list[TermSpec]) -> list[TermSpec]:
+    """``specs`` with each time constant (or lag) fitted again given every other term.
+
+    A time constant chosen while another effect was still in the residual is biased by it
+    (a warm-up's, by a Shupe effect not yet modelled); left so, the next round finds a
+    richer form that mends the bias, not an effect.
+    """
+    out = list(specs)
+    for i, spec in enumerate(out):
+        if spec.time_constant_s > 0.0:
+            grid = [replace(spec, time_constant_s=float(tau)) for tau in
+                    np.geomspace(spec.time_constant_s / RETUNE_FACTOR, spec.time_constant_s * RETUNE_FACTOR, 5)]
+            out[i] = best_variant(Screen(binned, out[:i] + out[i + 1:]), grid)
+    return out
 
 
 # Stretches where the temperature holds (|dT/dt| below this, degC/s) for at least THERMAL_STILL_S: there

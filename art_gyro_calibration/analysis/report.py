@@ -25,7 +25,7 @@ from art_gyro_calibration.analysis import chunks
 from art_gyro_calibration.analysis.loop import Effect, LoopResult
 from art_gyro_calibration.analysis.metrics import error_metrics
 from art_gyro_calibration.analysis.replay import Validation
-from art_gyro_calibration.analysis.trace import FORMS_TRIED
+from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_DRAWS, FORMS_TRIED
 from art_gyro_calibration.static_bias import static_bias
 
 STAGES = ('uncalibrated', 'art', 'extended')
@@ -85,7 +85,7 @@ def build_report(log: GyroLog, result: LoopResult, bias_samples: int, source: st
         # One stage's errors at a time: each is as long as the log.
         'errors': {stage: error_metrics(stage_error(log, result, bias_samples, stage), result.segments).to_dict()
                    for stage in STAGES},
-        'screens': [{'chance_threshold_dps2': found.threshold_dps2, 'draws': found.draws,
+        'screens': [{'chance_threshold_dps2': found.threshold_dps2, 'draws': found.draws, 'alpha': found.alpha,
                      'candidates': [{'signal': c.signal, 'held_out_improvement_dps2': c.improvement_dps2,
                                      'chance_max_improvement_dps2': c.null_max_dps2, 'p_value': c.p_value,
                                      'effect_dph': c.effect_dph, 'stands_for': c.stands_for,
@@ -132,8 +132,10 @@ def markdown_summary(report: dict[str, Any]) -> str:
         lines.append(f'| {stage} | {e["rms_dps"]:.5f} | {e["systematic_rms_dps"]:.5f} | '
                      f'{e["heading_360_deg_max"]:.4f} |')
     held = report['held_out_rms_dps']
+    screen = report['screens'][0] if report['screens'] else {'draws': DEFAULT_DRAWS, 'alpha': DEFAULT_ALPHA}
     lines += ['', f'Held-out rms: ART {held["art"]:.5f} deg/s, extended {held["extended"]:.5f} deg/s. An effect '
-              f'counts if it beats chance (200 phase-randomised residuals, the best of all candidates, 5 %) and '
+              f'counts if it beats chance ({screen["draws"]} phase-randomised residuals, the best of all candidates, '
+              f'{100 * screen["alpha"]:g} %) and '
               f'reaches {report["materiality_dph"]:.2f} deg/h over the logged envelope (the bias instability).', '']
     if not report['effects']:
         lines.append('Effects beyond the ART polynomial: nothing found.')

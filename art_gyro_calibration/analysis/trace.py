@@ -10,16 +10,18 @@ candidate is fitted on the other folds and predicts this one.
 Chance is measured on the data itself, keeping the candidate and randomising the
 residual: ``draws`` phase-randomised copies of what the base model leaves keep its
 spectrum (a bias that wanders for hours stays slow) but lose any alignment with a
-candidate. Every candidate scores every copy; the best chance score of the round, over
-all candidates, is one draw of the null of "nothing here", so one quantile of it tests
-the whole round at level ``alpha`` however many candidates there are (a maximum
-statistic). A candidate is an effect only if it beats that quantile and if its fitted
-size over the logged envelope (half its range, deg/h) reaches the materiality, by
-default the data's own bias instability: an effect smaller than the gyro's wander does
-not matter to a robot, whatever the log's length or sample rate. Candidates are scored
-against the base alone, never conditioned on each other, so two columns carrying the
-same information cannot explain each other away; a log column that stands for a derived
-signal (one the node computes itself) gives way to it.
+candidate; the spectrum is taken without the strongest candidate's effect, so an effect
+does not hide in its own chance (:func:`null_spectrum`). Every candidate scores every
+copy; the best chance score of the round, over all candidates, is one draw of the null
+of "nothing here", so one quantile of it tests the whole round at level ``alpha``
+however many candidates there are (a maximum statistic). A candidate is an effect only
+if it beats that quantile and if its fitted size over the logged envelope (half its
+range, deg/h) reaches the materiality, by default the data's own bias instability: an
+effect smaller than the gyro's wander does not matter to a robot, whatever the log's
+length or sample rate. Candidates are scored against the base alone, never conditioned
+on each other, so two columns carrying the same information cannot explain each other
+away; a log column that stands for a derived signal (one the node computes itself) gives
+way to it.
 
 Speed: the screen works on bin means (``bin_s`` of one steady segment per bin, weighted
 by the square root of their row count, so a bin mean's noise is that of one sample)
@@ -45,7 +47,12 @@ DEFAULT_FOLDS = 6
 # Fewer folds than this leave too little to fit on; a short log gets this many, not shorter blocks.
 MIN_FOLDS = 3
 DEFAULT_DRAWS = 200
-DEFAULT_ALPHA = 0.05
+# The level of each round's test. A false term costs a robot as much as a missed one (a warm-up fitted to noise
+# is a bias for the whole mission), and a null without the effect's own power can afford a strict level.
+DEFAULT_ALPHA = 0.01
+# The chance residuals' slowest frequencies, below index 8 of the mirrored spectrum (periods over a quarter of
+# the log), are kept at least at a random walk's level (:func:`null_spectrum`).
+SLOW_INDEX = 8
 # Chance draws scored at once: bounds the memory of the target matrix (bins x batch).
 SURROGATE_BATCH = 50
 DEFAULT_BIN_S = 1.0
@@ -337,6 +344,7 @@ class Screen:
 
     def __init__(self, binned: Binned, specs: Sequence[TermSpec] = ()) -> None:
         self.binned = binned
+        self.specs = tuple(specs)
         self.sqrt_counts = binned.sqrt_counts
         self.rows_total = binned.rows_total
         parts = [binned.base[:, :-1]]
@@ -448,11 +456,42 @@ def phase_surrogates(spectrum: NDArray[np.complex128], count: int, rng: np.rando
     A slow bias wander keeps its slowness (its spectrum), but loses any alignment with a
     candidate: the null of "the candidate explains nothing", with the residual's own memory.
     """
-    phases = rng.uniform(0.0, 2.0 * np.pi, (len(spectrum), count))
-    phases[0] = 0.0
-    phases[-1] = 0.0   # the Nyquist term of the (even) mirrored length stays real
     n2 = 2 * (len(spectrum) - 1)
-    return np.fft.irfft(spectrum[:, None] * np.exp(1j * phases), n2, axis=0)[:n2 // 2]
+    out = np.empty((n2 // 2, count))
+    for j in range(count):   # one draw at a time: the complex temporaries are one series long, not ``count``
+        phases = rng.uniform(0.0, 2.0 * np.pi, len(spectrum))
+        phases[0] = 0.0
+        phases[-1] = 0.0   # the Nyquist term of the (even) mirrored length stays real
+        out[:, j] = np.fft.irfft(spectrum * np.exp(1j * phases), n2)[:n2 // 2]
+    return out
+
+
+def null_spectrum(screen: Screen, families: dict[str, Sequence[TermSpec]],
+                  residual: NDArray[np.float64]) -> NDArray[np.complex128]:
+    """The amplitude spectrum of the chance residuals: the residual's, without the strongest candidate's effect.
+
+    The residual's own spectrum holds any effect it carries: over one chamber cycle a
+    Shupe effect is then as likely by chance as by cause. So the strongest candidate's fit
+    is taken out first. At the slowest frequencies (periods over a quarter of the log,
+    where the log holds only a few cycles) that would also take out the part of a bias
+    wander the candidate happens to fit, and make chance too small: there the spectrum is
+    kept at least at a rate random walk's through its level at periods of a quarter to an
+    eighth of the log (power ~ 1/f**2, the steepest noise of a gyro's error model, IEEE
+    952; a steeper one is a drift, a candidate), but never above the residual's own.
+    """
+    full = mirrored_spectrum(residual)
+    if not families or len(full) <= 2 * SLOW_INDEX:
+        return full
+    real = screen.held_out_improvements(families, residual[:, None])
+    strongest = families[max(real, key=lambda name: real[name][0])]
+    spec = strongest[0] if len(strongest) == 1 else best_variant(screen, strongest, refine=False)
+    spectrum = np.abs(mirrored_spectrum(Screen(screen.binned, [*screen.specs, spec]).residual()))
+    # Index j of the mirrored spectrum (2n bins) is a period of 2n/j bins: j = SLOW_INDEX is a quarter of the log.
+    level = float(np.mean(spectrum[SLOW_INDEX:2 * SLOW_INDEX] ** 2))
+    slow = np.arange(1, SLOW_INDEX)
+    floor = np.minimum(np.sqrt(level) * SLOW_INDEX * np.sqrt(2.0) / slow, np.abs(full[slow]))
+    spectrum[slow] = np.maximum(spectrum[slow], floor)
+    return spectrum.astype(np.complex128)
 
 
 @dataclass(frozen=True)
@@ -482,21 +521,22 @@ class TraceResult:
     threshold_dps2: float = math.inf
     draws: int = 0
     materiality_dph: float = 0.0
+    alpha: float = DEFAULT_ALPHA
 
     @property
     def best(self) -> CandidateScore | None:
         """The significant candidate to add next, or None: nothing found.
 
         The one least likely by chance; among those tied at that (the strongest effects all
-        beat every draw), the simplest, then the one that removes most. A candidate that a
-        simpler significant one stands for gives way to it.
+        beat every draw), the one that removes most: a weaker candidate may owe its score to
+        the part of a stronger effect it can mimic (a drift, of a warm-up). A candidate that
+        a simpler significant one stands for gives way to it.
         """
         found = [c for c in self.candidates if c.significant]
         if not found:
             return None
         least = min(c.p_value for c in found)
-        pick = min((c for c in found if c.p_value <= least),
-                   key=lambda c: (_complexity(c.spec), -c.improvement_dps2))
+        pick = max((c for c in found if c.p_value <= least), key=lambda c: c.improvement_dps2)
         named = {c.signal: c for c in found}
         return named.get(pick.stands_for, pick)
 
@@ -532,7 +572,7 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
                 if v[0].signal not in taken or joined(taken[v[0].signal], v[0]) is not None}
     families = {name: v for name, v in families.items() if np.ptp(binned.candidate_means(v), axis=0).max() > 0.0}
     residual = screen.residual()
-    spectrum = mirrored_spectrum(residual)
+    spectrum = null_spectrum(screen, families, residual)
     scores = {name: [] for name in families}
     for start in range(0, draws + 1, SURROGATE_BATCH):
         count = min(SURROGATE_BATCH, draws + 1 - start)
@@ -541,9 +581,10 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
             targets[:, 0] = residual   # column 0: the residual as logged
         for name, improvement in screen.held_out_improvements(families, targets).items():
             scores[name].append(improvement)
+        del targets   # not alive beside the next batch
     if not families:
         return TraceResult(noise_floor_dps, screen.base_sse() / screen.rows_total, (), math.inf, draws,
-                           materiality_dph)
+                           materiality_dph, alpha)
     table = {name: np.concatenate(parts) for name, parts in scores.items()}
     best_chance = np.max(np.stack([v[1:] for v in table.values()]), axis=0)
     threshold = float(np.quantile(best_chance, 1.0 - alpha, method='higher'))
@@ -552,7 +593,11 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
         real, null = float(values[0]), values[1:]
         # A time constant is refined only where it may matter: for a candidate that beats chance.
         spec = families[name][0] if len(families[name]) == 1 else \
-            _best_variant(screen, families[name], refine=real > threshold)
+            best_variant(screen, families[name], refine=real > threshold)
+        if len(families[name]) > 1 and real > threshold:
+            # The family beat chance with each fold free to pick its time constant; the one written must
+            # beat it alone (a fast decay held in one block of time cannot be held out at all).
+            real = min(real, float(screen.held_out_improvements({name: [spec]}, residual[:, None])[name][0]))
         size = screen.effect_dph(spec)
         candidates.append(CandidateScore(
             name, spec, real, float(null.mean()), float(null.std()), float(null.max()), real / floor_var,
@@ -561,7 +606,7 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
     candidates = _stand_ins(screen, candidates)
     candidates.sort(key=lambda c: c.improvement_dps2, reverse=True)
     return TraceResult(noise_floor_dps, screen.base_sse() / screen.rows_total, tuple(candidates), threshold, draws,
-                       materiality_dph)
+                       materiality_dph, alpha)
 
 
 def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[CandidateScore]:
@@ -623,7 +668,7 @@ def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[n
     return out
 
 
-def _best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
+def best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
     """The best variant on all the data; its time constant, if it has one and ``refine``, by golden-section search."""
     sse = [screen.training_sse(v) for v in variants]
     template = variants[int(np.argmin(sse))]
