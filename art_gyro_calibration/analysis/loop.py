@@ -28,7 +28,7 @@ from art_gyro_calibration.terms import Term
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_DRAWS,
                                                  DEFAULT_FOLDS, DEG_PER_H_PER_DPS, Binned, CandidateScore, Screen,
-                                                 TraceResult, best_variant, held_out_residual, joined, trace_residual)
+                                                 TraceResult, held_out_residual, joined, trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
 # Most RD2100s read 0.00305 deg/s per count (report, section 1).
@@ -234,14 +234,27 @@ def retuned(binned: Binned, specs: list[TermSpec]) -> list[TermSpec]:
 
     A time constant chosen while another effect was still in the residual is biased by it
     (a warm-up's, by a Shupe effect not yet modelled); left so, the next round finds a
-    richer form that mends the bias, not an effect.
+    richer form that mends the bias, not an effect. Five time constants within
+    :data:`RETUNE_FACTOR` (one pass over the log), then the vertex of the parabola in
+    log(tau) through the best and its neighbours (one more); only the one kept stays cached.
     """
     out = list(specs)
     for i, spec in enumerate(out):
-        if spec.time_constant_s > 0.0:
-            grid = [replace(spec, time_constant_s=float(tau)) for tau in
-                    np.geomspace(spec.time_constant_s / RETUNE_FACTOR, spec.time_constant_s * RETUNE_FACTOR, 5)]
-            out[i] = best_variant(Screen(binned, out[:i] + out[i + 1:]), grid)
+        if spec.time_constant_s <= 0.0:
+            continue
+        screen = Screen(binned, out[:i] + out[i + 1:])
+        logs = np.log(spec.time_constant_s) + np.log(RETUNE_FACTOR) * np.linspace(-1.0, 1.0, 5)
+        tried = [replace(spec, time_constant_s=float(np.exp(x))) for x in logs]
+        binned.candidate_means(tried)
+        sse = np.array([screen.training_sse(v) for v in tried])
+        k = int(np.clip(np.argmin(sse), 1, len(sse) - 2))
+        curve = np.polyfit(logs[k - 1:k + 2], sse[k - 1:k + 2], 2)
+        if curve[0] > 0.0:
+            vertex = float(np.clip(-curve[1] / (2.0 * curve[0]), logs[0], logs[-1]))
+            tried.append(replace(spec, time_constant_s=float(np.exp(vertex))))
+            sse = np.append(sse, screen.training_sse(tried[-1]))
+        out[i] = tried[int(np.argmin(sse))]
+        binned.forget_means([v for v in tried if v != out[i] and v != spec])
     return out
 
 

@@ -246,6 +246,12 @@ class Binned:
             self._add_means(missing)
         return np.stack([self._means[spec] for spec in variants], axis=1)
 
+    def forget_means(self, specs: Sequence[TermSpec]) -> None:
+        """Drop the cached bin means of ``specs`` (variants tried and not kept): the cache grows with the log."""
+        for spec in specs:
+            self._means.pop(spec, None)
+            self.ranges.pop(spec, None)
+
     def _add_means(self, specs: Sequence[TermSpec]) -> None:
         """Bin means of the centred bases of ``specs``, in one pass over the log, one basis at a time.
 
@@ -484,7 +490,7 @@ def null_spectrum(screen: Screen, families: dict[str, Sequence[TermSpec]],
         return full
     real = screen.held_out_improvements(families, residual[:, None])
     strongest = families[max(real, key=lambda name: real[name][0])]
-    spec = strongest[0] if len(strongest) == 1 else best_variant(screen, strongest, refine=False)
+    spec = strongest[0] if len(strongest) == 1 else _best_variant(screen, strongest, refine=False)
     spectrum = np.abs(mirrored_spectrum(Screen(screen.binned, [*screen.specs, spec]).residual()))
     # Index j of the mirrored spectrum (2n bins) is a period of 2n/j bins: j = SLOW_INDEX is a quarter of the log.
     level = float(np.mean(spectrum[SLOW_INDEX:2 * SLOW_INDEX] ** 2))
@@ -593,7 +599,7 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
         real, null = float(values[0]), values[1:]
         # A time constant is refined only where it may matter: for a candidate that beats chance.
         spec = families[name][0] if len(families[name]) == 1 else \
-            best_variant(screen, families[name], refine=real > threshold)
+            _best_variant(screen, families[name], refine=real > threshold)
         if len(families[name]) > 1 and real > threshold:
             # The family beat chance with each fold free to pick its time constant; the one written must
             # beat it alone (a fast decay held in one block of time cannot be held out at all).
@@ -668,7 +674,7 @@ def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[n
     return out
 
 
-def best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
+def _best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
     """The best variant on all the data; its time constant, if it has one and ``refine``, by golden-section search."""
     sse = [screen.training_sse(v) for v in variants]
     template = variants[int(np.argmin(sse))]
@@ -683,8 +689,11 @@ def best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = Tr
     taus = [v.time_constant_s for _, v in kin]
     lo, hi = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, len(taus) - 1)])
 
+    tried: list[TermSpec] = []
+
     def cost(log_tau: float) -> float:
-        return screen.training_sse(replace(template, time_constant_s=float(np.exp(log_tau))))
+        tried.append(replace(template, time_constant_s=float(np.exp(log_tau))))
+        return screen.training_sse(tried[-1])
 
     golden = (np.sqrt(5.0) - 1) / 2
     a, b = lo + (1 - golden) * (hi - lo), lo + golden * (hi - lo)
@@ -701,4 +710,6 @@ def best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = Tr
     best = float(np.exp(a if fa < fb else b))
     if min(fa, fb) > sse[i]:
         best = taus[i]
-    return replace(template, time_constant_s=best)
+    chosen = replace(template, time_constant_s=best)
+    screen.binned.forget_means([v for v in tried if v != chosen])   # the search's steps: one pass each, kept none
+    return chosen
