@@ -53,8 +53,9 @@ DEFAULT_ALPHA = 0.01
 # The chance residuals' slowest frequencies, below index 8 of the mirrored spectrum (periods over a quarter of
 # the log), are kept at least at a random walk's level (:func:`null_spectrum`).
 SLOW_INDEX = 8
-# Chance draws scored at once: bounds the memory of the target matrix (bins x batch).
-SURROGATE_BATCH = 50
+# Chance draws scored at once: bounds the memory of the target matrices (bins x batch, twice: as drawn and in
+# fold order), 69 MB each for 96 h of 1 s bins.
+SURROGATE_BATCH = 25
 DEFAULT_BIN_S = 1.0
 # Held-out blocks of time: several times the bias instability's correlation time.
 DEFAULT_BLOCK_S = 900.0
