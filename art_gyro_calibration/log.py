@@ -12,6 +12,7 @@ A log has a header row and one row per sample:
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 import os
 import warnings
@@ -61,19 +62,74 @@ VALUE_DECIMALS = 9
 
 def read_log(path: str | os.PathLike[str], rate_scale_factor: float | None = None,
              temp_scale_factor: float | None = None) -> GyroLog:
-    """Read a CSV log; raw counts need the calibration's scale factors."""
-    return concatenate(list(read_log_chunks(path, rate_scale_factor, temp_scale_factor)))
+    """Read a CSV log; raw counts need the calibration's scale factors.
+
+    The columns are made once, as long as the file has lines, and filled chunk by chunk:
+    the peak is the log's columns and one chunk, not the chunks and their join.
+    """
+    chunks = read_log_chunks(path, rate_scale_factor, temp_scale_factor)
+    first = next(chunks)
+    capacity = max(_count_lines(path) if os.path.isfile(path) else 0, len(first))
+    names = ['t', 'rate_dps', 'temp_c', *(() if first.ref_rate is None else ('ref_rate',))]
+    columns = {name: np.empty(capacity) for name in names}
+    extras = {name: np.empty(capacity) for name in first.extras}
+    rows = 0
+    for chunk in itertools.chain([first], chunks):
+        stop = rows + len(chunk)
+        if stop > capacity:   # the file grew while being read
+            capacity = max(2 * capacity, stop)
+            columns = {k: _grown(v, rows, capacity) for k, v in columns.items()}
+            extras = {k: _grown(v, rows, capacity) for k, v in extras.items()}
+        for name, column in columns.items():
+            column[rows:stop] = getattr(chunk, name)
+        for name, column in extras.items():
+            column[rows:stop] = chunk.extras[name]
+        rows = stop
+    return GyroLog(columns['t'][:rows], columns['rate_dps'][:rows], columns['temp_c'][:rows],
+                   columns['ref_rate'][:rows] if 'ref_rate' in columns else None,
+                   {k: v[:rows] for k, v in extras.items()})
 
 
-def concatenate(chunks: Sequence[GyroLog]) -> GyroLog:
-    """One log of consecutive chunks of it."""
+def _count_lines(path: str | os.PathLike[str]) -> int:
+    """Line breaks in the file, plus one: at least its rows."""
+    count = 1
+    with open(path, 'rb') as f:
+        while block := f.read(1 << 24):
+            count += block.count(b'\n')
+    return count
+
+
+def _grown(column: NDArray[np.float64], rows: int, capacity: int) -> NDArray[np.float64]:
+    """``column``'s first ``rows`` values in a column of ``capacity``."""
+    out = np.empty(capacity)
+    out[:rows] = column[:rows]
+    return out
+
+
+def concatenate(chunks: list[GyroLog]) -> GyroLog:
+    """One log of consecutive chunks of it; ``chunks`` is emptied.
+
+    Each chunk is copied into the joined columns and let go, first to last: the joined
+    columns fill as the chunks are freed, so the peak stays near the log's size, not twice it.
+    """
     if len(chunks) == 1:
-        return chunks[0]
+        return chunks.pop()
     first = chunks[0]
-    ref = None if first.ref_rate is None else np.concatenate([c.ref_rate for c in chunks])
-    return GyroLog(np.concatenate([c.t for c in chunks]), np.concatenate([c.rate_dps for c in chunks]),
-                   np.concatenate([c.temp_c for c in chunks]), ref,
-                   {k: np.concatenate([c.extras[k] for c in chunks]) for k in first.extras})
+    total = sum(len(c) for c in chunks)
+    names = ['t', 'rate_dps', 'temp_c', *(() if first.ref_rate is None else ('ref_rate',))]
+    columns = {name: np.empty(total, dtype=getattr(first, name).dtype) for name in names}
+    extras = {k: np.empty(total, dtype=v.dtype) for k, v in first.extras.items()}
+    chunks.reverse()
+    at = 0
+    while chunks:
+        chunk = chunks.pop()
+        stop = at + len(chunk)
+        for name, column in columns.items():
+            column[at:stop] = getattr(chunk, name)
+        for name, column in extras.items():
+            column[at:stop] = chunk.extras[name]
+        at = stop
+    return GyroLog(columns['t'], columns['rate_dps'], columns['temp_c'], columns.get('ref_rate'), extras)
 
 
 def read_log_chunks(path: str | os.PathLike[str], rate_scale_factor: float | None = None,

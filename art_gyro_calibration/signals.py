@@ -35,6 +35,13 @@ DEFAULT_TEMPERATURE_RATE_TAU_S = 120.0
 DEFAULT_RATE_CHANGE_TAU_S = 0.5
 
 
+class RateCorrection(Protocol):
+    """What corrects the rate the angle integrates: an error model."""
+
+    def error(self, signals: Signals) -> NDArray[np.float64]:
+        """Per sample of ``signals``, what the rate reads too much, deg/s."""
+
+
 class TermLike(Protocol):
     """What names a term's signal: a term or a term's spec."""
 
@@ -68,6 +75,7 @@ class SignalState:
     temperature_level: float    # level of the temperature_rate filter (smoothed temperature)
     rate_level: float           # level of the rate_change filter (smoothed rate)
     lag_levels: tuple[tuple[float, float], ...] = ()   # (time constant, level) of each lagged temperature
+    angle_rate: float | None = None   # the rate the angle integrates, when not the measured one
 
 
 @dataclass(frozen=True)
@@ -78,9 +86,10 @@ class Signals:
     terms costs no filtering. ``previous`` is the state after the sample before
     ``t[0]`` (None: ``t[0]`` is the log's first sample). ``powered_on_at_start``: the
     log starts at the gyro's power-on (a rate-table log does; a run started on a warm gyro
-    does not). ``angle_rate``: the rate the angle integrates, by default the measured one;
-    the loop gives the rate its ART fit corrects, so that a heading effect is fitted
-    against the heading, not against the polynomial's own error integrated for hours.
+    does not). ``angle_correction``: the angle integrates the measured rate less this
+    model's error (none: the measured rate); the loop gives its ART fit, so that a heading
+    effect is fitted against the heading, not against the polynomial's own error
+    integrated for hours. A model, not a corrected rate: a chunk computes its own rows.
     """
 
     t: NDArray[np.float64]
@@ -90,28 +99,34 @@ class Signals:
     filters: SignalFilters = field(default_factory=SignalFilters)
     previous: SignalState | None = None
     powered_on_at_start: bool = True
-    angle_rate: NDArray[np.float64] | None = None
+    angle_correction: RateCorrection | None = field(default=None, compare=False)
     _lags: dict[float, NDArray[np.float64]] = field(default_factory=dict, compare=False, repr=False)
+    _levels: dict[str, float | None] = field(default_factory=dict, compare=False, repr=False)
+    # States at the ends of chunks of the log (by chunk size), lags aside: :mod:`analysis.chunks` makes
+    # each once. Not an init field, so that a replace()d Signals (another angle_correction) starts afresh.
+    chunk_states: dict[int, list[SignalState]] = field(default_factory=dict, init=False, compare=False, repr=False)
 
     @cached_property
     def temperature_rate(self) -> NDArray[np.float64]:
         """Filtered temperature rate of change, degC/s."""
-        return (self.temperature - self._temperature_level) / self.filters.temperature_rate_tau_s
+        return self._derivative(self.temperature, 'temperature_level', self.filters.temperature_rate_tau_s)
 
     @cached_property
     def rate_change(self) -> NDArray[np.float64]:
         """Filtered rate of change of the measured rate, deg/s^2."""
-        return (self.rate - self._rate_level) / self.filters.rate_change_tau_s
+        return self._derivative(self.rate, 'rate_level', self.filters.rate_change_tau_s)
 
-    @cached_property
-    def _temperature_level(self) -> NDArray[np.float64]:
-        level = None if self.previous is None else self.previous.temperature_level
-        return self._smoothed(self.temperature, level, self.filters.temperature_rate_tau_s)
+    def _derivative(self, x: NDArray[np.float64], level_name: str, tau_s: float) -> NDArray[np.float64]:
+        """``(x - level) / tau`` of the first-order filter; only the last level is kept (for :meth:`end_state`).
 
-    @cached_property
-    def _rate_level(self) -> NDArray[np.float64]:
-        level = None if self.previous is None else self.previous.rate_level
-        return self._smoothed(self.rate, level, self.filters.rate_change_tau_s)
+        A long log's level would be one more array as long as the log, held for one number.
+        """
+        start = None if self.previous is None else getattr(self.previous, level_name)
+        out = self._smoothed(x, start, tau_s)
+        self._levels[level_name] = float(out[-1]) if len(out) else start
+        np.subtract(x, out, out=out)   # in place: the level is not kept
+        out /= tau_s
+        return out
 
     def _smoothed(self, x: NDArray[np.float64], level: float | None, tau_s: float) -> NDArray[np.float64]:
         """Level of the first-order filter of ``x`` at each sample, continuing from ``level``.
@@ -122,12 +137,25 @@ class Signals:
         if level is None:
             if len(x) < 2:
                 return x.copy()
-            decay = -np.maximum(np.diff(self.t), 0.0) / tau_s   # log of each step's decay factor
-            return np.concatenate((x[:1], first_order_smooth(x, decay)))
+            decay = _log_decay(self.t, tau_s)
+            out = np.empty(len(x))
+            out[0] = x[0]
+            first_order_smooth(x, decay, out[1:])
+            return out
         if not len(x):
             return x.copy()
-        decay = -np.maximum(np.diff(self.t, prepend=self.previous.t), 0.0) / tau_s
-        return first_order_smooth(np.concatenate(([level], x)), decay)
+        return first_order_smooth(np.concatenate(([level], x)), _log_decay(np.concatenate(([self.previous.t], self.t)),
+                                                                           tau_s))
+
+    def forget(self) -> None:
+        """Drop the derived signals computed so far; they are computed again when asked for.
+
+        Over a long log each is as long as the log: a caller that works chunk by chunk
+        (:mod:`art_gyro_calibration.analysis.chunks`) need not hold them.
+        """
+        for name in ('temperature_rate', 'rate_change', 'angle'):
+            self.__dict__.pop(name, None)
+        self._lags.clear()
 
     def lagged_temperature(self, tau_s: float) -> NDArray[np.float64]:
         """The temperature through a first-order lag of ``tau_s`` (degC), starting at the first sample's."""
@@ -149,20 +177,18 @@ class Signals:
 
     @cached_property
     def angle(self) -> NDArray[np.float64]:
-        """Angle turned in degrees, trapezoidal integral of ``angle_rate`` (by default the measured rate)."""
-        if self.angle_rate is not None:
-            if self.previous is not None:
-                raise ValueError('the angle of a corrected rate is computed over a whole log, not chunk by chunk')
-            rate = self.angle_rate
-            return np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(self.t)))) \
-                if len(rate) else np.zeros(0)
+        """Angle turned in degrees, trapezoidal integral of the measured rate (less ``angle_correction``'s error)."""
+        rate = self._angle_rate
         if self.previous is None:
-            if not len(self.rate):
+            if not len(rate):
                 return np.zeros(0)
-            start, t, rate = 0.0, self.t, self.rate
+            start, t = 0.0, self.t
         else:
+            before = self.previous.rate if self.angle_correction is None else self.previous.angle_rate
+            if before is None:
+                raise ValueError('the angle of a corrected rate continues only from a state that has that rate')
             start = self.previous.angle
-            t, rate = np.concatenate(([self.previous.t], self.t)), np.concatenate(([self.previous.rate], self.rate))
+            t, rate = np.concatenate(([self.previous.t], self.t)), np.concatenate(([before], rate))
         # One running sum from the start value, so a chunked log adds in the same order as a whole one.
         out = np.cumsum(np.concatenate(([start], 0.5 * (rate[1:] + rate[:-1]) * np.diff(t))))
         return out if self.previous is None else out[1:]
@@ -180,9 +206,25 @@ class Signals:
             return self.previous
         return SignalState(t0=float(self.t[0]) if self.previous is None else self.previous.t0,
                            t=float(self.t[-1]), rate=float(self.rate[-1]), temperature=float(self.temperature[-1]),
-                           angle=float(self.angle[-1]), temperature_level=float(self._temperature_level[-1]),
-                           rate_level=float(self._rate_level[-1]),
-                           lag_levels=tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items())))
+                           angle=float(self.angle[-1]),
+                           temperature_level=self._level_at_end('temperature_rate', 'temperature_level'),
+                           rate_level=self._level_at_end('rate_change', 'rate_level'),
+                           lag_levels=self.lag_levels(),
+                           angle_rate=None if self.angle_correction is None else float(self._angle_rate[-1]))
+
+    @property
+    def _angle_rate(self) -> NDArray[np.float64]:
+        """The rate the angle integrates."""
+        return self.rate if self.angle_correction is None else self.rate - self.angle_correction.error(self)
+
+    def lag_levels(self) -> tuple[tuple[float, float], ...]:
+        """(time constant, level after the last sample) of each lagged temperature computed so far."""
+        return tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items()))
+
+    def _level_at_end(self, derivative: str, level: str) -> float:
+        """The level after the last sample of the filter of ``derivative`` (computed if not yet)."""
+        getattr(self, derivative)
+        return float(self._levels[level])
 
     @property
     def rate_abs(self) -> NDArray[np.float64]:
@@ -219,27 +261,36 @@ _CHUNK_LOG_DECAY = 500.0
 _CHUNK_ROWS = 1 << 16
 
 
-def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64]) -> NDArray[np.float64]:
+def _log_decay(t: NDArray[np.float64], tau_s: float) -> NDArray[np.float64]:
+    """Log of each step's decay factor, ``-max(dt, 0) / tau``, in one array (a long log's temporaries add up)."""
+    out = np.diff(t)
+    np.maximum(out, 0.0, out=out)
+    out /= -tau_s
+    return out
+
+
+def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64],
+                       out: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """``s[i] = s[i-1] + (1 - exp(log_decay[i-1])) * (x[i] - s[i-1])`` from ``s[0] = x[0]``, for i >= 1.
 
     The recursion in closed form, ``s_i = s_0 + D_i sum_j a_j (x_j - s_0) / D_j`` with ``D`` the
     cumulative decay, vectorised over chunks short enough that ``1 / D`` stays finite. Each
     rounding error decays with the filter, so the result matches the per-sample loop to
     a few ulps of ``(x - s_0) / a``. Runs with numpy alone (the node's runtime has no scipy).
+    ``out``: where to write the result (len(log_decay) values); no array but it spans ``x``.
     """
     n = len(log_decay)
-    # A step decaying by more than exp(-500) forgets the past: its gain is 1.0 either way.
-    log_decay = np.maximum(log_decay, -_CHUNK_LOG_DECAY)
-    gain = -np.expm1(log_decay)
-    out = np.empty(n)
+    out = np.empty(n) if out is None else out
     level = float(x[0])
     start = 0
     while start < n:
-        span = np.cumsum(log_decay[start:start + _CHUNK_ROWS])
+        # A step decaying by more than exp(-500) forgets the past: its gain is 1.0 either way.
+        step = np.maximum(log_decay[start:start + _CHUNK_ROWS], -_CHUNK_LOG_DECAY)
+        span = np.cumsum(step)
         stop = start + max(1, int(np.searchsorted(-span, _CHUNK_LOG_DECAY, side='right')))
         cumulative = span[:stop - start]
         # On x less the level the chunk starts from: the sum's rounding scales with |x - level|, not |x|.
-        weights = gain[start:stop] * (x[start + 1:stop + 1] - level) * np.exp(-cumulative)
+        weights = -np.expm1(step[:stop - start]) * (x[start + 1:stop + 1] - level) * np.exp(-cumulative)
         out[start:stop] = level + np.exp(cumulative) * np.cumsum(weights)
         level = float(out[stop - 1])
         start = stop

@@ -16,6 +16,7 @@ one is replaced only with ``--force``, an input never.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import math
 import queue
 import signal
@@ -342,8 +343,28 @@ def _positive_int(text: str) -> int:
 ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl')
 
 
+# glibc's mallopt parameter, and the size from which a block is mapped on its own (returned when freed).
+_M_MMAP_THRESHOLD = -3
+_MMAP_THRESHOLD_BYTES = 1 << 20
+
+
+def _return_freed_arrays() -> None:
+    """Have glibc give large freed blocks back to the system at once (a fixed mmap threshold of 1 MiB).
+
+    By default glibc raises its threshold up to 32 MiB as large blocks are freed; the
+    chunks' arrays then come from the heap, whose freed pages stay resident: ``calibrate
+    fit`` of 24 h at 100 Hz held 1.0 GiB after its loop for 0.6 GiB of live arrays. Elsewhere
+    (no glibc) nothing is done.
+    """
+    try:
+        ctypes.CDLL(None).mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_BYTES)
+    except (OSError, AttributeError):
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``calibrate``; returns the exit status."""
+    _return_freed_arrays()
     try:
         args = build_parser().parse_args(argv)
         return args.run(args)

@@ -15,13 +15,15 @@ shape of the surface matters, not its offset.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from math import comb
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from art_gyro_calibration.analysis.chunks import Chunk, chunks
+from art_gyro_calibration.analysis.metrics import PIECE_ROWS
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
 from art_gyro_calibration.signals import Signals
 from art_gyro_calibration.terms import Term, term_basis
@@ -98,46 +100,90 @@ def polynomial_from_scaled(beta: ArrayLike, rows: int, columns: int, scaling: Sc
     return ArtPolynomial(raw[::-1, ::-1])
 
 
-def centred(basis: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Offsets, scales and the columns ``(basis - offset) / scale`` within [-1, 1].
+def centring(low: NDArray[np.float64], high: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Offsets and scales that map columns spanning ``low`` to ``high`` into [-1, 1] (a constant one: scale 1).
 
     A term's signal may sit far from zero (a 24 V supply, an air pressure in Pa); centring
     keeps its column from nearly repeating the polynomial's constant.
     """
-    offset = 0.5 * (basis.max(axis=0) + basis.min(axis=0))
-    scale = 0.5 * (basis.max(axis=0) - basis.min(axis=0))
+    offset = 0.5 * (high + low)
+    scale = 0.5 * (high - low)
     scale[scale == 0.0] = 1.0
-    return offset, scale, (basis - offset) / scale
+    return offset, scale
+
+
+Ranges = dict[TermSpec, tuple[NDArray[np.float64], NDArray[np.float64]]]
+
+
+def term_ranges(signals: Signals, specs: Sequence[TermSpec], index: NDArray[np.int64],
+                chunk_rows: int | None = None) -> Ranges:
+    """The :func:`centring` of each spec's basis over the rows ``index``, in one pass over the log's chunks."""
+    low: dict[TermSpec, NDArray[np.float64]] = {}
+    high: dict[TermSpec, NDArray[np.float64]] = {}
+    for chunk in chunks(signals, index, chunk_rows):
+        for spec in specs:
+            basis = spec.basis(chunk.signals)[chunk.rows]   # every chunk: a lag's recursion runs through all
+            if len(basis):
+                low[spec] = np.minimum(low[spec], basis.min(axis=0)) if spec in low else basis.min(axis=0)
+                high[spec] = np.maximum(high[spec], basis.max(axis=0)) if spec in high else basis.max(axis=0)
+    if len(low) < len(set(specs)):
+        raise ValueError('no rows to centre the terms\' columns on')
+    return {spec: centring(low[spec], high[spec]) for spec in specs}
+
+
+def _spans(index: NDArray[np.int64], *columns: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """Each column's lowest and highest value over the rows ``index``, a piece of the rows at a time."""
+    pieces = range(0, len(index), PIECE_ROWS)
+    return [np.array([min(float(c[index[i:i + PIECE_ROWS]].min()) for i in pieces),
+                      max(float(c[index[i:i + PIECE_ROWS]].max()) for i in pieces)]) for c in columns]
 
 
 class Design:
-    """Scaled design matrix of the polynomial and the terms ``specs`` over the rows ``index``.
+    """Scaled design of the polynomial and the terms ``specs`` over the rows ``index``, built chunk by chunk.
 
-    Polynomial columns are scaled monomials; term columns are centred and scaled (:func:`centred`).
+    Polynomial columns are scaled monomials; term columns are centred and scaled
+    (:func:`centring` over the rows ``index``). ``ranges`` caches the terms' centring
+    across designs of the same rows (it is filled with what is missing).
     """
 
     def __init__(self, signals: Signals, rows: int, columns: int, specs: Sequence[TermSpec] = (),
-                 index: NDArray[np.int64] | None = None) -> None:
-        idx = np.arange(len(signals)) if index is None else np.asarray(index)
+                 index: NDArray[np.int64] | None = None, ranges: Ranges | None = None,
+                 chunk_rows: int | None = None) -> None:
         if rows < 1 or columns < 1:
             raise ValueError(f'the polynomial needs rows and columns >= 1, got {rows} x {columns}')
+        self.signals, self.chunk_rows = signals, chunk_rows
+        self.index = np.arange(len(signals)) if index is None else np.asarray(index)
         self.rows, self.columns, self.specs = rows, columns, tuple(specs)
-        self.scaling = Scaling.of(signals.temperature[idx], signals.rate[idx])
-        parts = [polynomial_basis(signals.rate[idx], signals.temperature[idx], rows, columns, self.scaling)]
-        offsets, scales = [np.zeros(rows * columns)], [np.ones(rows * columns)]
-        for spec in self.specs:
-            offset, scale, basis = centred(spec.basis(signals)[idx])
-            parts.append(basis)
-            offsets.append(offset)
-            scales.append(scale)
-        self.matrix = np.hstack(parts)
-        self.column_offset = np.concatenate(offsets)
-        self.column_scale = np.concatenate(scales)
+        self.scaling = Scaling.of(*_spans(self.index, signals.temperature, signals.rate))
+        ranges = {} if ranges is None else ranges
+        missing = [spec for spec in dict.fromkeys(self.specs) if spec not in ranges]
+        if missing:
+            ranges.update(term_ranges(signals, missing, self.index, chunk_rows))
+        self.column_offset = np.concatenate([np.zeros(rows * columns)] + [ranges[s][0] for s in self.specs])
+        self.column_scale = np.concatenate([np.ones(rows * columns)] + [ranges[s][1] for s in self.specs])
 
     @property
     def width(self) -> int:
         """Number of columns."""
-        return self.matrix.shape[1]
+        return self.rows * self.columns + sum(spec.width for spec in self.specs)
+
+    def matrix(self, chunk: Chunk) -> NDArray[np.float64]:
+        """The scaled columns over the chunk's selected rows."""
+        signals, rows = chunk.signals, chunk.rows
+        out = np.empty((len(rows), self.width))
+        p = self.rows * self.columns
+        out[:, :p] = polynomial_basis(signals.rate[rows], signals.temperature[rows], self.rows, self.columns,
+                                      self.scaling)
+        for spec in self.specs:   # every chunk: a lag's recursion runs through all
+            out[:, p:p + spec.width] = (spec.basis(signals)[rows] - self.column_offset[p:p + spec.width]) \
+                / self.column_scale[p:p + spec.width]
+            p += spec.width
+        return out
+
+    def chunks(self) -> Iterator[tuple[Chunk, NDArray[np.float64]]]:
+        """Each chunk of the log with its :meth:`matrix`."""
+        for chunk in chunks(self.signals, self.index, self.chunk_rows):
+            yield chunk, self.matrix(chunk)
 
     def model(self, beta: ArrayLike) -> ErrorModel:
         """The error model of scaled coefficients ``beta``."""
@@ -168,18 +214,28 @@ class Fit:
 
 
 def fit_model(signals: Signals, error: ArrayLike, rows: int, columns: int,
-              specs: Sequence[TermSpec] = (), index: NDArray[np.int64] | None = None) -> Fit:
+              specs: Sequence[TermSpec] = (), index: NDArray[np.int64] | None = None, *,
+              ranges: Ranges | None = None, chunk_rows: int | None = None) -> Fit:
     """Fit the rows x columns polynomial and the terms ``specs`` jointly to ``error`` (deg/s, one per sample).
 
-    ``index`` selects the rows to fit (e.g. the steady rows of a rate-table log); the
-    residual returned is over those rows.
+    ``index`` selects the rows to fit (increasing, e.g. the steady rows of a rate-table
+    log); the residual returned is over those rows. The normal equations are summed chunk
+    by chunk (:mod:`art_gyro_calibration.analysis.chunks`, ``chunk_rows`` rows each), so
+    memory holds no matrix with a row per log row; ``ranges`` is :class:`Design`'s cache.
     """
     e = np.asarray(error, dtype=float)
     idx = np.arange(len(e)) if index is None else np.asarray(index)
     if idx.size < rows * columns + sum(s.width for s in specs):
         raise ValueError(f'{idx.size} samples cannot determine a {rows} x {columns} polynomial '
                          f'and {len(specs)} extended terms')
-    design = Design(signals, rows, columns, specs, idx)
-    x = design.matrix
-    beta = solve_normal(x.T @ x, x.T @ e[idx])
-    return Fit(design.model(beta), idx, e[idx] - x @ beta)
+    design = Design(signals, rows, columns, specs, idx, ranges, chunk_rows)
+    gram = np.zeros((design.width, design.width))
+    cross = np.zeros(design.width)
+    for chunk, x in design.chunks():
+        gram += x.T @ x
+        cross += x.T @ e[chunk.start + chunk.rows]
+    beta = solve_normal(gram, cross)
+    residual = np.empty(idx.size)
+    for chunk, x in design.chunks():
+        residual[chunk.positions] = e[chunk.start + chunk.rows] - x @ beta
+    return Fit(design.model(beta), idx, residual)

@@ -28,7 +28,7 @@ from art_gyro_calibration.terms import Term
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_DRAWS,
                                                  DEFAULT_FOLDS, DEG_PER_H_PER_DPS, Binned, CandidateScore, Screen,
-                                                 TraceResult, best_variant, held_out_residual, joined, trace_residual)
+                                                 TraceResult, held_out_residual, joined, trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
 # Most RD2100s read 0.00305 deg/s per count (report, section 1).
@@ -151,16 +151,18 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     art_fit = fit_model(signals, error, rows, columns, (), index)
     # The heading is the integral of what the gyro reads once corrected (one more pass), not of the raw
     # reading, whose polynomial error and turn-on bias add hundreds of degrees in hours.
-    signals = replace(signals, angle_rate=log.rate_dps - art_fit.model.error(signals))
+    signals = replace(signals, angle_correction=art_fit.model)
     residual = np.zeros(len(error))
     residual[index] = art_fit.residual
+    art_model = art_fit.model
+    del art_fit   # its residual is in ``residual``: one array as long as the log is enough
     floor = noise_floor(residual, segments)
     # A still gyro (one reference rate throughout) reads nothing but its error: a signal derived
     # from its rate would explain the error with itself, so none is a candidate.
     still = bool(np.ptp(log.ref_rate) == 0.0)
     binned = Binned(signals, error, segments, rows, columns, folds, bin_s, block_s)
-    every_row = Binned(signals, error, segments, rows, columns, folds, 0.0, block_s)
     noise = noise_levels(binned, Screen(binned).residual() / binned.sqrt_counts, bin_s)
+    signals.forget()   # the rest of the loop takes its signals chunk by chunk
     instability_dph = noise.instability_dps * DEG_PER_H_PER_DPS
     materiality = noise.materiality_dph if materiality_dph is None else materiality_dph
     options = dict(draws=draws, alpha=alpha, bin_s=bin_s, materiality_dph=materiality, seed=seed,
@@ -172,8 +174,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     while len(rounds) < max_effects:
         # Held-out blocks at least as long as what the current model leaves stays correlated:
         # shorter ones share a slow residual with their neighbours, and any slow signal seems to predict it.
-        current = art_fit if not specs else fit_model(signals, error, rows, columns, specs, index)
-        residual[index] = current.residual
+        if specs:
+            residual[index] = fit_model(signals, error, rows, columns, specs, index, ranges=binned.ranges).residual
         binned.refold(max(block_s, correlation_time_s(signals.t, residual, segments)))
         found = trace_residual(signals, error, segments, rows, columns, specs,
                                exclude=excluded + [s.signal for s in scores], **options)
@@ -192,31 +194,31 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     # A square is judged once every effect is in the model, so it cannot stand in for one not yet found.
     specs = [_maybe_square(spec, binned, specs[:i] + specs[i + 1:], materiality)
              for i, spec in enumerate(specs)]
-    every_row.refold(binned.block_s, binned.n_folds)  # held-out errors on the blocks of the last round
-    # Every effect must lower the held-out error of the final model, every row counted: one
-    # that passed its screen only given candidates that did not make it is dropped.
+    # Every effect must lower the held-out error of the final model, every row counted (on the blocks
+    # of the last round): one that passed its screen only given candidates that did not make it is dropped.
+    every_row = binned.row_folds(specs)
     while True:
-        held_out_all = held_out_rms(every_row, specs)
-        without = [held_out_rms(every_row, specs[:i] + specs[i + 1:]) for i in range(len(specs))]
+        held_out_all = every_row.held_out_rms(specs)
+        without = [every_row.held_out_rms(specs[:i] + specs[i + 1:]) for i in range(len(specs))]
         if not specs or min(without) > held_out_all:
             break
         weakest = int(np.argmin(without))
         del specs[weakest], scores[weakest]
-    final = fit_model(signals, error, rows, columns, specs, index)
+    final = fit_model(signals, error, rows, columns, specs, index, ranges=binned.ranges)
     effects = [Effect(term, score, rms_without, held_out_all)
                for term, score, rms_without in zip(final.model.terms, scores, without)]
     # A heading effect helped fit the rest; the file gets the model refitted without it.
     heading = [e for e in effects if e.term.signal in HEADING_SIGNALS]
     written = [spec for spec in specs if spec.signal not in HEADING_SIGNALS]
     if heading:
-        final = fit_model(signals, error, rows, columns, written, index)
+        final = fit_model(signals, error, rows, columns, written, index, ranges=binned.ranges)
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
-    art = Calibration(serial_number, rate_scale_factor, art_fit.model.polynomial,
+    art = Calibration(serial_number, rate_scale_factor, art_model.polynomial,
                       (low, high if high > low else low + 1.0), temp_scale_factor, (), filters)
     return LoopResult(
         art=art, extended=replace(art, polynomial=final.model.polynomial, terms=final.model.terms),
         effects=tuple(e for e in effects if e not in heading), rounds=tuple(rounds), noise_floor_dps=floor,
-        held_out_rms_art_dps=held_out_rms(every_row),
+        held_out_rms_art_dps=every_row.held_out_rms(),
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
         adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading),
@@ -232,21 +234,28 @@ def retuned(binned: Binned, specs: list[TermSpec]) -> list[TermSpec]:
 
     A time constant chosen while another effect was still in the residual is biased by it
     (a warm-up's, by a Shupe effect not yet modelled); left so, the next round finds a
-    richer form that mends the bias, not an effect.
+    richer form that mends the bias, not an effect. Five time constants within
+    :data:`RETUNE_FACTOR` (one pass over the log), then the vertex of the parabola in
+    log(tau) through the best and its neighbours (one more); only the one kept stays cached.
     """
     out = list(specs)
     for i, spec in enumerate(out):
-        if spec.time_constant_s > 0.0:
-            grid = [replace(spec, time_constant_s=float(tau)) for tau in
-                    np.geomspace(spec.time_constant_s / RETUNE_FACTOR, spec.time_constant_s * RETUNE_FACTOR, 5)]
-            out[i] = best_variant(Screen(binned, out[:i] + out[i + 1:]), grid)
+        if spec.time_constant_s <= 0.0:
+            continue
+        screen = Screen(binned, out[:i] + out[i + 1:])
+        logs = np.log(spec.time_constant_s) + np.log(RETUNE_FACTOR) * np.linspace(-1.0, 1.0, 5)
+        tried = [replace(spec, time_constant_s=float(np.exp(x))) for x in logs]
+        binned.candidate_means(tried)
+        sse = np.array([screen.training_sse(v) for v in tried])
+        k = int(np.clip(np.argmin(sse), 1, len(sse) - 2))
+        curve = np.polyfit(logs[k - 1:k + 2], sse[k - 1:k + 2], 2)
+        if curve[0] > 0.0:
+            vertex = float(np.clip(-curve[1] / (2.0 * curve[0]), logs[0], logs[-1]))
+            tried.append(replace(spec, time_constant_s=float(np.exp(vertex))))
+            sse = np.append(sse, screen.training_sse(tried[-1]))
+        out[i] = tried[int(np.argmin(sse))]
+        binned.forget_means([v for v in tried if v != out[i] and v != spec])
     return out
-
-
-def held_out_rms(rows: Binned, specs: Sequence[TermSpec] = ()) -> float:
-    """Held-out RMS error (deg/s) of the polynomial + ``specs``; ``rows`` binned with ``bin_s=0``: every steady row."""
-    r = held_out_residual(rows, specs)
-    return float(np.sqrt(r @ r / rows.rows_total))
 
 
 # Stretches where the temperature holds (|dT/dt| below this, degC/s) for at least THERMAL_STILL_S: there

@@ -12,7 +12,9 @@ the heading error integrated over 10 minutes and 1 hour.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -21,6 +23,9 @@ DEFAULT_SETTLE_S = 1.0
 SECONDS_PER_HOUR = 3600.0
 # Heading horizons of the field errors: a short mission and a long one (s).
 HEADING_HORIZONS_S = (600.0, 3600.0)
+
+# Rows per piece where a long log's per-row temporaries are taken a piece at a time.
+PIECE_ROWS = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -40,10 +45,15 @@ class Segments:
         return self.stops - self.starts
 
     def rows(self) -> NDArray[np.int64]:
-        """Indices of all steady rows, in order."""
-        if not len(self):
-            return np.zeros(0, dtype=np.int64)
-        return np.concatenate([np.arange(a, b) for a, b in zip(self.starts, self.stops)])
+        """Indices of all steady rows, in order (one read-only array, made once: a long log's is large)."""
+        return self._rows
+
+    @cached_property
+    def _rows(self) -> NDArray[np.int64]:
+        rows = np.concatenate([np.arange(a, b) for a, b in zip(self.starts, self.stops)]) if len(self) \
+            else np.zeros(0, dtype=np.int64)
+        rows.flags.writeable = False
+        return rows
 
     def means(self, values: ArrayLike) -> NDArray[np.float64]:
         """Mean of ``values`` (one per log row) over each segment."""
@@ -63,11 +73,14 @@ def correlation_time_s(t: ArrayLike, residual: ArrayLike, segments: Segments, bi
     index = segments.rows()
     if index.size < 2:
         return 0.0
-    tt = np.asarray(t, dtype=float)[index]
-    k = np.floor((tt - tt[0]) / bin_s).astype(np.int64)
-    n = int(k[-1]) + 1
-    counts = np.bincount(k, minlength=n).astype(float)
-    sums = np.bincount(k, np.asarray(residual, dtype=float)[index], minlength=n)
+    tt, r = np.asarray(t, dtype=float), np.asarray(residual, dtype=float)
+    n = int(np.floor((tt[index[-1]] - tt[index[0]]) / bin_s)) + 1
+    counts, sums = np.zeros(n), np.zeros(n)
+    for i in range(0, index.size, PIECE_ROWS):   # a piece at a time: the bins' sums add in the same order
+        part = index[i:i + PIECE_ROWS]
+        k = np.floor((tt[part] - tt[index[0]]) / bin_s).astype(np.int64)
+        counts += np.bincount(k, minlength=n)
+        sums += np.bincount(k, r[part], minlength=n)
     present = counts > 0
     x = np.zeros(n)
     x[present] = sums[present] / counts[present]
@@ -94,7 +107,10 @@ def steady_segments(t: ArrayLike, ref_rate: ArrayLike, settle_s: float = DEFAULT
     """Runs of constant ``ref_rate`` without their first ``settle_s`` seconds, of at least ``min_rows`` rows."""
     tt = np.asarray(t, dtype=float)
     ref = np.asarray(ref_rate, dtype=float)
-    change = np.flatnonzero(~np.isclose(ref[1:], ref[:-1], rtol=1e-9, atol=1e-9)) + 1
+    last = max(len(ref) - 1, 0)   # the rows that have a next one, a piece at a time
+    change = np.concatenate([np.zeros(0, dtype=np.int64)] + [
+        np.flatnonzero(~np.isclose(ref[i + 1:j + 1], ref[i:j], rtol=1e-9, atol=1e-9)) + i + 1
+        for i, j in ((i, min(i + PIECE_ROWS, last)) for i in range(0, last, PIECE_ROWS))])
     run_starts = np.concatenate([[0], change])
     run_stops = np.concatenate([change, [len(ref)]])
     starts = np.searchsorted(tt, tt[run_starts] + settle_s, side='left')
@@ -106,11 +122,21 @@ def steady_segments(t: ArrayLike, ref_rate: ArrayLike, settle_s: float = DEFAULT
 def noise_floor(residual: ArrayLike, segments: Segments) -> float:
     """White-noise level (deg/s per sample) from first differences within segments: blind to slow effects."""
     r = np.asarray(residual, dtype=float)
-    diffs = [np.diff(r[a:b]) for a, b in zip(segments.starts, segments.stops)]
-    d = np.concatenate(diffs) if diffs else np.zeros(0)
-    if d.size < 2:
+    count = int(np.sum(np.maximum(segments.counts - 1, 0)))
+    if count < 2:
         raise ValueError('too few steady samples to estimate the noise floor')
-    return float(np.std(d) / np.sqrt(2.0))
+    # Their standard deviation in two passes over pieces of the segments: all the differences of a long
+    # log at once would be two more arrays as long as it.
+    mean = sum(float(np.sum(d)) for d in _differences(r, segments)) / count
+    return float(np.sqrt(sum(float(np.sum((d - mean) ** 2)) for d in _differences(r, segments)) / count)
+                 / np.sqrt(2.0))
+
+
+def _differences(r: NDArray[np.float64], segments: Segments) -> Iterator[NDArray[np.float64]]:
+    """First differences of ``r`` within each segment, in pieces of at most :data:`PIECE_ROWS`."""
+    for a, b in zip(segments.starts, segments.stops):
+        for i in range(a, b - 1, PIECE_ROWS):
+            yield np.diff(r[i:min(b, i + PIECE_ROWS + 1)])
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
+from art_gyro_calibration.analysis import chunks
 from art_gyro_calibration.analysis.loop import Effect, LoopResult
 from art_gyro_calibration.analysis.metrics import error_metrics
 from art_gyro_calibration.analysis.replay import Validation
@@ -30,24 +31,36 @@ from art_gyro_calibration.static_bias import static_bias
 STAGES = ('uncalibrated', 'art', 'extended')
 
 
-def stage_errors(log: GyroLog, result: LoopResult, bias_samples: int) -> dict[str, NDArray[np.float64]]:
-    """Corrected rate minus table rate, per row, for each stage, the log started as the loop took it."""
+def stage_error(log: GyroLog, result: LoopResult, bias_samples: int, stage: str) -> NDArray[np.float64]:
+    """Corrected rate minus table rate, per row, for one of :data:`STAGES`, the log started as the loop took it."""
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: errors need the rate table\'s true rate')
     n = bias_samples
     if not 2 <= n <= len(log):
         raise ValueError(f'bias_samples must be between 2 and the {len(log)} rows of the log, got {n}')
-    bias = static_bias(log.rate_dps[:n], np.zeros(n))
-    return {
-        'uncalibrated': log.rate_dps - bias.static_bias_drift_dps - log.ref_rate,
-        'art': apply_calibration(log, result.art, n, start=result.start).corrected_dps - log.ref_rate,
-        'extended': apply_calibration(log, result.extended, n, start=result.start).corrected_dps - log.ref_rate,
-    }
+    if stage == 'uncalibrated':
+        return log.rate_dps - static_bias(log.rate_dps[:n], np.zeros(n)).static_bias_drift_dps - log.ref_rate
+    calibration = {'art': result.art, 'extended': result.extended}[stage]
+    # Chunk by chunk, as ``calibrate apply`` streams (the same result): the compensation's own arrays
+    # then never span the log, only the errors do.
+    size = chunks.CHUNK_ROWS
+    edges = [0, *range(max(n, size), len(log), size), len(log)]   # the first chunk holds the bias window
+    out = np.empty(len(log))
+    applied = None
+    for start, stop in zip(edges[:-1], edges[1:]):
+        part = log.slice(slice(start, stop))
+        applied = apply_calibration(part, calibration, n, after=applied, start=result.start)
+        out[start:stop] = applied.corrected_dps - part.ref_rate
+    return out
+
+
+def stage_errors(log: GyroLog, result: LoopResult, bias_samples: int) -> dict[str, NDArray[np.float64]]:
+    """:func:`stage_error` of every stage."""
+    return {stage: stage_error(log, result, bias_samples, stage) for stage in STAGES}
 
 
 def build_report(log: GyroLog, result: LoopResult, bias_samples: int, source: str = '') -> dict[str, Any]:
     """The report as plain data (JSON-ready)."""
-    errors = stage_errors(log, result, bias_samples)
     adequacy = result.adequacy
     return {
         'source': source,
@@ -69,7 +82,9 @@ def build_report(log: GyroLog, result: LoopResult, bias_samples: int, source: st
         'effects': [_effect(e) for e in result.effects],
         'findings_not_written': [_effect(e) for e in result.findings],
         'forms_tried': FORMS_TRIED,
-        'errors': {stage: error_metrics(errors[stage], result.segments).to_dict() for stage in STAGES},
+        # One stage's errors at a time: each is as long as the log.
+        'errors': {stage: error_metrics(stage_error(log, result, bias_samples, stage), result.segments).to_dict()
+                   for stage in STAGES},
         'screens': [{'chance_threshold_dps2': found.threshold_dps2, 'draws': found.draws, 'alpha': found.alpha,
                      'candidates': [{'signal': c.signal, 'held_out_improvement_dps2': c.improvement_dps2,
                                      'chance_max_improvement_dps2': c.null_max_dps2, 'p_value': c.p_value,

@@ -32,13 +32,14 @@ every time constant then follows from small matrices and one product with the bi
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from art_gyro_calibration.analysis.fit import Design, TermSpec, centred, fit_model, solve_normal
+from art_gyro_calibration.analysis.chunks import Chunk, chunks
+from art_gyro_calibration.analysis.fit import Design, Ranges, TermSpec, centring, fit_model, solve_normal
 from art_gyro_calibration.analysis.metrics import Segments, noise_floor
 from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, Signals
 
@@ -52,8 +53,9 @@ DEFAULT_ALPHA = 0.01
 # The chance residuals' slowest frequencies, below index 8 of the mirrored spectrum (periods over a quarter of
 # the log), are kept at least at a random walk's level (:func:`null_spectrum`).
 SLOW_INDEX = 8
-# Chance draws scored at once: bounds the memory of the target matrix (bins x batch).
-SURROGATE_BATCH = 50
+# Chance draws scored at once: bounds the memory of the target matrices (bins x batch, twice: as drawn and in
+# fold order), 69 MB each for 96 h of 1 s bins.
+SURROGATE_BATCH = 25
 DEFAULT_BIN_S = 1.0
 # Held-out blocks of time: several times the bias instability's correlation time.
 DEFAULT_BLOCK_S = 900.0
@@ -176,20 +178,30 @@ class Binned:
     Folds: the bins are grouped into blocks of ``block_s`` of time, dealt to the folds in
     turn, so every fold holds whole blocks of time from the whole run (a warm-up in the
     first hour or a temperature extreme is then in several folds). A short log gets fewer
-    folds (down to :data:`MIN_FOLDS`) rather than blocks shorter than asked for.
+    folds (down to :data:`MIN_FOLDS`) rather than blocks shorter than asked for. Every
+    per-row quantity is summed into the bins chunk by chunk (``chunk_rows`` rows,
+    :mod:`art_gyro_calibration.analysis.chunks`): memory holds the bins, not a matrix per row.
     """
 
     def __init__(self, signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
-                 folds: int = DEFAULT_FOLDS, bin_s: float = DEFAULT_BIN_S, block_s: float = DEFAULT_BLOCK_S) -> None:
+                 folds: int = DEFAULT_FOLDS, bin_s: float = DEFAULT_BIN_S, block_s: float = DEFAULT_BLOCK_S,
+                 chunk_rows: int | None = None) -> None:
         self.signals = signals
         self.index = segments.rows()
-        self.starts, counts = _bins(segments, signals.t, bin_s)
-        if len(counts) < 4 * MIN_FOLDS:
-            raise ValueError(f'{len(counts)} bins of steady data are too few for {MIN_FOLDS} folds')
-        self.sqrt_counts = np.sqrt(counts)
-        self.rows_total = int(counts.sum())
-        poly = Design(signals, rows, columns, (), self.index).matrix
-        self.base = self._bin(np.column_stack([poly, np.asarray(error, dtype=float)[self.index]]))
+        self.starts, self._counts = _bins(segments, signals.t, bin_s)
+        if len(self._counts) < 4 * MIN_FOLDS:
+            raise ValueError(f'{len(self._counts)} bins of steady data are too few for {MIN_FOLDS} folds')
+        self.sqrt_counts = np.sqrt(self._counts)
+        self.rows_total = int(self._counts.sum())
+        self.chunk_rows = chunk_rows
+        self.error = np.asarray(error, dtype=float)
+        self.ranges: Ranges = {}   # the centring of every term's columns over the steady rows
+        self._polynomial = Design(signals, rows, columns, (), self.index, self.ranges, chunk_rows)
+        self.base = np.zeros((len(self.starts), rows * columns + 1))
+        for chunk in self._chunks():
+            values = np.column_stack([self._polynomial.matrix(chunk), self.error[chunk.start + chunk.rows]])
+            self._add_to_bins(self.base, chunk, values)
+        self.base /= self.sqrt_counts[:, None]
         self._t_bin = signals.t[self.index[self.starts]]
         self.max_folds = folds
         self.n_folds = folds
@@ -206,25 +218,68 @@ class Binned:
             n_folds = int(np.clip(duration // (2 * block_s), MIN_FOLDS, self.max_folds))
         self.n_folds = n_folds
         self.block_s = min(block_s, duration / (2 * n_folds))
-        fold = np.floor((t_bin - t_bin[0]) / self.block_s).astype(np.int64) % n_folds
+        fold = self._fold_of(t_bin)
         self.folds = [np.flatnonzero(fold == k) for k in range(n_folds)]
         # The bins in fold order, and where each fold ends: per-fold sums then run on slices, not copies.
         self.order = np.concatenate(self.folds)
         self.bounds = np.cumsum([0] + [len(k) for k in self.folds])
 
-    def _bin(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Bin sums of steady-row ``values`` divided by sqrt(count): a mean weighted to unit noise."""
-        return np.add.reduceat(values, self.starts, axis=0) / self.sqrt_counts.reshape(-1, *([1] * (values.ndim - 1)))
+    def _fold_of(self, t: NDArray[np.float64]) -> NDArray[np.int64]:
+        """The fold of the block of time each of ``t`` falls in."""
+        return np.floor((t - self._t_bin[0]) / self.block_s).astype(np.int64) % self.n_folds
+
+    def _add_to_bins(self, sums: NDArray[np.float64], chunk: Chunk, values: NDArray[np.float64]) -> None:
+        """Add ``values`` of the chunk's steady rows into the bin ``sums`` (a bin the chunk's edge cuts adds twice)."""
+        if len(chunk.rows):
+            a, b = chunk.positions.start, chunk.positions.stop
+            first = int(np.searchsorted(self.starts, a, side='right')) - 1
+            last = int(np.searchsorted(self.starts, b, side='left'))
+            sums[first:last] += np.add.reduceat(values, np.maximum(self.starts[first:last] - a, 0), axis=0)
+
+    def _chunks(self) -> Iterator[Chunk]:
+        """The log's chunks, with their steady rows."""
+        return chunks(self.signals, self.index, self.chunk_rows)
 
     def candidate_means(self, variants: Sequence[TermSpec]) -> NDArray[np.float64]:
         """Bin means of the scaled candidate bases, shape (bins, variants, width); each computed once."""
-        cols = []
-        for spec in variants:
-            if spec not in self._means:
-                _, _, basis = centred(spec.basis(self.signals)[self.index])
-                self._means[spec] = self._bin(basis) / self.sqrt_counts[:, None]
-            cols.append(self._means[spec])
-        return np.stack(cols, axis=1)
+        missing = [spec for spec in dict.fromkeys(variants) if spec not in self._means]
+        if missing:
+            self._add_means(missing)
+        return np.stack([self._means[spec] for spec in variants], axis=1)
+
+    def forget_means(self, specs: Sequence[TermSpec]) -> None:
+        """Drop the cached bin means of ``specs`` (variants tried and not kept): the cache grows with the log."""
+        for spec in specs:
+            self._means.pop(spec, None)
+            self.ranges.pop(spec, None)
+
+    def _add_means(self, specs: Sequence[TermSpec]) -> None:
+        """Bin means of the centred bases of ``specs``, in one pass over the log, one basis at a time.
+
+        The centring (:func:`centring`, over all steady rows) is known only at the end: each
+        basis is summed less a provisional offset (its first rows' midpoint, within its
+        range), and the bin sums are moved to the final offset after, with no digits lost.
+        """
+        sums = {spec: np.zeros((len(self.starts), spec.width)) for spec in specs}
+        provisional: dict[TermSpec, NDArray[np.float64]] = {}
+        low: dict[TermSpec, NDArray[np.float64]] = {}
+        high: dict[TermSpec, NDArray[np.float64]] = {}
+        for chunk in self._chunks():
+            for spec in specs:   # every chunk, steady rows in it or not: a lag's recursion runs through all
+                basis = spec.basis(chunk.signals)[chunk.rows]
+                if len(basis):
+                    lo, hi = basis.min(axis=0), basis.max(axis=0)
+                    if spec not in provisional:
+                        provisional[spec], low[spec], high[spec] = 0.5 * (hi + lo), lo, hi
+                    low[spec], high[spec] = np.minimum(low[spec], lo), np.maximum(high[spec], hi)
+                    self._add_to_bins(sums[spec], chunk, basis - provisional[spec])
+        for spec in specs:
+            offset, scale = centring(low[spec], high[spec])
+            self.ranges[spec] = offset, scale
+            sums[spec] -= self._counts[:, None] * (offset - provisional[spec])
+            sums[spec] /= scale
+            self._means[spec] = sums[spec] / self.sqrt_counts[:, None] / self.sqrt_counts[:, None]
+            del sums[spec]
 
     def bin_times(self) -> NDArray[np.float64]:
         """Time (s) of each bin's first row."""
@@ -239,6 +294,56 @@ class Binned:
             a, b = a[self.order], b[self.order]
         edges = self.bounds
         return np.stack([a[i:j].T @ b[i:j] for i, j in zip(edges[:-1], edges[1:])])
+
+    def row_folds(self, specs: Sequence[TermSpec] = ()) -> RowFolds:
+        """Per-fold sums over every steady row (not bins) of the polynomial and ``specs``, on these folds' blocks."""
+        specs = tuple(dict.fromkeys(specs))
+        design = Design(self.signals, self._polynomial.rows, self._polynomial.columns, specs, self.index,
+                        self.ranges, self.chunk_rows)
+        k, q = self.n_folds, design.width
+        gram, cross, yy = np.zeros((k, q, q)), np.zeros((k, q)), np.zeros(k)
+        for chunk, x in design.chunks():
+            rows = chunk.start + chunk.rows
+            y = self.error[rows]
+            fold = self._fold_of(self.signals.t[rows])
+            for f in np.unique(fold):
+                mine = fold == f
+                gram[f] += x[mine].T @ x[mine]
+                cross[f] += x[mine].T @ y[mine]
+                yy[f] += y[mine] @ y[mine]
+        return RowFolds(specs, self._polynomial.width, gram, cross, yy, self.rows_total, self.block_s)
+
+
+@dataclass(frozen=True)
+class RowFolds:
+    """Per-fold sums over every steady row of the polynomial's and some terms' columns: X'X, X'e and e'e.
+
+    The held-out error of the polynomial with any subset of those terms follows from them
+    (:meth:`held_out_rms`), each fold predicted from the fit to the others, with no matrix
+    of a row per log row.
+    """
+
+    specs: tuple[TermSpec, ...]
+    polynomial_width: int
+    gram: NDArray[np.float64]    # (K, q, q)
+    cross: NDArray[np.float64]   # (K, q)
+    yy: NDArray[np.float64]      # (K,)
+    rows_total: int
+    block_s: float
+
+    def held_out_rms(self, specs: Sequence[TermSpec] = ()) -> float:
+        """Held-out RMS error (deg/s) of the polynomial + ``specs`` (among :attr:`specs`), over every steady row."""
+        starts = np.cumsum([self.polynomial_width] + [spec.width for spec in self.specs])
+        columns = np.concatenate([np.arange(self.polynomial_width)]
+                                 + [np.arange(starts[i], starts[i] + spec.width)
+                                    for spec in specs for i in [self.specs.index(spec)]]).astype(np.int64)
+        gram, cross = self.gram[:, columns][:, :, columns], self.cross[:, columns]
+        total_gram, total_cross = gram.sum(axis=0), cross.sum(axis=0)
+        sse = 0.0
+        for g, c, yy in zip(gram, cross, self.yy):
+            beta = solve_normal(total_gram - g, total_cross - c)
+            sse += yy - 2.0 * beta @ c + beta @ g @ beta
+        return float(np.sqrt(max(sse, 0.0) / self.rows_total))
 
 
 class Screen:
@@ -358,11 +463,14 @@ def phase_surrogates(spectrum: NDArray[np.complex128], count: int, rng: np.rando
     A slow bias wander keeps its slowness (its spectrum), but loses any alignment with a
     candidate: the null of "the candidate explains nothing", with the residual's own memory.
     """
-    phases = rng.uniform(0.0, 2.0 * np.pi, (len(spectrum), count))
-    phases[0] = 0.0
-    phases[-1] = 0.0   # the Nyquist term of the (even) mirrored length stays real
     n2 = 2 * (len(spectrum) - 1)
-    return np.fft.irfft(spectrum[:, None] * np.exp(1j * phases), n2, axis=0)[:n2 // 2]
+    out = np.empty((n2 // 2, count))
+    for j in range(count):   # one draw at a time: the complex temporaries are one series long, not ``count``
+        phases = rng.uniform(0.0, 2.0 * np.pi, len(spectrum))
+        phases[0] = 0.0
+        phases[-1] = 0.0   # the Nyquist term of the (even) mirrored length stays real
+        out[:, j] = np.fft.irfft(spectrum * np.exp(1j * phases), n2)[:n2 // 2]
+    return out
 
 
 def null_spectrum(screen: Screen, families: dict[str, Sequence[TermSpec]],
@@ -383,7 +491,7 @@ def null_spectrum(screen: Screen, families: dict[str, Sequence[TermSpec]],
         return full
     real = screen.held_out_improvements(families, residual[:, None])
     strongest = families[max(real, key=lambda name: real[name][0])]
-    spec = strongest[0] if len(strongest) == 1 else best_variant(screen, strongest, refine=False)
+    spec = strongest[0] if len(strongest) == 1 else _best_variant(screen, strongest, refine=False)
     spectrum = np.abs(mirrored_spectrum(Screen(screen.binned, [*screen.specs, spec]).residual()))
     # Index j of the mirrored spectrum (2n bins) is a period of 2n/j bins: j = SLOW_INDEX is a quarter of the log.
     level = float(np.mean(spectrum[SLOW_INDEX:2 * SLOW_INDEX] ** 2))
@@ -480,6 +588,7 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
             targets[:, 0] = residual   # column 0: the residual as logged
         for name, improvement in screen.held_out_improvements(families, targets).items():
             scores[name].append(improvement)
+        del targets   # not alive beside the next batch
     if not families:
         return TraceResult(noise_floor_dps, screen.base_sse() / screen.rows_total, (), math.inf, draws,
                            materiality_dph, alpha)
@@ -491,7 +600,7 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
         real, null = float(values[0]), values[1:]
         # A time constant is refined only where it may matter: for a candidate that beats chance.
         spec = families[name][0] if len(families[name]) == 1 else \
-            best_variant(screen, families[name], refine=real > threshold)
+            _best_variant(screen, families[name], refine=real > threshold)
         if len(families[name]) > 1 and real > threshold:
             # The family beat chance with each fold free to pick its time constant; the one written must
             # beat it alone (a fast decay held in one block of time cannot be held out at all).
@@ -566,7 +675,7 @@ def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[n
     return out
 
 
-def best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
+def _best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
     """The best variant on all the data; its time constant, if it has one and ``refine``, by golden-section search."""
     sse = [screen.training_sse(v) for v in variants]
     template = variants[int(np.argmin(sse))]
@@ -581,8 +690,11 @@ def best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = Tr
     taus = [v.time_constant_s for _, v in kin]
     lo, hi = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, len(taus) - 1)])
 
+    tried: list[TermSpec] = []
+
     def cost(log_tau: float) -> float:
-        return screen.training_sse(replace(template, time_constant_s=float(np.exp(log_tau))))
+        tried.append(replace(template, time_constant_s=float(np.exp(log_tau))))
+        return screen.training_sse(tried[-1])
 
     golden = (np.sqrt(5.0) - 1) / 2
     a, b = lo + (1 - golden) * (hi - lo), lo + golden * (hi - lo)
@@ -599,4 +711,6 @@ def best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = Tr
     best = float(np.exp(a if fa < fb else b))
     if min(fa, fb) > sse[i]:
         best = taus[i]
-    return replace(template, time_constant_s=best)
+    chosen = replace(template, time_constant_s=best)
+    screen.binned.forget_means([v for v in tried if v != chosen])   # the search's steps: one pass each, kept none
+    return chosen

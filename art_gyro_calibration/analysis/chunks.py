@@ -1,0 +1,65 @@
+"""A log's rows chunk by chunk, so that no matrix with a row per log row is ever built whole.
+
+The fit and the screen need only sums over rows (normal equations, bin sums, per-fold
+sums); each chunk's design columns and candidate bases are computed, summed and dropped.
+A chunk's causal signals continue from the state the chunk before ended in
+(:meth:`Signals.end_state`), so they equal the whole log's to rounding.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from art_gyro_calibration.signals import Signals, SignalState
+
+# Rows per chunk: a matrix of a dozen columns over a chunk is 25 MiB.
+CHUNK_ROWS = 1 << 18
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Consecutive log rows ``[start, start + len(signals))`` and the selected rows among them."""
+
+    signals: Signals             # the chunk's signals, continuing the log's causal recursions
+    start: int                   # log row of the chunk's first row
+    rows: NDArray[np.int64]      # the selected rows in the chunk, counted from ``start``
+    positions: slice             # where those rows are in the selection
+
+
+def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = None) -> Iterator[Chunk]:
+    """The log of ``signals`` in chunks of ``chunk_rows`` rows (default :data:`CHUNK_ROWS`), with the rows of ``index``.
+
+    ``index`` must be increasing (the steady rows of a log are). Every chunk is yielded,
+    selected rows or not: the signals' recursions run through all of them.
+    """
+    size = CHUNK_ROWS if chunk_rows is None else max(int(chunk_rows), 1)
+    index = np.asarray(index)
+    state = signals.previous
+    known = signals.chunk_states.get(size)
+    ends: list[SignalState] = []
+    low = 0
+    for k, start in enumerate(range(0, len(signals), size)):
+        stop = min(len(signals), start + size)
+        part = Signals(t=signals.t[start:stop], rate=signals.rate[start:stop],
+                       temperature=signals.temperature[start:stop],
+                       extras={k: v[start:stop] for k, v in signals.extras.items()}, filters=signals.filters,
+                       previous=state, powered_on_at_start=signals.powered_on_at_start,
+                       angle_correction=signals.angle_correction)
+        high = low + int(np.searchsorted(index[low:], stop, side='left'))
+        if np.any(np.diff(index[low:high]) <= 0) or (low < index.size and index[low] < start):
+            raise ValueError('the rows to select must be increasing')
+        yield Chunk(part, start, index[low:high] - start, slice(low, high))
+        # After the caller's work: the lags it computed continue too. The rest of the state (the
+        # filters, the angle) is the same on every pass over the log: computed on the first.
+        if known is None:
+            state = part.end_state()
+            ends.append(state)
+        else:
+            state = replace(known[k], lag_levels=part.lag_levels())
+        low = high
+    if known is None and len(ends) == -(-len(signals) // size):
+        signals.chunk_states[size] = [replace(end, lag_levels=()) for end in ends]
