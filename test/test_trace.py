@@ -165,3 +165,25 @@ def test_the_null_without_the_strongest_candidate_stays_honest_under_wander(seed
     sim = simulate_run(cal, SimulationSettings(seed=seed, **{**WANDERING, 'hours': 6.0}))
     result = close_loop(sim.log(cal), cal.polynomial.rows, cal.polynomial.columns, seed=seed)
     assert result.effects == (), [e.term.describe() for e in result.effects]
+
+
+def test_surrogates_are_drawn_at_a_fast_length_and_cut_to_the_log():
+    """A bin count with a large prime factor is continued to a 5-smooth length; the spectrum still that of the log."""
+    from art_gyro_calibration.analysis.trace import _fast_length
+    smooth = [m for m in range(1, 5000) if all(p in (2, 3, 5) for p in _prime_factors(m))]
+    assert all(_fast_length(n) == min(m for m in smooth if m >= n) for n in range(1, 4000))
+    rng = np.random.default_rng(1)
+    x = np.cumsum(rng.normal(size=4999))   # 4999 is prime
+    spectrum = mirrored_spectrum(x)
+    assert len(spectrum) == 5000 + 1   # 2 * 5000 samples: 5000 = 2**3 * 5**4
+    assert phase_surrogates(spectrum, 3, rng).shape == (5000, 3)
+
+
+def _prime_factors(m):
+    out, p = [], 2
+    while m > 1:
+        while m % p == 0:
+            out.append(p)
+            m //= p
+        p += 1
+    return out
