@@ -245,6 +245,7 @@ def retuned(binned: Binned, specs: list[TermSpec]) -> list[TermSpec]:
         screen = Screen(binned, out[:i] + out[i + 1:])
         logs = np.log(spec.time_constant_s) + np.log(RETUNE_FACTOR) * np.linspace(-1.0, 1.0, 5)
         tried = [replace(spec, time_constant_s=float(np.exp(x))) for x in logs]
+        tried[2] = spec   # the middle one is the spec itself (exp(log(tau)) may differ in the last bit): cached
         binned.candidate_means(tried)
         sse = np.array([screen.training_sse(v) for v in tried])
         k = int(np.clip(np.argmin(sse), 1, len(sse) - 2))
@@ -254,7 +255,7 @@ def retuned(binned: Binned, specs: list[TermSpec]) -> list[TermSpec]:
             tried.append(replace(spec, time_constant_s=float(np.exp(vertex))))
             sse = np.append(sse, screen.training_sse(tried[-1]))
         out[i] = tried[int(np.argmin(sse))]
-        binned.forget_means([v for v in tried if v != out[i] and v != spec])
+        binned.forget_means([v for v in tried if v not in (out[i], spec)])
     return out
 
 
