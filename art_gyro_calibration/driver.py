@@ -150,7 +150,9 @@ class WireStamper:
 
     def _update_period(self, per_frame: float) -> None:
         period = self.period_ns
-        if period and not PERIOD_ACCEPT[0] < per_frame / period < PERIOD_ACCEPT[1]:
+        # Outliers are refused only once the estimate has settled: a wrong first measure (queued frames read in
+        # two chunks a wire time apart) would otherwise refuse every right one after it, for good.
+        if self._updates >= PERIOD_SMOOTHING and not PERIOD_ACCEPT[0] < per_frame / period < PERIOD_ACCEPT[1]:
             return
         self._updates += 1
         self.period_ns = period + (per_frame - period) / min(self._updates, PERIOD_SMOOTHING)

@@ -130,6 +130,22 @@ def test_stamper_spaces_a_burst_after_a_stall_by_the_gyro_period():
     assert stamper.period_ns == pytest.approx(period, rel=1e-3)
 
 
+def test_a_wrong_first_period_estimate_does_not_lock_the_stamps_at_wire_spacing():
+    """The frames queued before the open, read in two chunks a moment apart, once set the period to a frame's wire
+    time (0.7 ms at 115200 baud); every right measure after it (20 ms, 29x) was then refused as an outlier, and
+    the stamps stayed 0.7 ms apart: the flaky use_sim_time node test's 'median step 0.0007 s'."""
+    period = 20_000_000
+    stamper = WireStamper(115200, 8)
+    start = 1_000_000_000
+    stamper.stamp(start, start, 40, [8, 16, 24, 32, 40])          # five queued frames in the first read
+    later = start + 10 * stamper.byte_ns
+    stamper.stamp(later, later, 8, [8])                          # one more, a wire time later
+    assert stamper.period_ns < period / 10                       # the first estimate is wrong
+    stamps = [s for s, _ in _steady_gyro(stamper, lambda m: m, period, 100, start_ns=later + period)]
+    assert np.median(np.diff(stamps[-50:])) == pytest.approx(period, rel=0.01)
+    assert stamper.period_ns == pytest.approx(period, rel=0.01)
+
+
 @pytest.mark.parametrize('step_s', [-10.0, 10.0])
 def test_stamper_re_anchors_once_on_a_clock_step(step_s):
     """A backward step froze the stamps for as long as the step (999 equal stamps at 100 Hz, issue 9)."""

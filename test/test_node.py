@@ -344,5 +344,6 @@ def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, 
     assert np.count_nonzero(steps < 0) == 1 and steps.min() == pytest.approx(-10.0, abs=0.5), steps[steps < 0]
     # Elsewhere the stamps advance at the gyro's period, give or take the 10 ms granularity of /clock.
     assert np.median(steps[steps > 0]) == pytest.approx(0.02, abs=0.005)
-    # The step as measured between two reads of a /clock published every 10 ms and delivered late.
-    assert re.search(r'the clock stepped by -(9\.[7-9]\d\d|10\.[0-2]\d\d) s', output.read_text())
+    # The step as measured between two reads of a /clock published every 10 ms and delivered late: within the
+    # same 0.5 s as the stamps' jump above (a /clock 0.46 s late before the step was seen on an idle machine).
+    assert re.search(r'the clock stepped by -(9\.[5-9]\d\d|10\.[0-4]\d\d) s', output.read_text())
