@@ -131,9 +131,12 @@ def test_stamper_spaces_a_burst_after_a_stall_by_the_gyro_period():
 
 
 def test_a_wrong_first_period_estimate_does_not_lock_the_stamps_at_wire_spacing():
-    """The frames queued before the open, read in two chunks a moment apart, once set the period to a frame's wire
+    """A period first measured as a frame's wire time is corrected by the right measures after it.
+
+    The frames queued before the open, read in two chunks a moment apart, once set the period to a frame's wire
     time (0.7 ms at 115200 baud); every right measure after it (20 ms, 29x) was then refused as an outlier, and
-    the stamps stayed 0.7 ms apart: the flaky use_sim_time node test's 'median step 0.0007 s'."""
+    the stamps stayed 0.7 ms apart: the flaky use_sim_time node test's 'median step 0.0007 s'.
+    """
     period = 20_000_000
     stamper = WireStamper(115200, 8)
     start = 1_000_000_000
