@@ -64,6 +64,10 @@ DEG_PER_H_PER_DPS = 3600.0
 STANDS_FOR_CORRELATION = 0.9
 # A richer form goes after a simpler significant one that explains this share of its effect (R^2).
 SIMPLER_FIRST = 0.5
+# A form richer only by a time constant must also lose this share of its held-out improvement to the
+# simpler one: a decay whose curvature the log shows (a 20-minute warm-up in 2 hours) is no drift,
+# though a line explains much of it. (Not for a form with more columns: those fit other effects too.)
+SIMPLER_SHARE = 0.9
 TIME_CONSTANT_GRID_SIZE = 8
 MAX_TIME_CONSTANT_RUNS = 4.0
 MIN_TIME_CONSTANT_S = 30.0
@@ -641,8 +645,9 @@ def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[Candida
     fitted effect (R^2 >= :data:`STANDS_FOR_CORRELATION` beyond the base); a richer form to a
     simpler one (fewer columns, or no time constant) that explains at least
     :data:`SIMPLER_FIRST` of it: a lagged temperature's terms contain the Shupe term, a long
-    decay looks like a drift. The simpler one is named (:attr:`TraceResult.best`), and the
-    next round asks what the richer form adds beyond it.
+    decay looks like a drift (if the line also does nearly as well held out,
+    :data:`SIMPLER_SHARE`). The simpler one is named (:attr:`TraceResult.best`), and the next
+    round asks what the richer form adds beyond it.
     """
     found = [c for c in candidates if c.significant]
     out = []
@@ -653,7 +658,8 @@ def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[Candida
             for d in found:
                 if c.spec.signal not in DERIVED_SIGNALS and d.spec.signal in DERIVED_SIGNALS:
                     needed = STANDS_FOR_CORRELATION
-                elif d is not c and _complexity(d.spec) < _complexity(c.spec):
+                elif d is not c and _complexity(d.spec) < _complexity(c.spec) \
+                        and (d.spec.width < c.spec.width or d.improvement_dps2 >= SIMPLER_SHARE * c.improvement_dps2):
                     needed = SIMPLER_FIRST
                 else:
                     continue
@@ -667,10 +673,7 @@ def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[Candida
 
 
 def _complexity(spec: TermSpec) -> float:
-    """Columns, and half a column more for a time constant: a drift beats a decay that looks like it.
-
-    (A term without a time constant is also the start-up-safe one: a linear drift needs no origin.)
-    """
+    """Columns, and half a column more for a time constant: a drift beats a decay that looks like it."""
     return spec.width + (0.5 if spec.time_constant_s > 0.0 else 0.0)
 
 
