@@ -81,10 +81,14 @@ def test_small_chunks_give_the_one_chunk_calibration(effects, monkeypatch):
     # whole log's by 1e-11 relative; a candidate nearly in the base model's span (1e-13 deg/h) or one that
     # extrapolates wildly into a held-out block (a warm-up of 30 s: -0.4 deg^2/s^2) amplifies that.
     floor2, materiality = whole.noise_floor_dps ** 2, whole.materiality_dph
-    scale = {'held_out_improvement_dps2': floor2, 'chance_max_improvement_dps2': floor2,
-             'fraction_of_noise_floor_variance': 1.0, 'effect_dph': materiality}
+    # A standardised score is a difference of chance tails far smaller than the floor's variance: 1e-4 absolute.
+    scale = {'held_out_improvement_dps2': floor2, 'chance_max_improvement_dps2': floor2, 'explained_dps2': floor2,
+             'chance_threshold_dps2': floor2, 'score': 1e4, 'fraction_of_noise_floor_variance': 1.0,
+             'effect_dph': materiality}
     for mine, theirs in zip(parts_report.pop('screens'), whole_report.pop('screens')):
-        assert mine['chance_threshold_dps2'] == pytest.approx(theirs['chance_threshold_dps2'], rel=1e-9)
+        assert mine['chance_threshold_dps2'] == pytest.approx(theirs['chance_threshold_dps2'], rel=1e-8,
+                                                              abs=1e-8 * floor2)
+        assert mine['chance_threshold_score'] == pytest.approx(theirs['chance_threshold_score'], abs=1e-4)
         assert [c['signal'] for c in mine['candidates']] == [c['signal'] for c in theirs['candidates']]
         for a, b in zip(mine['candidates'], theirs['candidates']):
             for key, value in b.items():
