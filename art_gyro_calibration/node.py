@@ -819,6 +819,10 @@ def main(args: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ParameterError, CalibrationError, _rclpy.RCLError) as e:
+        if isinstance(e, _rclpy.RCLError) and node is not None and not rclpy.ok():
+            # A signal shut the context down between two waits of the executor ("failed to initialize wait
+            # set: the given context is not valid"): a stop as asked, not a failure.
+            return 0
         # RCLError: rcl refused the command line, such as a params file it cannot parse.
         print(f'{NODE_NAME}: error: {e}', file=sys.stderr)
         return 1
