@@ -336,11 +336,17 @@ def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, 
             wait_until(lambda: (m := listener.imu_since(0)) and m[-1].header.stamp.sec >= int(sim_start),
                        'stamps on the simulated clock', proc, output)
             before = listener.count()
-            listener.wait_imu(50, proc, output)
+
+            def stamp(m: Imu) -> float:
+                return m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+
+            top = max(map(stamp, listener.wait_imu(50, proc, output)))
             offset[0] = -10.0
-            listener.wait_imu(100, proc, output)
-            stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
-                               for m in listener.imu_since(before)])
+            # Until the node has the stepped clock (/clock may reach it late), then 50 frames more.
+            wait_until(lambda: min(map(stamp, listener.imu_since(before))) < top - 5.0,
+                       'stamps on the stepped clock', proc, output)
+            listener.wait_imu(50, proc, output)
+            stamps = np.array([stamp(m) for m in listener.imu_since(before)])
             # /clock runs on while the node stops: a node on simulated time is stopped as it runs.
     finally:
         stop.set()
