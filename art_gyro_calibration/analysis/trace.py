@@ -378,6 +378,8 @@ class Screen:
         self._xe = self.x.T @ self.e
         self._ee = float(self.e @ self.e)
         self._base_sse: float | None = None
+        # Per candidate variant, its columns' cross products with the base and what is left of them beyond it.
+        self._beyond: dict[TermSpec, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
 
     def weighted(self, spec: TermSpec) -> NDArray[np.float64]:
         """The candidate's columns as the screen fits them: bin means weighted to unit noise."""
@@ -438,8 +440,10 @@ class Screen:
             rows = []
             for spec in variants:
                 c = self.weighted(spec)
-                cx = c.T @ self.x
-                beyond = c.T @ c - cx @ solve_normal(gram, cx.T)
+                if spec not in self._beyond:   # the same for every batch of targets: once per screen
+                    cx = c.T @ self.x
+                    self._beyond[spec] = cx, c.T @ c - cx @ solve_normal(gram, cx.T)
+                cx, beyond = self._beyond[spec]
                 r = c.T @ targets - cx @ beta
                 rows.append(np.einsum('wt,wt->t', r, solve_normal(beyond, r)))
             out[name] = np.stack(rows) / self.rows_total
@@ -604,9 +608,9 @@ class TraceResult:
         """The significant candidate to add next, or None: nothing found.
 
         The one least likely by chance; among those tied at that (the strongest effects all
-        beat every draw), the one furthest beyond its own chance: a weaker candidate may owe
-        its score to the part of a stronger effect it can mimic (a drift, of a warm-up). A
-        candidate that a simpler significant one stands for gives way to it.
+        beat every draw), the one that lowers the held-out error most: a weaker candidate may
+        owe its score to the part of a stronger effect it can mimic (a drift, of a warm-up).
+        A candidate that a simpler significant one stands for gives way to it.
         """
         found = [c for c in self.candidates if c.significant]
         if not found:
