@@ -28,7 +28,8 @@ from art_gyro_calibration.terms import Term
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_DRAWS,
                                                  DEFAULT_FOLDS, DEG_PER_H_PER_DPS, Binned, CandidateScore, Screen,
-                                                 TraceResult, held_out_residual, joined, trace_residual)
+                                                 TraceResult, duration_s, held_out_residual, joined,
+                                                 time_constant_bounds, trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
 # Most RD2100s read 0.00305 deg/s per count (report, section 1).
@@ -239,17 +240,20 @@ def retuned(binned: Binned, specs: list[TermSpec]) -> list[TermSpec]:
     log(tau) through the best and its neighbours (one more); only the one kept stays cached.
     """
     out = list(specs)
+    duration = duration_s(binned.signals)
     for i, spec in enumerate(out):
         if spec.time_constant_s <= 0.0:
             continue
         screen = Screen(binned, out[:i] + out[i + 1:])
-        logs = np.log(spec.time_constant_s) + np.log(RETUNE_FACTOR) * np.linspace(-1.0, 1.0, 5)
-        tried = [replace(spec, time_constant_s=float(np.exp(x))) for x in logs]
-        tried[2] = spec   # the middle one is the spec itself (exp(log(tau)) may differ in the last bit): cached
+        own = np.log(spec.time_constant_s)
+        logs = np.unique(np.clip(own + np.log(RETUNE_FACTOR) * np.linspace(-1.0, 1.0, 5),
+                                 *np.log(time_constant_bounds(spec, duration))))
+        # The spec itself where it is tried (exp(log(tau)) may differ in the last bit): cached.
+        tried = [spec if x == own else replace(spec, time_constant_s=float(np.exp(x))) for x in logs]
         binned.candidate_means(tried)
         sse = np.array([screen.training_sse(v) for v in tried])
         k = int(np.clip(np.argmin(sse), 1, len(sse) - 2))
-        curve = np.polyfit(logs[k - 1:k + 2], sse[k - 1:k + 2], 2)
+        curve = np.polyfit(logs[k - 1:k + 2], sse[k - 1:k + 2], 2) if len(sse) >= 3 else np.zeros(3)
         if curve[0] > 0.0:
             vertex = float(np.clip(-curve[1] / (2.0 * curve[0]), logs[0], logs[-1]))
             tried.append(replace(spec, time_constant_s=float(np.exp(vertex))))

@@ -60,7 +60,7 @@ DEFAULT_BIN_S = 1.0
 # Held-out blocks of time: several times the bias instability's correlation time.
 DEFAULT_BLOCK_S = 900.0
 DEG_PER_H_PER_DPS = 3600.0
-# A log column whose fitted effect a derived signal's explains to this R^2 stands for that signal.
+# A log column stands for a derived signal when each spans the other's columns to this R^2 beyond the base.
 STANDS_FOR_CORRELATION = 0.9
 # A richer form goes after a simpler significant one that explains this share of its effect (R^2).
 SIMPLER_FIRST = 0.5
@@ -86,7 +86,8 @@ FORMS_TRIED = {
     'temperature_rate': 'c dT/dt, the Shupe effect of a temperature gradient across the coil',
     'rate_x_temperature_rate': 'c rate dT/dt, a scale factor that follows the temperature gradient',
     'temperature_lag': 'the polynomial\'s temperature terms on a coil temperature lagging the sensor, '
-                       'T_lag**1..rows-1 x rate**0..columns-1, lag from 1 minute to 2 hours',
+                       'T_lag**1..rows-1 x rate**0..columns-1, lag from 1 minute to 2 hours or a quarter of '
+                       'the log',
     'time': 'c t, a linear drift (IEEE 952 ramp) from the run\'s start',
     'time_since_power_on': 'c exp(-t/tau), a warm-up from power-on that decays within the log, tau from 30 s to '
                            'half the log',
@@ -100,6 +101,22 @@ FORMS_TRIED = {
     'extra columns': 'c x for every further numeric column of the log (a supply voltage, ...)',
 }
 LAG_GRID_S = (60.0, 3600.0 * 2)
+# A lag is tried up to this share of the log: the lagged temperature must follow the chamber over the log to be
+# told from it. (A 4 h lag fitted on 2 h moved little; its polynomial, extrapolated on a warm restart, read
+# 650 deg/h.)
+MAX_LAG_SHARE = 0.25
+
+
+def duration_s(signals: Signals) -> float:
+    """The log's length of time, s."""
+    return float(signals.t[-1] - signals.t[0]) if len(signals) else 0.0
+
+
+def time_constant_bounds(spec: TermSpec, duration: float) -> tuple[float, float]:
+    """The shortest and longest time constant (or lag) of ``spec``'s kind a log of ``duration`` s can identify."""
+    if spec.signal == LAGGED_SIGNAL:
+        return LAG_GRID_S[0], max(min(LAG_GRID_S[1], MAX_LAG_SHARE * duration), 2 * LAG_GRID_S[0])
+    return MIN_TIME_CONSTANT_S, max(MAX_TIME_CONSTANT_RUNS * duration, 2 * MIN_TIME_CONSTANT_S)
 
 
 def candidate_specs(signals: Signals, rows: int, columns: int, exclude: Sequence[str] = (),
@@ -110,10 +127,10 @@ def candidate_specs(signals: Signals, rows: int, columns: int, exclude: Sequence
     them (not on a ``still`` log, whose rate is only its error); a warm-up is tried only on a
     log that starts at power-on.
     """
-    duration = float(signals.t[-1] - signals.t[0]) if len(signals) else 0.0
-    taus = np.geomspace(MIN_TIME_CONSTANT_S, max(MAX_TIME_CONSTANT_RUNS * duration, 2 * MIN_TIME_CONSTANT_S),
+    duration = duration_s(signals)
+    taus = np.geomspace(*time_constant_bounds(TermSpec('time_since_power_on', 'exp_decay'), duration),
                         TIME_CONSTANT_GRID_SIZE)
-    lags = np.geomspace(*LAG_GRID_S, TIME_CONSTANT_GRID_SIZE)
+    lags = np.geomspace(*time_constant_bounds(TermSpec(LAGGED_SIGNAL, 'power'), duration), TIME_CONSTANT_GRID_SIZE)
     temperature_powers = tuple(range(1, rows))
     rate_powers = (0,) if still else tuple(range(columns))
     out: dict[str, list[TermSpec]] = {
@@ -626,6 +643,11 @@ class TraceResult:
 # column, eight, a time constant chosen): so standardised, each beats the round's threshold about equally
 # often by chance, and a candidate with a light tail is not judged by another's heavy one.
 TAIL_QUANTILE = 0.9
+# Candidates whose every time constant is judged apart, each in its own chance tail. A warm-up of minutes
+# explains by chance what a few minutes of noise hold; one of hours, the wander of hours: judged together by the
+# best variant, a short warm-up was measured against the long ones' chance (a quarter-size 20-minute warm-up
+# in 6 h logs was found in 14 runs of 20, judged apart in 20 of 20, with the round's threshold set over all).
+JUDGED_PER_VARIANT = ('time_since_power_on',)
 
 
 def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
@@ -637,7 +659,8 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
 
     ``error`` is ``rate_dps - ref_rate`` per log row; only the steady rows of ``segments``
     are used. Each candidate's statistic is how much its best variant (time constant)
-    explains of the residual, fitted to all bins. Chance: ``draws`` phase-randomised copies
+    explains of the residual, fitted to all bins (a warm-up's every time constant is judged
+    apart, :data:`JUDGED_PER_VARIANT`). Chance: ``draws`` phase-randomised copies
     of the residual, each explained by every candidate in the same way (its variant chosen
     again); a candidate's statistic is standardised by its own chance draws (a form of eight
     columns explains more by chance than one of one, a slow signal more than a fast one),
@@ -681,27 +704,34 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
             parts[name].append(explained)
         del targets   # not alive beside the next batch
     table = {name: np.concatenate(v, axis=1) for name, v in parts.items()}   # (variants, 1 + draws)
-    best = {name: v.max(axis=0) for name, v in table.items()}
-    centre = {name: float(np.quantile(v[1:], TAIL_QUANTILE)) for name, v in best.items()}
-    spread = {name: max(float(np.sum(np.maximum(v[1:] - centre[name], 0.0))) / max(np.sum(v[1:] > centre[name]), 1),
-                        1e-300) for name, v in best.items()}
-    standard = {name: (v - centre[name]) / spread[name] for name, v in best.items()}
-    best_chance = np.max(np.stack([v[1:] for v in standard.values()]), axis=0)
+    # Per candidate, the statistics judged: the best variant's, or every variant's apart (JUDGED_PER_VARIANT).
+    judged = {name: v if name in JUDGED_PER_VARIANT else v.max(axis=0, keepdims=True) for name, v in table.items()}
+    centre = {name: np.quantile(v[:, 1:], TAIL_QUANTILE, axis=1, keepdims=True) for name, v in judged.items()}
+    spread = {name: np.maximum(np.sum(np.maximum(v[:, 1:] - centre[name], 0.0), axis=1, keepdims=True)
+                               / np.maximum(np.sum(v[:, 1:] > centre[name], axis=1, keepdims=True), 1), 1e-300)
+              for name, v in judged.items()}
+    standard = {name: (v - centre[name]) / spread[name] for name, v in judged.items()}
+    best_chance = np.max(np.concatenate([v[:, 1:] for v in standard.values()]), axis=0)
     threshold = float(np.quantile(best_chance, 1.0 - alpha, method='higher'))
     candidates = []
-    for name, values in best.items():
-        real, null, score = float(values[0]), values[1:], float(standard[name][0])
-        beats = score > threshold
+    for name, values in judged.items():
         variants = families[name]
-        spec = variants[int(np.argmax(table[name][:, 0]))]
+        top = int(np.argmax(standard[name][:, 0]))   # the variant judged: the best standardised one
+        real, null, score = float(values[top, 0]), values[top, 1:], float(standard[name][top, 0])
+        beats = score > threshold
+        # The term's shape: the variant that explains most; judged apart, the most among those that beat chance.
+        fits = table[name][:, 0]
+        if len(values) > 1 and beats:
+            fits = np.where(standard[name][:, 0] > threshold, fits, -np.inf)
+        spec = variants[int(np.argmax(fits))]
         if len(variants) > 1 and beats:   # a time constant refined only where it may matter
-            spec = _best_variant(screen, variants)
+            spec = _best_variant(screen, [v for v, f in zip(variants, fits) if f > -np.inf])
         size = screen.effect_dph(spec)
         candidates.append(CandidateScore(
             name, spec, held_out[name], float(null.mean()), float(null.std()), float(null.max()),
             held_out[name] / floor_var, bool(beats and size >= materiality_dph),
             float((1 + np.sum(best_chance >= score)) / (draws + 1)), size, explained_dps2=real,
-            threshold_dps2=centre[name] + threshold * spread[name], score=score))
+            threshold_dps2=float(centre[name][top, 0] + threshold * spread[name][top, 0]), score=score))
     candidates = _stand_ins(screen, candidates)
     candidates.sort(key=lambda c: c.score, reverse=True)
     return TraceResult(noise_floor_dps, screen.base_sse() / screen.rows_total, tuple(candidates),
@@ -711,8 +741,10 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
 def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[CandidateScore]:
     """Mark a significant candidate that a simpler significant one should go before.
 
-    A log column gives way to a derived signal (one the node computes) that explains its
-    fitted effect (R^2 >= :data:`STANDS_FOR_CORRELATION` beyond the base); a richer form to a
+    A log column gives way to a derived signal (one the node computes) that carries the same
+    information: each spans the other's columns beyond the base (R^2 >=
+    :data:`STANDS_FOR_CORRELATION`, both ways; one way, the eight columns of a lagged
+    temperature stood for a supply voltage over one chamber cycle); a richer form to a
     simpler one (fewer columns, or no time constant) that explains at least
     :data:`SIMPLER_FIRST` of it: a lagged temperature's terms contain the Shupe term, a long
     decay looks like a drift (if the line also does nearly as well held out,
@@ -726,14 +758,19 @@ def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[Candida
             mine = screen.binned.candidate_means([c.spec])[:, 0, :]
             alike = []
             for d in found:
+                theirs = screen.binned.candidate_means([d.spec])[:, 0, :]
                 if c.spec.signal not in DERIVED_SIGNALS and d.spec.signal in DERIVED_SIGNALS:
+                    # The same information both ways: a wide derived form (a lagged temperature's eight columns)
+                    # spans any slow column over one chamber cycle, and would take a supply voltage's place.
+                    if _alike(screen, theirs, mine) < STANDS_FOR_CORRELATION:
+                        continue
                     needed = STANDS_FOR_CORRELATION
                 elif d is not c and _complexity(d.spec) < _complexity(c.spec) \
                         and (d.spec.width < c.spec.width or d.improvement_dps2 >= SIMPLER_SHARE * c.improvement_dps2):
                     needed = SIMPLER_FIRST
                 else:
                     continue
-                likeness = _alike(screen, mine, screen.binned.candidate_means([d.spec])[:, 0, :])
+                likeness = _alike(screen, mine, theirs)
                 if likeness >= needed:
                     alike.append((likeness, d.signal))
             if alike:
