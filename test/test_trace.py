@@ -303,3 +303,17 @@ def test_a_lag_is_tried_and_retuned_only_within_a_quarter_of_the_log():
     for lag in (max(lags), 2 * max(lags)):
         spec = TermSpec(LAGGED_SIGNAL, 'power', (1, 2), lag, (0, 1, 2, 3))
         assert retuned(binned, [spec])[0].time_constant_s <= quarter * (1 + 1e-9)
+
+
+@pytest.mark.parametrize('seed, size', [(54010, 5e-5), (56018, 1e-4)])
+def test_a_scale_factor_in_t_cubed_far_beyond_chance_survives_the_final_held_out_check(seed, size):
+    """A rate x T**3 term that beat its round's chance by far (2.1 and 13 times the threshold) in a 2 h log stays.
+
+    Over one chamber cycle its held-out error is how the polynomial extrapolates into a held-out
+    block's temperatures: the final check dropped it, and nothing was found.
+    """
+    cal = load_packaged_calibration('NAVC3545')
+    settings = SimulationSettings(seed=seed, effects=('rate_t3',), effect_sizes={'rate_t3': size}, **WANDERING)
+    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns, seed=seed)
+    assert [(e.term.signal, e.term.powers, 1 in e.term.rate_powers) for e in result.effects] == \
+        [('temperature', (3,), True)], [e.term.describe() for e in result.effects]

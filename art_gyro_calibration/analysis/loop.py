@@ -172,6 +172,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     specs: list[TermSpec] = []
     rounds: list[TraceResult] = []
     scores: list[CandidateScore] = []
+    strong: list[bool] = []   # per spec: its round's score beat the threshold by STRONG_FACTOR
     while len(rounds) < max_effects:
         # Held-out blocks at least as long as what the current model leaves stays correlated:
         # shorter ones share a slow residual with their neighbours, and any slow signal seems to predict it.
@@ -188,23 +189,28 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         if same:   # one term per signal in a calibration file: a second form on it joins the first
             specs[same[0]] = joined(specs[same[0]], best.spec)
             scores[same[0]] = best
+            strong[same[0]] = strong[same[0]] and _strong(found)
         else:
             specs.append(best.spec)
             scores.append(best)
+            strong.append(_strong(found))
         specs = retuned(binned, specs)
     # A square is judged once every effect is in the model, so it cannot stand in for one not yet found.
     specs = [_maybe_square(spec, binned, specs[:i] + specs[i + 1:], materiality)
              for i, spec in enumerate(specs)]
     # Every effect must lower the held-out error of the final model, every row counted (on the blocks
     # of the last round): one that passed its screen only given candidates that did not make it is dropped.
+    # Not one that beat its round's chance by far: over one chamber cycle the held-out error of a temperature
+    # term is how the polynomial extrapolates into a held-out block's temperatures (doc/oracle-power.md).
     every_row = binned.row_folds(specs)
     while True:
         held_out_all = every_row.held_out_rms(specs)
         without = [every_row.held_out_rms(specs[:i] + specs[i + 1:]) for i in range(len(specs))]
-        if not specs or min(without) > held_out_all:
+        weak = [i for i in range(len(specs)) if not strong[i]]
+        if not weak or min(without[i] for i in weak) > held_out_all:
             break
-        weakest = int(np.argmin(without))
-        del specs[weakest], scores[weakest]
+        weakest = min(weak, key=lambda i: without[i])
+        del specs[weakest], scores[weakest], strong[weakest]
     final = fit_model(signals, error, rows, columns, specs, index, ranges=binned.ranges)
     effects = [Effect(term, score, rms_without, held_out_all)
                for term, score, rms_without in zip(final.model.terms, scores, without)]
@@ -224,6 +230,17 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
         adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading),
         start=RunStart(powered_on_at_start=from_power_on))
+
+
+# A term whose round score is this many times the round's threshold (standardised chance scores: an
+# exponential tail, so by chance about exp(-threshold) times as rare as the threshold itself) is kept
+# whatever the final held-out check says.
+STRONG_FACTOR = 2.0
+
+
+def _strong(found: TraceResult) -> bool:
+    """Whether the round's pick beat its threshold by :data:`STRONG_FACTOR`."""
+    return found.best is not None and found.best.score >= STRONG_FACTOR * max(found.threshold_score, 1.0)
 
 
 # A time constant found in an earlier round is sought again within this factor of it.
