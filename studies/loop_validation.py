@@ -503,7 +503,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--quick', action='store_true', help='a two-minute smoke run (few runs; not the document)')
     # A harmful false alarm in 1 % of runs needs hundreds to show: 100 runs of fe0cb1c showed no false alarm,
-    # 300 more (seeds 5000-5299) showed 14, three of which worsened a second run by over 1 deg/h.
+    # 300 more (seeds 5000-5299) showed 14, four of which worsened a second run by over 1 deg/h.
     parser.add_argument('--null-runs', type=int, default=400)
     parser.add_argument('--max-reps', type=int, default=20, help='most repetitions per power-table cell')
     parser.add_argument('--budget-s', type=float, default=2700.0, help='CPU seconds for the whole study')
