@@ -24,7 +24,6 @@ os.environ.setdefault('OMP_NUM_THREADS', '1')
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import math  # noqa: E402
 import multiprocessing  # noqa: E402
 import subprocess  # noqa: E402
 import time  # noqa: E402
@@ -38,7 +37,7 @@ from numpy.typing import NDArray  # noqa: E402
 
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model  # noqa: E402
 from art_gyro_calibration.analysis.loop import close_loop  # noqa: E402
-from art_gyro_calibration.analysis.replay import replay  # noqa: E402
+from art_gyro_calibration.analysis.replay import replay_field, startup_check  # noqa: E402
 from art_gyro_calibration.analysis.simulate import (ALL_EFFECTS, COIL_LAG_TAU_S, EFFECTS,  # noqa: E402
                                                     SimulatedRun, SimulationSettings, effect_size, lagged,
                                                     same_gyro, simulate_run, warm_restart)
@@ -46,7 +45,7 @@ from art_gyro_calibration.calibration import Calibration, load_packaged_calibrat
 from art_gyro_calibration.compensation import RunStart  # noqa: E402
 from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.signals import compute_signals  # noqa: E402
-from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError  # noqa: E402
+from art_gyro_calibration.static_bias import DEFAULT_SAMPLES  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 SERIAL = 'NAVC3545'
@@ -149,8 +148,10 @@ def run_case(case: Case) -> dict[str, Any]:
     truth = load_packaged_calibration(SERIAL)
     rows, columns = truth.polynomial.rows, truth.polynomial.columns
     log = simulate_run(truth, case.settings()).log(truth)
-    result = close_loop(log, rows, columns, serial_number=SERIAL, rate_scale_factor=truth.rate_scale_factor,
-                        seed=case.seed)
+    loop = close_loop(log, rows, columns, serial_number=SERIAL, rate_scale_factor=truth.rate_scale_factor,
+                      seed=case.seed)
+    # As ``calibrate fit`` does: the loop, then its start-up check on restarts of the fitted log.
+    result, check, _ = startup_check(loop, log)
     calibrations = {'art': result.art, 'extended': result.extended,
                     'oracle': oracle_fit(log, case, result.art, result.segments.rows())}
     field: dict[str, dict[str, Any]] = {}
@@ -159,18 +160,13 @@ def run_case(case: Case) -> dict[str, Any]:
         field[scenario] = {}
         for name, calibration in calibrations.items():
             seen = oracle_log(other, case, calibration)[0] if name == 'oracle' else other
-            try:
-                measured = replay(seen, calibration, DEFAULT_SAMPLES, start=STARTS[scenario]).field.to_dict()
-            except MotionError:
-                # The node would refuse this static bias (the calibration moves the still gyro's rate past the
-                # motion check): measured with the check off, and counted as refused.
-                measured = {**replay(seen, calibration, DEFAULT_SAMPLES, start=STARTS[scenario],
-                                     max_mean_dps=math.inf).field.to_dict(), 'bias_refused': True}
-            field[scenario][name] = measured
+            field[scenario][name] = replay_field(seen, calibration, DEFAULT_SAMPLES, start=STARTS[scenario]).to_dict()
     adequacy = getattr(result, 'adequacy', None)
     return {
         'effect': case.effect, 'magnitude': case.magnitude, 'hours': case.hours, 'seed': case.seed,
         'found': [e.term.signal for e in result.effects],
+        'found_by_loop': [e.term.signal for e in loop.effects],
+        'dropped_by_check': [] if check is None else [d.term.signal for d in check.dropped],
         'descriptions': [e.term.describe() for e in result.effects],
         'model_adequate': None if adequacy is None else bool(adequacy.model_adequate),
         'field': field,
@@ -234,7 +230,14 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
     targeted = [c for c in cells if c['magnitude'] >= MIN_TARGET_MAGNITUDE]
     failing = [c for c in targeted if not (c['detection'] >= MIN_DETECTION_RATE
                                            and c['ratio_extended_oracle'] <= MAX_ORACLE_RATIO)]
+    dropping = [r for r in results if r.get('dropped_by_check')]
     return {
+        'startup_check': {
+            'runs_with_drops': len(dropping), 'null_runs_with_drops': sum(r['effect'] is None for r in dropping),
+            'dropped_signals': Counter(s for r in dropping for s in r['dropped_by_check']).most_common(),
+            'effect_runs_with_drops': Counter(r['effect'] for r in dropping if r['effect']).most_common(),
+            'own_signal_dropped': sum(FOUND_BY_SIGNAL.get(r['effect']) in r['dropped_by_check'] for r in dropping),
+        },
         'null_runs': len(nulls), 'false_alarms': len(alarms), 'false_alarm_rate': len(alarms) / max(len(nulls), 1),
         'lack_of_fit_alarms': len(lack_of_fit), 'alarms_worsening': len(worse), 'null_rows': null_rows,
         'false_alarm_signals': Counter(s for r in alarms for s in r['found']).most_common(),
@@ -370,6 +373,24 @@ def findings(summary: dict[str, Any]) -> list[str]:
                    'effect is found in at least 90 % of runs.']
 
 
+def startup_check_lines(summary: dict[str, Any]) -> list[str]:
+    """What the start-up check (``analysis.replay.startup_check``) dropped from the loop's terms."""
+    check = summary.get('startup_check')
+    if check is None:
+        return []
+
+    def listed(pairs: list[tuple[str, int]]) -> str:
+        return ', '.join(f'{n} ({k})' for n, k in pairs) or 'none'
+
+    return ['', '## Start-up check', '',
+            'After the loop, `calibrate fit` replays its calibration on restarts of the fitted log itself (from a '
+            'quarter and from half of it on, power-on unknown) and drops each term the restarts are better '
+            'without. The tables above are after the check. It dropped terms in '
+            f'{check["runs_with_drops"]} runs: {check["null_runs_with_drops"]} null runs and effect runs of '
+            f'{listed(check["effect_runs_with_drops"])}; the terms dropped: {listed(check["dropped_signals"])}; '
+            f'in {check["own_signal_dropped"]} of them the dropped term was on the signal of the simulated effect.']
+
+
 def _yes(ok: bool) -> str:
     return 'holds' if ok else '**fails**'
 
@@ -470,6 +491,7 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
     if s['failing_cells']:
         lines += ['', 'Cells at magnitude >= 0.25 that miss the target: '
                   + '; '.join(f'{e} x {m:g} on {h:g} h' for e, m, h in s['failing_cells']) + '.']
+    lines += startup_check_lines(s)
     if baseline is not None:
         lines += comparison(summary, baseline['summary'], baseline['label'])
     lines += ['', '## Figures', '']

@@ -9,11 +9,13 @@ import pytest
 
 from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.analysis.metrics import field_errors, heading_error_deg, steady_segments
-from art_gyro_calibration.analysis.replay import replay, restart, without_terms
+from art_gyro_calibration.analysis.loop import close_loop
+from art_gyro_calibration.analysis.replay import (POWER_ON_SIGNAL, field_score_dps, own_restarts, replay, replay_field,
+                                                  restart, startup_check, validate, without_terms)
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
 from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration
 from art_gyro_calibration.compensation import RunStart, apply_calibration
-from art_gyro_calibration.log import write_columns
+from art_gyro_calibration.log import GyroLog, write_columns
 from art_gyro_calibration.static_bias import MotionError
 from art_gyro_calibration.terms import Term
 
@@ -142,7 +144,8 @@ def test_fit_validate_drops_a_term_the_second_run_is_worse_with(calibration, tmp
     assert set(errors) == {'art', 'extended', 'validated'}
     for e in errors.values():
         assert set(e) == {'mean_bias_dps', 'mean_bias_dph', 'systematic_rms_dps', 'systematic_rms_dph',
-                          'heading_10min_deg', 'heading_1h_deg'}
+                          'heading_10min_deg', 'heading_1h_deg', 'bias_refused'}
+        assert e['bias_refused'] is False
     # The supply term made the second run worse than the report's calibration; the Shupe term kept makes it better.
     assert errors['validated']['systematic_rms_dph'] < errors['art']['systematic_rms_dph'] \
         < errors['extended']['systematic_rms_dph']
@@ -159,3 +162,88 @@ def test_replay_command(calibration, tmp_path, capsys):
     assert main(['replay', str(log), '--calibration', str(REPO / 'config' / 'NAVC4058.yaml'),
                  '--start-s', '300']) == 1
     assert 'turning' in capsys.readouterr().err
+
+
+def test_own_restarts_begin_where_the_table_stands_still():
+    t, ref = _table(hours=2.0)
+    log = GyroLog(t, ref + 0.01, np.full(t.size, 25.0), ref)
+    # A quarter and a half of the log fall in rests of 5 minutes (1560-1860 s, 3360-3660 s).
+    restarts = own_restarts(log, 100)
+    assert [start for start, _ in restarts] == [1800.0, 3600.0]
+    for start, run in restarts:
+        assert run.t[0] == start and np.all(run.ref_rate[:100] == 0.0) and len(run) == t.size - start * 10
+    # 100 s of bias do not fit in what is left of those rests: the next rests, after a turn.
+    assert [start for start, _ in own_restarts(log, 1000)] == [2160.0, 3960.0]
+    # A run whose table never stands still long enough has no restart.
+    assert own_restarts(log, 3001) == []
+
+
+def _wandering(calibration, hours, seed, effects=()):
+    """A run as the loop study simulates it: 10 Hz, a slow bias wander (1 h) and a rate random walk."""
+    return simulate_run(calibration, SimulationSettings(hours=hours, rate_hz=10.0, seed=seed, wander_dps=3e-4,
+                                                        wander_tau_s=3600.0, rate_random_walk_dph_rthr=0.5,
+                                                        effects=effects)).log(calibration)
+
+
+def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log():
+    # Run 1397 of the loop study's null runs: no effect, but the loop fits a 90-minute coil lag to the
+    # slow wander. From power-on it fits; a node restarted later starts its lag at the temperature of the
+    # moment, and the term shifts the static bias (a warm restart lost 12.6 deg/h with it).
+    truth = load_packaged_calibration('NAVC3545')
+    log = _wandering(truth, 6.0, 1397)
+    result = close_loop(log, truth.polynomial.rows, truth.polynomial.columns, serial_number='NAVC3545',
+                        rate_scale_factor=truth.rate_scale_factor, seed=1397)
+    assert [e.signal for e in result.effects] == ['temperature_lag']
+    checked, check, names = startup_check(result, log)
+    assert names == ['restarted at 90 min', 'restarted at 182 min']
+    [dropped] = check.dropped
+    assert dropped.term.signal == 'temperature_lag' and 'better without' in dropped.reason
+    assert checked.effects == () and checked.extended.terms == ()
+    art, extended = (field_score_dps([run[name] for run in check.runs]) for name in ('art', 'extended'))
+    assert extended > 2.0 * art
+
+
+def test_a_start_up_check_keeps_what_the_restarts_are_better_with(calibration, tmp_path):
+    # A Shupe effect found on a 2 h run: the restarts of the run are better with its term, which stays.
+    run = simulate_run(calibration, SimulationSettings(hours=2.0, rate_hz=10.0, seed=4, effects=('shupe',)))
+    write_run(tmp_path / 'A.csv', run)
+    report_path = tmp_path / 'REPORT.json'
+    assert main(['fit', str(tmp_path / 'A.csv'), '--rows', '3', '--columns', '2', '--serial', 'NAVC4058',
+                 '--out', str(tmp_path / 'CAL.yaml'), '--report', str(report_path)]) == 0
+    report = json.loads(report_path.read_text())
+    assert [e['signal'] for e in report['effects']] == ['temperature_rate']
+    check = report['startup_check']
+    assert check['dropped'] == []
+    assert [r['source'] for r in check['runs']] == ['restarted at 31 min', 'restarted at 60 min']
+    for r in check['runs']:
+        assert r['calibrations']['extended']['systematic_rms_dph'] < r['calibrations']['art']['systematic_rms_dph']
+    assert [t.signal for t in load_calibration(tmp_path / 'CAL.yaml').terms] == ['temperature_rate']
+    assert '## Start-up check: the fitted log restarted warm' in (tmp_path / 'REPORT.md').read_text()
+
+
+def test_a_warm_up_is_never_judged_by_restarts(calibration):
+    log = _wandering(calibration, 2.0, 3, ('warmup',))
+    result = close_loop(log, calibration.polynomial.rows, calibration.polynomial.columns, serial_number='NAVC4058',
+                        rate_scale_factor=calibration.rate_scale_factor, seed=3)
+    assert POWER_ON_SIGNAL in [e.signal for e in result.effects]
+    # Restarted, power-on unknown, the warm-up is not applied: with or without it the runs read the same.
+    runs = [run for _, run in own_restarts(log, 100)]
+    others = replace(result.extended, terms=tuple(t for t in result.extended.terms if t.signal != POWER_ON_SIGNAL))
+    for run in runs:
+        np.testing.assert_array_equal(replay(run, result.extended, 100).applied.corrected_dps,
+                                      replay(run, others, 100).applied.corrected_dps)
+    checked = validate(result, runs, kept_signals=(POWER_ON_SIGNAL,))
+    assert POWER_ON_SIGNAL in [t.signal for t in checked.calibration.terms]
+    assert POWER_ON_SIGNAL not in [d.term.signal for d in checked.dropped] and len(checked.runs) == 2
+
+
+def test_a_calibration_the_node_refuses_the_static_bias_with_scores_worst(calibration):
+    log = simulate_run(calibration, SimulationSettings(hours=1.0, rate_hz=2.0, seed=1)).log(calibration)
+    # A term of 0.03 deg/s per degC (0.3 deg/s at 10 degC): the still gyro seems to turn, the node refuses the bias.
+    wild = replace(calibration, terms=(Term('temperature', 'power', (0.03,), (1,)),))
+    with pytest.raises(MotionError):
+        replay(log, wild, 100)
+    refused = replay_field(log, wild, 100)
+    assert refused.bias_refused and refused.to_dict()['bias_refused'] is True
+    assert not replay_field(log, calibration, 100).bias_refused
+    assert field_score_dps([refused]) == np.inf

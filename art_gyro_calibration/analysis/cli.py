@@ -87,7 +87,12 @@ def _fit(args: argparse.Namespace) -> int:
                             settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
                             exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
                             draws=args.draws, alpha=args.alpha, from_power_on=not args.not_from_power_on)
+        from art_gyro_calibration.analysis.replay import startup_check
+        from art_gyro_calibration.analysis.report import validation_section
+        result, check, restarts = startup_check(result, log, args.bias_samples, args.settle_s)
         report = build_report(log, result, args.bias_samples, source=str(args.log))
+        if check is not None:
+            report['startup_check'] = validation_section(check, restarts)
         if not report['model_adequate']:
             adequacy = report['adequacy']
             print(f'calibrate fit: warning: the model does not fit: {adequacy["excess_dph"]:.2f} deg/h beyond the '

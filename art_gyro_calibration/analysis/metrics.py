@@ -195,6 +195,9 @@ class FieldErrors:
     systematic_rms_dps: float
     heading_10min_deg: float
     heading_1h_deg: float
+    # The node would refuse this run's static bias (the calibration moves the still gyro past the motion
+    # check); the errors are those of the bias taken anyway.
+    bias_refused: bool = False
 
     def to_dict(self) -> dict[str, float | None]:
         """Plain dict for JSON: deg/s values also in deg/h; a heading the log is too short for is None."""

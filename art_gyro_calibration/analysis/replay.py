@@ -11,10 +11,14 @@ the table with :func:`metrics.field_errors`: bias included, nothing removed.
 :func:`validate` replays the report's calibration (the ART polynomial alone) and the
 extended one on each validation run, and drops from the extended calibration every
 term without which the runs are better (refitting the rest on the fitted log).
+:func:`startup_check` does the same on warm restarts of the fitted log itself, which
+every fit has: a term fitted to the slow noise of one run (a long coil lag, say) can
+fit it well from power-on and still shift the static bias of a node started later.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 
@@ -27,7 +31,7 @@ from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors,
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import Applied, RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
-from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_SAMPLES
+from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.terms import Term
 
 
@@ -58,11 +62,51 @@ def replay(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_S
                                                bias_samples))
 
 
+def replay_field(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_SAMPLES,
+                 settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart()) -> FieldErrors:
+    """:func:`replay`'s field errors; where the node would refuse the static bias, those of the bias taken
+    anyway, marked ``bias_refused``."""
+    try:
+        return replay(log, calibration, bias_samples, settle_s, start).field
+    except MotionError:
+        return replace(replay(log, calibration, bias_samples, settle_s, start, max_mean_dps=math.inf).field,
+                       bias_refused=True)
+
+
 def restart(log: GyroLog, start_s: float) -> GyroLog:
     """The run as a node started ``start_s`` after its first sample sees it (a warm restart)."""
     if not 0.0 <= start_s < log.t[-1] - log.t[0]:
         raise ValueError(f'start {start_s} s is not within the log\'s {log.t[-1] - log.t[0]:.1f} s')
     return log.slice(slice(int(np.searchsorted(log.t, log.t[0] + start_s)), None))
+
+
+# Where the start-up check restarts the fitted log: late enough for the warm-up to have passed and the
+# restart's static bias to sit elsewhere in the chamber cycle, early enough to leave an hour of a 2 h log.
+RESTART_FRACTIONS = (0.25, 0.5)
+# A warm-up is applied only from a declared power-on: a restart, power-on unknown, cannot judge it.
+POWER_ON_SIGNAL = 'time_since_power_on'
+
+
+def own_restarts(log: GyroLog, bias_samples: int = DEFAULT_SAMPLES,
+                 fractions: Sequence[float] = RESTART_FRACTIONS) -> list[tuple[float, GyroLog]]:
+    """Warm restarts of ``log`` itself, as (start in s, run): one from each fraction of its duration on.
+
+    Each begins at the first ``bias_samples`` rows from there on over which the table stands
+    still, as a node's static bias needs; a fraction after which the table never stands
+    still that long gives none.
+    """
+    if log.ref_rate is None:
+        raise LogError('the log has no ref_rate column: a restart needs the table standing still')
+    still = (log.ref_rate == 0.0).astype(float)
+    # Row i starts a still stretch when rows i .. i + bias_samples - 1 all stand still.
+    starts = np.flatnonzero(np.convolve(still, np.ones(bias_samples), 'valid') >= bias_samples - 0.5)
+    duration = log.t[-1] - log.t[0]
+    out: list[tuple[float, GyroLog]] = []
+    for fraction in fractions:
+        later = starts[starts >= np.searchsorted(log.t, log.t[0] + fraction * duration)]
+        if later.size:
+            out.append((float(log.t[later[0]] - log.t[0]), log.slice(slice(int(later[0]), None))))
+    return out
 
 
 def without_terms(calibration: Calibration) -> Calibration:
@@ -88,38 +132,48 @@ class Validation:
 
 
 def field_score_dps(errors: Sequence[FieldErrors]) -> float:
-    """One number to compare calibrations on the validation runs: rms of their systematic rms (bias included)."""
+    """One number to compare calibrations on the validation runs: rms of their systematic rms (bias included);
+    infinite when the node would refuse a run's static bias."""
+    if any(e.bias_refused for e in errors):
+        return math.inf
     return float(np.sqrt(np.mean([e.systematic_rms_dps ** 2 for e in errors])))
 
 
 def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DEFAULT_SAMPLES,
-             settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart()) -> Validation:
+             settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart(),
+             kept_signals: Sequence[str] = ()) -> Validation:
     """Replay ``result``'s calibrations on ``logs``; drop each term the runs are better without.
 
     Terms are dropped one at a time, the one whose removal helps most first; the rest are
     refitted jointly with the polynomial on the fitted log (the loop's signals, error and
     steady rows) before the next comparison. Calibrations per run: ``art``, ``extended``
     and, when terms were dropped, ``validated`` (the one to write). ``start``: how the runs started.
+    Terms on ``kept_signals`` are never dropped (the runs cannot judge them).
     """
     if not logs:
         raise ValueError('validation needs at least one run')
 
     def field(calibration: Calibration) -> list[FieldErrors]:
-        return [replay(log, calibration, bias_samples, settle_s, start).field for log in logs]
+        return [replay_field(log, calibration, bias_samples, settle_s, start) for log in logs]
 
     art, extended = field(result.art), field(result.extended)
     current, current_errors = result.extended, extended
     dropped: list[Dropped] = []
-    while current.terms:
-        options = [_refit(result, current.terms[:i] + current.terms[i + 1:]) for i in range(len(current.terms))]
+    while True:
+        judged = [i for i, term in enumerate(current.terms) if term.signal not in kept_signals]
+        if not judged:
+            break
+        options = [_refit(result, current.terms[:i] + current.terms[i + 1:]) for i in judged]
         scores = [field_score_dps(field(c)) for c in options]
         best = int(np.argmin(scores))
         score = field_score_dps(current_errors)
         if scores[best] >= score:
             break
-        term = current.terms[best]
-        dropped.append(Dropped(term, f'the validation runs are better without it: systematic rms with the bias '
-                                     f'{score * 3600.0:.2f} deg/h with it, {scores[best] * 3600.0:.2f} deg/h without'))
+        term = current.terms[judged[best]]
+        with_it = ('the node refuses a static bias with it (the still gyro reads as turning)' if math.isinf(score)
+                   else f'systematic rms with the bias {score * 3600.0:.2f} deg/h with it')
+        dropped.append(Dropped(term, f'the validation runs are better without it: {with_it}, '
+                                     f'{scores[best] * 3600.0:.2f} deg/h without'))
         current = options[best]
         current_errors = field(current)
     runs: list[dict[str, FieldErrors]] = []
@@ -129,6 +183,28 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
             run['validated'] = current_errors[i]
         runs.append(run)
     return Validation(current, tuple(runs), tuple(dropped))
+
+
+def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_SAMPLES,
+                  settle_s: float = DEFAULT_SETTLE_S) -> tuple[LoopResult, Validation | None, list[str]]:
+    """Judge ``result``'s terms on warm restarts of ``log``, the log it was fitted on (:func:`own_restarts`).
+
+    Returns the result with the terms the restarts are better without dropped (the rest
+    refitted, its effects those kept), the check (None when there was nothing to check:
+    no term, or no still stretch to restart at) and a name per restart. A warm-up is kept:
+    the restarts do not know the power-on.
+    """
+    restarts = own_restarts(log, bias_samples) if result.extended.terms else []
+    if not restarts:
+        return result, None, []
+    names = [f'restarted at {start_s / 60.0:.0f} min' for start_s, _ in restarts]
+    check = validate(result, [run for _, run in restarts], bias_samples, settle_s, RunStart(),
+                     kept_signals=(POWER_ON_SIGNAL,))
+    if not check.dropped:
+        return result, check, names
+    kept = {term.signal: term for term in check.calibration.terms}
+    effects = tuple(replace(e, term=kept[e.signal]) for e in result.effects if e.signal in kept)
+    return replace(result, extended=check.calibration, effects=effects), check, names
 
 
 def _refit(result: LoopResult, terms: Sequence[Term]) -> Calibration:

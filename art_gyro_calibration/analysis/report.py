@@ -163,6 +163,10 @@ def markdown_summary(report: dict[str, Any]) -> str:
                       'none of the forms tried '
                       'describes. Look at the residual against each signal (--plots).']
     lines += ['', 'Forms tried: ' + '; '.join(f'{name} ({what})' for name, what in report['forms_tried'].items()) + '.']
+    if 'startup_check' in report:
+        lines += validation_markdown(report['startup_check'], 'Start-up check: the fitted log restarted warm',
+                                     'The fitted log restarted later, power-on unknown (a warm-up counts as decayed '
+                                     'and is kept), each calibration applied as the node applies it')
     if 'validation' in report:
         lines += validation_markdown(report['validation'])
     return '\n'.join(lines) + '\n'
@@ -186,16 +190,19 @@ def field_table(rows: Sequence[tuple[str, str, dict[str, Any]]]) -> list[str]:
     lines = ['| run | calibration | mean bias (deg/h) | systematic rms with bias (deg/h) | '
              'heading after 10 min (deg) | heading after 1 h (deg) |', '|---|---|---:|---:|---:|---:|']
     for run, name, e in rows:
+        if e.get('bias_refused'):
+            name += ' (static bias refused)'
         lines.append(f'| {run} | {name} | {number(e["mean_bias_dph"], 2)} | {number(e["systematic_rms_dph"], 2)} | '
                      f'{number(e["heading_10min_deg"], 3)} | {number(e["heading_1h_deg"], 3)} |')
     return lines
 
 
-def validation_markdown(validation: dict[str, Any]) -> list[str]:
-    """REPORT.md's lines on the validation runs."""
-    lines = ['', '## Field replay on other runs', '',
-             'Each calibration applied to another run as the node applies it (static bias over its first rows, '
-             'signals from its first sample), errors from the end of the static bias on, the bias included.', '']
+def validation_markdown(validation: dict[str, Any], title: str = 'Field replay on other runs',
+                        what: str = 'Each calibration applied to another run as the node applies it') -> list[str]:
+    """REPORT.md's lines on replayed runs: the ``--validate`` runs, or the start-up check's restarts."""
+    lines = ['', f'## {title}', '',
+             f'{what} (static bias over its first rows, signals from its first sample), errors from the end of '
+             'the static bias on, the bias included.', '']
     lines += field_table([(run['source'], name, e) for run in validation['runs']
                           for name, e in run['calibrations'].items()])
     if validation['dropped']:
