@@ -182,15 +182,16 @@ def _wandering(calibration, hours, seed, effects=()):
     """A run as the loop study simulates it: 10 Hz, a slow bias wander (1 h) and a rate random walk."""
     return simulate_run(calibration, SimulationSettings(hours=hours, rate_hz=10.0, seed=seed, wander_dps=3e-4,
                                                         wander_tau_s=3600.0, rate_random_walk_dph_rthr=0.5,
-                                                        effects=effects)).log(calibration)
+                                                        effects=effects))
 
 
-def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log():
+def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     # Run 1397 of the loop study's null runs: no effect, but the loop fits a 90-minute coil lag to the
     # slow wander. From power-on it fits; a node restarted later starts its lag at the temperature of the
     # moment, and the term shifts the static bias (a warm restart lost 12.6 deg/h with it).
     truth = load_packaged_calibration('NAVC3545')
-    log = _wandering(truth, 6.0, 1397)
+    run = _wandering(truth, 6.0, 1397)
+    log = run.log(truth)
     result = close_loop(log, truth.polynomial.rows, truth.polynomial.columns, serial_number='NAVC3545',
                         rate_scale_factor=truth.rate_scale_factor, seed=1397)
     assert [e.signal for e in result.effects] == ['temperature_lag']
@@ -201,6 +202,17 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log():
     assert checked.effects == () and checked.extended.terms == ()
     art, extended = (field_score_dps([run[name] for run in check.runs]) for name in ('art', 'extended'))
     assert extended > 2.0 * art
+    # calibrate fit reports the loop's term, and the check's drop, and writes the calibration without it.
+    write_run(tmp_path / 'A.csv', run)
+    out, report_path = tmp_path / 'CAL.yaml', tmp_path / 'REPORT.json'
+    assert main(['fit', str(tmp_path / 'A.csv'), '--rows', '3', '--columns', '4', '--serial', 'NAVC3545',
+                 '--seed', '1397', '--out', str(out), '--report', str(report_path)]) == 0
+    report = json.loads(report_path.read_text())
+    assert [e['signal'] for e in report['effects']] == ['temperature_lag']
+    assert [d['signal'] for d in report['startup_check']['dropped']] == ['temperature_lag']
+    assert load_calibration(out).terms == ()
+    assert "nothing (temperature_lag dropped: the fitted log's restarts were better without)" in out.read_text()
+    assert 'Dropped from the written calibration' in (tmp_path / 'REPORT.md').read_text()
 
 
 def test_a_start_up_check_keeps_what_the_restarts_are_better_with(calibration, tmp_path):
@@ -222,7 +234,7 @@ def test_a_start_up_check_keeps_what_the_restarts_are_better_with(calibration, t
 
 
 def test_a_warm_up_is_never_judged_by_restarts(calibration):
-    log = _wandering(calibration, 2.0, 3, ('warmup',))
+    log = _wandering(calibration, 2.0, 3, ('warmup',)).log(calibration)
     result = close_loop(log, calibration.polynomial.rows, calibration.polynomial.columns, serial_number='NAVC4058',
                         rate_scale_factor=calibration.rate_scale_factor, seed=3)
     assert POWER_ON_SIGNAL in [e.signal for e in result.effects]

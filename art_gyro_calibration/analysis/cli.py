@@ -34,6 +34,7 @@ from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RAT
                                                 LoopResult, close_loop)
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
+from art_gyro_calibration.analysis.replay import Validation, startup_check
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_BLOCK_S, DEFAULT_DRAWS
 
 
@@ -82,23 +83,25 @@ def _fit(args: argparse.Namespace) -> int:
         plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
         rate_scale, temp_scale = _scale_factors(args)
         log = read_log(args.log, rate_scale, temp_scale)
-        result = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
-                            rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
-                            settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
-                            exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
-                            draws=args.draws, alpha=args.alpha, from_power_on=not args.not_from_power_on)
-        from art_gyro_calibration.analysis.replay import startup_check
+        loop = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
+                          rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
+                          settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
+                          exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
+                          draws=args.draws, alpha=args.alpha, from_power_on=not args.not_from_power_on)
         from art_gyro_calibration.analysis.report import validation_section
-        result, check, restarts = startup_check(result, log, args.bias_samples, args.settle_s)
-        report = build_report(log, result, args.bias_samples, source=str(args.log))
+        # The report and plots are the loop's; what the check drops is in its section, as --validate's drops are.
+        report = build_report(log, loop, args.bias_samples, source=str(args.log))
+        result, check, restarts = startup_check(loop, log, args.bias_samples, args.settle_s)
+        found = ', '.join(e.signal for e in result.effects) or 'nothing'
         if check is not None:
             report['startup_check'] = validation_section(check, restarts)
+            found += _dropped(check, 'the fitted log\'s restarts')
         if not report['model_adequate']:
             adequacy = report['adequacy']
             print(f'calibrate fit: warning: the model does not fit: {adequacy["excess_dph"]:.2f} deg/h beyond the '
                   'noise budget, held out, over 10-minute means; see REPORT.md and the residual against each '
                   'signal (--plots)', file=sys.stderr)
-        calibration, found = result.extended, ', '.join(e.signal for e in result.effects) or 'nothing'
+        calibration = result.extended
         if args.validate:
             calibration, found = _validate(args, result, report, found)
         write_calibration(out, calibration,
@@ -107,7 +110,7 @@ def _fit(args: argparse.Namespace) -> int:
         summary = write_report(report_path, report).read_text(encoding='utf-8')
         if plots is not None:
             from art_gyro_calibration.analysis.plots import plot_all
-            plot_all(log, result, args.bias_samples, plots, args.plot_prefix)
+            plot_all(log, loop, args.bias_samples, plots, args.plot_prefix)
     print(summary, end='')
     return 0
 
@@ -124,8 +127,14 @@ def _validate(args: argparse.Namespace, result: LoopResult, report: dict[str, An
     if not validation.dropped:
         return validation.calibration, found
     kept = ', '.join(t.signal for t in validation.calibration.terms) or 'nothing'
-    dropped = ', '.join(d.term.signal for d in validation.dropped)
-    return validation.calibration, f'{kept} ({dropped} dropped: the validation runs were better without)'
+    return validation.calibration, kept + _dropped(validation, 'the validation runs')
+
+
+def _dropped(validation: Validation, runs: str) -> str:
+    """What a replay dropped, for the calibration file's comment ('' when nothing)."""
+    if not validation.dropped:
+        return ''
+    return f' ({", ".join(d.term.signal for d in validation.dropped)} dropped: {runs} were better without)'
 
 
 def _replay(args: argparse.Namespace) -> int:
