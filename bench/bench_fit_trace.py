@@ -1,7 +1,8 @@
 """Benchmark: fit + trace (the whole loop) on a 24 h, 10 Hz simulated run (864,000 rows).
 
 Reports wall and CPU time of the loop (the machine's load average beside them, as other
-work on a shared machine slows the wall clock) and the process's peak resident memory. Run:
+work on a shared machine slows the wall clock), the CPU time of ``calibrate fit``'s start-up
+check after it, and the process's peak resident memory. Run:
 ``python bench/bench_fit_trace.py [--hours 24] [--rate-hz 10]``. A benchmark, not a test.
 """
 
@@ -14,11 +15,12 @@ import time
 
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.analysis.loop import close_loop
+from art_gyro_calibration.analysis.replay import startup_check
 from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run
 
 
 def main() -> None:
-    """Simulate, then time close_loop."""
+    """Simulate, then time close_loop and the start-up check."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--hours', type=float, default=24.0)
     parser.add_argument('--rate-hz', type=float, default=10.0)
@@ -32,11 +34,16 @@ def main() -> None:
     start, cpu_start = time.perf_counter(), time.process_time()
     result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, serial_number=args.serial)
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
+    check_cpu = time.process_time()
+    checked, check, _ = startup_check(result, log)
+    check_cpu = time.process_time() - check_cpu
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f'rows {len(log)}, effects simulated: {", ".join(effects) or "none"}')
     print(f'effects found: {", ".join(e.term.describe() for e in result.effects) or "nothing"}')
     print(f'fit + trace: {elapsed:.2f} s wall, {cpu:.2f} s CPU (all threads), load average {os.getloadavg()[0]:.1f}; '
           f'peak RSS {peak_mib:.0f} MiB (whole process, simulation included)')
+    dropped = ', '.join(d.term.signal for d in check.dropped) if check else 'no check'
+    print(f'start-up check: {check_cpu:.2f} s CPU; dropped: {dropped or "nothing"}')
 
 
 if __name__ == '__main__':

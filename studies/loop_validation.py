@@ -385,7 +385,7 @@ def startup_check_lines(summary: dict[str, Any]) -> list[str]:
     return ['', '## Start-up check', '',
             'After the loop, `calibrate fit` replays its calibration on restarts of the fitted log itself (from a '
             'quarter and from half of it on, power-on unknown) and drops each term the restarts are better '
-            'without. The tables above are after the check. It dropped terms in '
+            'without by more than the loop\'s materiality. The tables above are after the check. It dropped terms in '
             f'{check["runs_with_drops"]} runs: {check["null_runs_with_drops"]} null runs and effect runs of '
             f'{listed(check["effect_runs_with_drops"])}; the terms dropped: {listed(check["dropped_signals"])}; '
             f'in {check["own_signal_dropped"]} of them the dropped term was on the signal of the simulated effect.']

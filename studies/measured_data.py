@@ -128,7 +128,7 @@ def _deg(value: float) -> str:
 
 def _effects(fold: Fold) -> str:
     """The effects the loop traced, and which of them the final model keeps."""
-    if not fold.loop.effects:
+    if not fold.loop.effects and not fold.restart_dropped:
         return 'none'
     kept = {id(t) for t in fold.kept_effects}
     dropped = {id(a.term) for a in fold.agreements if not a.kept}
@@ -136,6 +136,8 @@ def _effects(fold: Fold) -> str:
     for e in fold.loop.effects:
         verdict = ' (dropped: the training days disagree)' if id(e.term) in dropped else ''
         out.append(e.term.describe() + verdict if id(e.term) in kept or verdict else e.term.describe())
+    out += [f'{t.describe()} (dropped: the training days\' own restarts are better without)'
+            for t in fold.restart_dropped]
     return '; '.join(out)
 
 
@@ -185,7 +187,10 @@ def fold_notes(fold: Fold) -> str:
         if fold.agreements:
             text += '; each training day alone, gain on the time term: ' + '; '.join(
                 a.describe() for a in fold.agreements)
-    else:
+    if fold.restart_dropped:
+        text += ('; ' if fold.loop.effects else '') + 'dropped by the start-up check: ' + '; '.join(
+            term.describe() for term in fold.restart_dropped)
+    if not fold.loop.effects and not fold.restart_dropped:
         first = fold.loop.rounds[0].candidates[:3]
         text += 'no effect beyond the ART polynomial; best candidates: ' + ', '.join(
             f'{c.signal} ({c.effect_dph:.1f} deg/h, chance p = {c.p_value:.3f})' for c in first)
@@ -421,12 +426,16 @@ def findings(study: Study) -> list[str]:
                   < f.field['extended', 'bias_start'].systematic_rms_dps for f in every)
     out.append(f'- **The static bias after the transient** beats the one taken at the start in {settled} of '
                f'{len(every)} folds (ART + effects, 10-min rms).')
-    traced = [f for f in every if f.loop.effects]
+    traced = [f for f in every if f.loop.effects or f.restart_dropped]
     helped = [f for f in every if f.kept_effects and f.field['extended', 'bias_settled'].systematic_rms_dps
               < f.field['art', 'bias_settled'].systematic_rms_dps]
     dropped = sum(not a.kept for f in every for a in f.agreements)
+    restarted = Counter(t.signal for f in every for t in f.restart_dropped)
     out.append(f'- **Effects beyond temperature**: the loop traced something in {len(traced)} of {len(every)} '
-               f'folds; the training-day agreement dropped {dropped} time term(s); the effects kept lowered the '
+               f'folds; the start-up check (the training days restarted from a quarter and from half of them on, '
+               'as `calibrate fit` does) dropped '
+               + (', '.join(f'{k} ({n})' for k, n in restarted.most_common()) or 'nothing')
+               + f'; the training-day agreement dropped {dropped} time term(s); the effects kept lowered the '
                f'held-out 10-min rms (bias after the transient) in {len(helped)} folds.')
     timed = sum(any(e.signal in TIME_SIGNALS for e in f.loop.effects) for f in every)
     out.append(f'- **A drift on the record itself**: the loop traced a time term in {timed} of {len(every)} folds '

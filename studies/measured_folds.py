@@ -20,6 +20,7 @@ from art_gyro_calibration.analysis.allan import AllanDeviation, allan_deviation
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.analysis.importers import segment_labels
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, LoopResult, close_loop
+from art_gyro_calibration.analysis.replay import startup_check
 from art_gyro_calibration.analysis.metrics import FieldErrors, field_errors, heading_error_deg
 from art_gyro_calibration.analysis.report import STAGES
 from art_gyro_calibration.log import GyroLog
@@ -168,6 +169,7 @@ class Fold:
     field: dict[tuple[str, str], FieldErrors]
     heading_1h_rms_deg: dict[tuple[str, str], float]
     allan: dict[str, AllanDeviation]
+    restart_dropped: tuple[Term, ...] = ()   # the loop's terms its start-up check dropped (not in ``loop``)
 
     def comp(self, stage: str) -> NDArray[np.float64]:
         """Modelled error of every sample of the log for ``stage``."""
@@ -224,6 +226,9 @@ def run_fold(log: GyroLog, days: NDArray[np.int_], day: int, held_name: str, axi
     from_power_on = bool(train.t[0] == log.t[0])
     loop = close_loop(train, rows, COLUMNS, serial_number=f'{serial_number}_{axis}', max_effects=max_effects,
                       seed=seed, exclude=exclude, bin_s=LOOP_BIN_S, from_power_on=from_power_on)
+    # As calibrate fit: the terms the training days' own warm restarts are better without are dropped.
+    loop, check, _ = startup_check(loop, train, BIAS_SAMPLES)
+    restart_dropped = () if check is None else tuple(d.term for d in check.dropped)
     floor = loop.bias_instability_dph / HOUR
     agreements = tuple(time_term_agreement(loop, term, days[~held], floor)
                        for term in loop.extended.model.terms if term.signal in TIME_SIGNALS)
@@ -254,7 +259,7 @@ def run_fold(log: GyroLog, days: NDArray[np.int_], day: int, held_name: str, axi
         allan[stage] = allan_deviation(errors[stage, 'mean_removed'], sample_rate_hz(log),
                                        segment_labels(t_span, RUN_GAP_S))
     return Fold(axis, day, held_name, log, held, loop, agreements, models, signals, windows, span, errors, field,
-                heading_rms, allan)
+                heading_rms, allan, restart_dropped)
 
 
 def rolling_heading_rms(t: NDArray[np.float64], error: NDArray[np.float64], horizon_s: float,

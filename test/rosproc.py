@@ -38,8 +38,9 @@ def domain_id() -> int:
 
 def node_env(domain: int) -> dict[str, str]:
     """Environment of a node process: its own domain, discovery on loopback only."""
+    # PYTHONFAULTHANDLER: a node that hangs is stopped with SIGABRT, which then prints where each thread was.
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               PYTHONUNBUFFERED='1')
+               PYTHONUNBUFFERED='1', PYTHONFAULTHANDLER='1')
     env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)   # let the child's own bootstrap set its library path
     return env
 
@@ -57,8 +58,12 @@ def stop_node(proc: subprocess.Popen[bytes], signum: int, output: Path) -> None:
     try:
         code = proc.wait(TIMEOUT_S)
     except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+        proc.send_signal(signal.SIGABRT)   # the faulthandler's traceback of every thread, into the output
+        try:
+            proc.wait(TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
         raise AssertionError(f'node did not stop on signal {signum}:\n{output.read_text()}') from None
     assert code == 0, f'exit {code} on signal {signum}:\n{output.read_text()}'
 

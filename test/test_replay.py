@@ -202,6 +202,12 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     assert checked.effects == () and checked.extended.terms == ()
     art, extended = (field_score_dps([run[name] for run in check.runs]) for name in ('art', 'extended'))
     assert extended > 2.0 * art
+    # The check drops a term only when the restarts are better without it by more than the materiality:
+    # asked for more than the 9.8 deg/h it costs, the same replay keeps it.
+    assert 'a drop needs more than 0.83 deg/h' in dropped.reason
+    runs = [run for _, run in own_restarts(log)]
+    assert validate(result, runs, kept_signals=(POWER_ON_SIGNAL,), margin_dps=9.0 / 3600.0).dropped
+    assert not validate(result, runs, kept_signals=(POWER_ON_SIGNAL,), margin_dps=10.0 / 3600.0).dropped
     # calibrate fit reports the loop's term, and the check's drop, and writes the calibration without it.
     write_run(tmp_path / 'A.csv', run)
     out, report_path = tmp_path / 'CAL.yaml', tmp_path / 'REPORT.json'
