@@ -265,3 +265,21 @@ def test_a_calibration_the_node_refuses_the_static_bias_with_scores_worst(calibr
     assert refused.bias_refused and refused.to_dict()['bias_refused'] is True
     assert not replay_field(log, calibration, 100).bias_refused
     assert field_score_dps([refused]) == np.inf
+
+
+def test_a_gyro_too_noisy_for_the_nodes_motion_check_is_measured_not_refused(calibration):
+    # 3 deg/sqrt(h) at 10 Hz: 0.16 deg/s per sample, past the node's default 0.05 deg/s spread (a MEMS gyro).
+    run = simulate_run(calibration, SimulationSettings(hours=2.0, rate_hz=10.0, seed=2, arw_deg_rthr=3.0,
+                                                       effects=('shupe',)))
+    log = run.log(calibration)
+    result = close_loop(log, calibration.polynomial.rows, calibration.polynomial.columns, serial_number='NAVC4058',
+                        rate_scale_factor=calibration.rate_scale_factor, seed=2)
+    assert result.effects
+    runs = [r for _, r in own_restarts(log, 100)]
+    # --validate refuses such a run, naming it; the start-up check measures it with the checks off.
+    with pytest.raises(MotionError, match=r'run 1 of 2: with the report\'s calibration alone: rate spread'):
+        validate(result, runs)
+    lenient = validate(result, runs, strict=False)
+    assert not any(e.bias_refused for run in lenient.runs for e in run.values())
+    checked, check, names = startup_check(result, log)
+    assert check is not None and len(check.runs) == len(names) == 2
