@@ -305,13 +305,13 @@ def test_params_files_are_found_among_the_ros_arguments_only() -> None:
 
 
 def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, loopback: None) -> None:
-    """use_sim_time: stamps on /clock; /clock stepped back 10 s: one jump back and a warning, not a freeze."""
+    """use_sim_time: stamps on /clock; /clock stepped back 100 s: one jump back and a warning, not a freeze."""
     import threading
     from builtin_interfaces.msg import Time
     from rosgraph_msgs.msg import Clock
     domain = domain_id()
     output = tmp_path / 'node.log'
-    sim_start, offset = 1000.0, [0.0]
+    sim_start, offset, step_s = 1000.0, [0.0], 100.0
     stop = threading.Event()
     ticker: threading.Thread | None = None
     try:
@@ -340,11 +340,22 @@ def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, 
             def stamp(m: Imu) -> float:
                 return m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
 
-            top = max(map(stamp, listener.wait_imu(50, proc, output)))
-            offset[0] = -10.0
-            # Until the node has the stepped clock (/clock may reach it late), then 50 frames more.
-            wait_until(lambda: min(map(stamp, listener.imu_since(before))) < top - 5.0,
-                       'stamps on the stepped clock', proc, output)
+            listener.wait_imu(50, proc, output)
+            offset[0] = -step_s
+
+            def jumped() -> bool:
+                seen = np.array([stamp(m) for m in listener.imu_since(before)])
+                return bool(np.any(np.diff(seen) < -0.5 * step_s))
+            # Until the stamps jump back, then 50 frames more. This process (the fake gyro, /clock and the
+            # listener) stalls for seconds at times: a 10 s step once reached the stamps as a 1.8 s jump, the
+            # 8 s of the stall going by on the simulated clock and none on the node's.
+            try:
+                wait_until(jumped, 'the stamps jumping back to the stepped clock', proc, output)
+            except AssertionError as e:   # what the listener had, to tell a late clock from a lost one
+                seen = [round(stamp(m), 3) for m in listener.imu_since(before)]
+                now = sim_start + offset[0] + time.monotonic() - origin
+                raise AssertionError(f'{e}\n{len(seen)} frames since the step, /clock now {now:.3f}; the last '
+                                     f'stamps: {seen[-20:]}') from None
             listener.wait_imu(50, proc, output)
             stamps = np.array([stamp(m) for m in listener.imu_since(before)])
             # /clock runs on while the node stops: a node on simulated time is stopped as it runs.
@@ -354,21 +365,23 @@ def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, 
             ticker.join()
     assert np.all(stamps < sim_start + 600) and np.all(stamps > sim_start - 600)   # not the wall clock
     steps = np.diff(stamps)
-    # One jump back of about the step. /clock is published by a thread of this process, and it or the node's reader
-    # stalls for up to a second or so at times, on an idle machine too: the jump is then off by the delay (-8.1 to
-    # -10.6 s seen), and a /clock over a second late looks to the node like a step back of its own, undone when the
-    # clock comes (-1.1 s seen): the node cannot tell the two apart.
-    assert np.count_nonzero(steps < -5.0) == 1 and np.all(steps > -12.0), steps[steps < 0]
+    # One jump back of about the step, give or take a stall of this process or a late /clock (one second or so at
+    # times, on an idle machine too; eight once; the jump -102.1 s once); a /clock over a second late also looks to
+    # the node like a step back of its own, undone when the clock comes (-1.1 s seen, and -3.3 s): the node cannot
+    # tell the two apart.
+    assert np.count_nonzero(steps < -0.5 * step_s) == 1 and np.all(steps > -step_s - 5.0), steps[steps < 0]
     jump = int(np.argmin(steps))
-    assert steps[jump] < -7.0, steps[jump]
-    assert stamps[jump + 1:].max() < stamps[:jump + 1].max() - 5.0   # the stamps stay on the new clock
+    assert steps[jump] < -0.7 * step_s, steps[jump]
+    assert stamps[jump + 1:].max() < stamps[:jump + 1].max() - 0.5 * step_s   # the stamps stay on the new clock
     # On either side the stamps advance, not frozen (while /clock is late they advance by 1 ns, never back). How
     # they follow the gyro's period on a steady clock is test_driver's.
     for side in (steps[:jump], steps[jump + 1:]):
         assert side.sum() > 0.1, np.round(side, 4).tolist()
-    # The warning names the step, measured between two reads of the clock (0.1-1.2 s from the stamps' jump seen).
+    # The warning names the step, measured between two reads of the clock (less a part a late /clock took as its
+    # own step: -2.1 and -97.8 s once); the stamps jump back by no more.
     logged = [float(x) for x in re.findall(r'the clock stepped by (-\d+\.\d{3}) s', output.read_text())]
-    assert logged and min(logged) == pytest.approx(steps[jump], abs=1.5), (logged, steps[jump])
+    assert logged and -step_s - 5.0 < min(logged) < -0.7 * step_s and steps[jump] > min(logged) - 1.5, \
+        (logged, steps[jump])
 
 
 def test_a_signal_between_two_waits_of_the_executor_is_a_clean_stop(monkeypatch: pytest.MonkeyPatch) -> None:
