@@ -76,7 +76,7 @@ def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from art_gyro_calibration.analysis.report import build_report, write_report
+    from art_gyro_calibration.analysis.report import build_report, validation_section, write_report
     with Outputs([args.log, *args.validate], args.force) as outputs:
         out = outputs.claim(args.out)
         report_path = outputs.claim(args.report, beside=[Path(args.report).with_suffix('.md')])
@@ -88,7 +88,6 @@ def _fit(args: argparse.Namespace) -> int:
                           settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
                           exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
                           draws=args.draws, alpha=args.alpha, from_power_on=not args.not_from_power_on)
-        from art_gyro_calibration.analysis.report import validation_section
         # The report and plots are the loop's; what the check drops is in its section, as --validate's drops are.
         report = build_report(log, loop, args.bias_samples, source=str(args.log))
         result, check, restarts = startup_check(loop, log, args.bias_samples, args.settle_s)
