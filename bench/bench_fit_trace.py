@@ -35,7 +35,7 @@ def main() -> None:
     result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, serial_number=args.serial)
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     check_cpu = time.process_time()
-    checked, check, _ = startup_check(result, log)
+    _, check, _ = startup_check(result, log)
     check_cpu = time.process_time() - check_cpu
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f'rows {len(log)}, effects simulated: {", ".join(effects) or "none"}')

@@ -34,7 +34,7 @@ from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RAT
                                                 LoopResult, close_loop)
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
-from art_gyro_calibration.analysis.replay import Validation, startup_check
+from art_gyro_calibration.analysis.replay import RESTARTS_NAME, Validation, startup_check
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_BLOCK_S, DEFAULT_DRAWS
 
 
@@ -94,7 +94,7 @@ def _fit(args: argparse.Namespace) -> int:
         found = ', '.join(e.signal for e in result.effects) or 'nothing'
         if check is not None:
             report['startup_check'] = validation_section(check, restarts)
-            found += _dropped(check, 'the fitted log\'s restarts')
+            found += _dropped(check, RESTARTS_NAME)
         if not report['model_adequate']:
             adequacy = report['adequacy']
             print(f'calibrate fit: warning: the model does not fit: {adequacy["excess_dph"]:.2f} deg/h beyond the '

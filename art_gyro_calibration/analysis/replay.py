@@ -89,6 +89,8 @@ def restart(log: GyroLog, start_s: float) -> GyroLog:
 # Where the start-up check restarts the fitted log: late enough for the warm-up to have passed and the
 # restart's static bias to sit elsewhere in the chamber cycle, early enough to leave an hour of a 2 h log.
 RESTART_FRACTIONS = (0.25, 0.5)
+# How the drops of the start-up check name the runs they were judged on.
+RESTARTS_NAME = 'the fitted log\'s restarts'
 # A warm-up is applied only from a declared power-on: a restart, power-on unknown, cannot judge it.
 POWER_ON_SIGNAL = 'time_since_power_on'
 
@@ -122,7 +124,7 @@ def without_terms(calibration: Calibration) -> Calibration:
 
 @dataclass(frozen=True)
 class Dropped:
-    """A term dropped because the validation runs were better without it."""
+    """A term dropped because the replayed runs were better without it."""
 
     term: Term
     reason: str
@@ -149,7 +151,8 @@ def field_score_dps(errors: Sequence[FieldErrors]) -> float:
 
 def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DEFAULT_SAMPLES,
              settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart(),
-             kept_signals: Sequence[str] = (), margin_dps: float = 0.0, strict: bool = True) -> Validation:
+             kept_signals: Sequence[str] = (), margin_dps: float = 0.0, strict: bool = True,
+             runs_name: str = 'the validation runs') -> Validation:
     """Replay ``result``'s calibrations on ``logs``; drop each term the runs are better without.
 
     Terms are dropped one at a time, the one whose removal helps most first; the rest are
@@ -161,6 +164,7 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
     A run whose static bias the node refuses with the report's calibration raises
     :class:`static_bias.MotionError` if ``strict``; else (a noisy gyro the node's default checks
     refuse) it is measured with the checks off for every calibration: the refusal is not the terms'.
+    ``runs_name`` names the runs in the reasons of the drops.
     """
     if not logs:
         raise ValueError('validation needs at least one run')
@@ -196,7 +200,7 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
         with_it = ('the node refuses a static bias with it (the still gyro reads as turning)' if math.isinf(score)
                    else f'systematic rms with the bias {score * SECONDS_PER_HOUR:.2f} deg/h with it')
         needed = f' (a drop needs more than {margin_dps * SECONDS_PER_HOUR:.2f} deg/h)' if margin_dps else ''
-        dropped.append(Dropped(term, f'the validation runs are better without it: {with_it}, '
+        dropped.append(Dropped(term, f'{runs_name} are better without it: {with_it}, '
                                      f'{scores[best] * SECONDS_PER_HOUR:.2f} deg/h without{needed}'))
         current = options[best]
         current_errors = field(current)
@@ -227,7 +231,7 @@ def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_
     # where a term fitted to noise that shifts the static bias scores worse by several deg/h.
     check = validate(result, [run for _, run in restarts], bias_samples, settle_s, RunStart(),
                      kept_signals=(POWER_ON_SIGNAL,), margin_dps=result.materiality_dph / SECONDS_PER_HOUR,
-                     strict=False)
+                     strict=False, runs_name=RESTARTS_NAME)
     if not check.dropped:
         return result, check, names
     kept = {term.signal: term for term in check.calibration.terms}
