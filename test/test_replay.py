@@ -256,6 +256,33 @@ def test_a_warm_up_is_never_judged_by_restarts(calibration):
     assert POWER_ON_SIGNAL not in [d.term.signal for d in checked.dropped] and len(checked.runs) == 2
 
 
+def test_fit_warns_of_a_warm_up_no_cold_run_judged(tmp_path, capsys):
+    # Run 5098 of the loop study's null runs: no effect, but the bias starts high and the loop fits a warm-up of
+    # 5.5 deg/h to it; on a cold start (powered_on_at_start) it made the second run worse by 2.9 deg/h. Neither
+    # the log nor its restarts can judge a warm-up: calibrate fit says so, in stderr and in the report.
+    truth = load_packaged_calibration('NAVC3545')
+    write_run(tmp_path / 'A.csv', _wandering(truth, 2.0, 5098))
+    write_run(tmp_path / 'COLD.csv', _wandering(truth, 2.0, 1_005_098))
+    args = ['fit', str(tmp_path / 'A.csv'), '--rows', '3', '--columns', '4', '--serial', 'NAVC3545', '--seed', '5098',
+            '--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'REPORT.json')]
+    assert main(args) == 0
+    assert [t.signal for t in load_calibration(tmp_path / 'CAL.yaml').terms] == [POWER_ON_SIGNAL]
+    [warning] = json.loads((tmp_path / 'REPORT.json').read_text())['warnings']
+    assert warning.startswith('the warm-up term (5.5 deg/h at power-on) was judged on this log alone')
+    assert f'calibrate fit: warning: {warning}' in capsys.readouterr().err
+    assert f'**Warning:** {warning}.' in (tmp_path / 'REPORT.md').read_text()
+    # Judged on another cold run of the gyro (the study's), it makes that run worse (6.19 against 3.30 deg/h) and
+    # is dropped; judged, kept or not, it is no longer warned of.
+    assert main([*args, '--force', '--validate', str(tmp_path / 'COLD.csv'), '--validate-powered-on-at-start']) == 0
+    report = json.loads((tmp_path / 'REPORT.json').read_text())
+    assert 'warnings' not in report and [d['signal'] for d in report['validation']['dropped']] == [POWER_ON_SIGNAL]
+    assert load_calibration(tmp_path / 'CAL.yaml').terms == ()
+    assert 'warning' not in capsys.readouterr().err
+    # Restarts told nothing of a power-on do not judge it either.
+    assert main([*args, '--force', '--validate', str(tmp_path / 'COLD.csv')]) == 0
+    assert json.loads((tmp_path / 'REPORT.json').read_text())['warnings'] == [warning]
+
+
 def test_a_calibration_the_node_refuses_the_static_bias_with_scores_worst(calibration):
     log = simulate_run(calibration, SimulationSettings(hours=1.0, rate_hz=2.0, seed=1)).log(calibration)
     # A term of 0.03 deg/s per degC (0.3 deg/s at 10 degC): the still gyro seems to turn, the node refuses the bias.

@@ -34,7 +34,7 @@ from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RAT
                                                 LoopResult, close_loop)
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
-from art_gyro_calibration.analysis.replay import RESTARTS_NAME, Validation, startup_check
+from art_gyro_calibration.analysis.replay import RESTARTS_NAME, Validation, startup_check, unjudged_warm_up
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_BLOCK_S, DEFAULT_DRAWS
 
 
@@ -103,6 +103,10 @@ def _fit(args: argparse.Namespace) -> int:
         calibration = result.extended
         if args.validate:
             calibration, found = _validate(args, result, report, found)
+        warning = '' if args.validate and args.validate_powered_on_at_start else unjudged_warm_up(calibration)
+        if warning:
+            report['warnings'] = [warning]
+            print(f'calibrate fit: warning: {warning}', file=sys.stderr)
         write_calibration(out, calibration,
                           f'Fitted by calibrate fit from {args.log}: ART polynomial {args.rows} x {args.columns}, '
                           f'effects beyond it: {found}.')

@@ -117,6 +117,24 @@ def own_restarts(log: GyroLog, bias_samples: int = DEFAULT_SAMPLES,
     return out
 
 
+def unjudged_warm_up(calibration: Calibration) -> str:
+    """Why ``calibration``'s warm-up term needs a cold run to judge it ('' without one).
+
+    Neither the fitted log (one power-on) nor its restarts (power-on unknown) can tell a
+    warm-up from a wander of the bias that happens to start high: on every cold start the
+    node applies the term, and one fitted to noise is then a bias of about its amplitude
+    (up to 3.9 deg/h in the loop study's null runs).
+    """
+    warm_up = next((t for t in calibration.terms if t.signal == POWER_ON_SIGNAL), None)
+    if warm_up is None:
+        return ''
+    amplitude_dph = abs(warm_up.evaluate_one(0.0)) * SECONDS_PER_HOUR
+    return (f'the warm-up term ({amplitude_dph:.1f} deg/h at power-on) was judged on this log alone: if it is '
+            'the bias wandering at the start of this run, a node told powered_on_at_start is off by about that '
+            'much on every cold start; judge it on another cold run (--validate COLD_LOG '
+            '--validate-powered-on-at-start)')
+
+
 def without_terms(calibration: Calibration) -> Calibration:
     """The report's calibration: the same polynomial and scale factors, no extended terms."""
     return replace(calibration, terms=())

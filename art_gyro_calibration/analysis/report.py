@@ -162,6 +162,7 @@ def markdown_summary(report: dict[str, Any]) -> str:
                       f'{adequacy["budget_dph"]:.2f} deg/h ({adequacy["excess_dph"]:.2f} deg/h beyond it): an effect '
                       'none of the forms tried '
                       'describes. Look at the residual against each signal (--plots).']
+    lines += [line for warning in report.get('warnings', []) for line in ('', f'**Warning:** {warning}.')]
     lines += ['', 'Forms tried: ' + '; '.join(f'{name} ({what})' for name, what in report['forms_tried'].items()) + '.']
     if 'startup_check' in report:
         lines += validation_markdown(report['startup_check'], 'Start-up check: the fitted log restarted warm',
