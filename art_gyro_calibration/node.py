@@ -804,8 +804,13 @@ class GyroNode(Node):
                 self.get_logger().error(f'closing the raw log {self._log_file}: {e}')
 
 
+# Set by Python's part of SIGINT: one that came before rclpy.init installed rclpy's handler stops the node too.
+_INTERRUPTED = threading.Event()
+
+
 def _stop_through_rclpy(signum: int, frame: object) -> None:
-    """Python's part of SIGINT: nothing (rclpy's handler, chained before it, stops the node)."""
+    """Python's part of SIGINT: only noted (rclpy's handler, chained before it, stops the node)."""
+    _INTERRUPTED.set()
 
 
 def main(args: list[str] | None = None) -> int:
@@ -819,20 +824,26 @@ def main(args: list[str] | None = None) -> int:
     # Python's own handler would also raise KeyboardInterrupt wherever the main thread is: inside the thread
     # pool's `with lock:` it leaves the lock held, the pool's workers wait on it, and the exit waits on them
     # for ever (seen about once in 25 SIGINTs; faulthandler showed the three workers in Semaphore.release).
+    _INTERRUPTED.clear()
     signal.signal(signal.SIGINT, _stop_through_rclpy)
     try:
         rclpy.init(args=argv)
+        if _INTERRUPTED.is_set():   # before rclpy's handler was there to shut the context down
+            return 0
         node = GyroNode(argv)
         executor = MultiThreadedExecutor(num_threads=3)
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ParameterError, CalibrationError, _rclpy.RCLError) as e:
-        if isinstance(e, _rclpy.RCLError) and node is not None and not rclpy.ok():
-            # A signal shut the context down between two waits of the executor ("failed to initialize wait
-            # set: the given context is not valid"): a stop as asked, not a failure.
+    except Exception as e:
+        if not rclpy.ok() and (_INTERRUPTED.is_set() or node is not None and isinstance(e, _rclpy.RCLError)):
+            # A signal shut the context down under a call to it: between two waits of the executor ("failed to
+            # initialize wait set: the given context is not valid") or while the node was being built ("rclpy.init()
+            # has not been called"). A stop as asked, not a failure.
             return 0
+        if not isinstance(e, (ParameterError, CalibrationError, _rclpy.RCLError)):
+            raise
         # RCLError: rcl refused the command line, such as a params file it cannot parse.
         print(f'{NODE_NAME}: error: {e}', file=sys.stderr)
         return 1

@@ -416,3 +416,65 @@ def test_a_signal_between_two_waits_of_the_executor_is_a_clean_stop(monkeypatch:
     monkeypatch.setattr(node_module, 'MultiThreadedExecutor', SignalledExecutor)
     assert node_module.main(['gyro_node']) == 0
     assert closed == [True]
+
+
+# A child process: rclpy installs its signal handler once per process, and a test that set Python's handler back
+# would leave later ones without it.
+_START_UP_SIGINT = r"""
+import signal, sys
+import rclpy
+import rclpy.node
+from art_gyro_calibration import node as node_module
+when = sys.argv[1]
+built = []
+
+
+class Stub(rclpy.node.Node):
+    def __init__(self, argv):
+        if when == 'while the node is built':
+            signal.raise_signal(signal.SIGINT)
+            while rclpy.ok():   # rclpy's handler shuts the context down in its own thread
+                pass
+        super().__init__('stub_gyro_node')
+        built.append(True)
+
+    def close(self):
+        pass
+
+
+class Executor:
+    def __init__(self, num_threads):
+        pass
+
+    def add_node(self, node):
+        pass
+
+    def spin(self):
+        pass
+
+
+real_init = rclpy.init
+
+
+def interrupted_init(**kwargs):
+    if when == 'before rclpy.init':
+        signal.raise_signal(signal.SIGINT)   # main's Python handler runs before the next line
+    real_init(**kwargs)
+
+
+rclpy.init = interrupted_init
+node_module.GyroNode = Stub
+node_module.MultiThreadedExecutor = Executor
+code = node_module.main(['gyro_node'])
+print(f'exit {code}, node built: {bool(built)}')
+"""
+
+
+@pytest.mark.parametrize('when', ['before rclpy.init', 'while the node is built'])
+def test_a_sigint_at_start_up_is_a_clean_stop(when: str) -> None:
+    """A SIGINT before rclpy.init installed rclpy's handler was lost (main's Python handler was a no-op): the node
+    started. One while the node was built shut the context down under it: a traceback ("rclpy.init() has not
+    been called") and exit 1. Either is a stop as asked."""
+    done = subprocess.run([sys.executable, '-c', _START_UP_SIGINT, when], env=node_env(domain_id()),
+                          capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert (done.returncode, done.stdout.strip()) == (0, 'exit 0, node built: False'), done.stderr
