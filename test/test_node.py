@@ -472,9 +472,12 @@ print(f'exit {code}, node built: {bool(built)}')
 
 @pytest.mark.parametrize('when', ['before rclpy.init', 'while the node is built'])
 def test_a_sigint_at_start_up_is_a_clean_stop(when: str) -> None:
-    """A SIGINT before rclpy.init installed rclpy's handler was lost (main's Python handler was a no-op): the node
+    """A SIGINT at start-up stops the node, exit 0.
+
+    One before rclpy.init installed rclpy's handler was lost (main's Python handler was a no-op): the node
     started. One while the node was built shut the context down under it: a traceback ("rclpy.init() has not
-    been called") and exit 1. Either is a stop as asked."""
+    been called") and exit 1.
+    """
     done = subprocess.run([sys.executable, '-c', _START_UP_SIGINT, when], env=node_env(domain_id()),
                           capture_output=True, text=True, timeout=TIMEOUT_S)
     assert (done.returncode, done.stdout.strip()) == (0, 'exit 0, node built: False'), done.stderr
