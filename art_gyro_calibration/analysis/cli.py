@@ -103,7 +103,8 @@ def _fit(args: argparse.Namespace) -> int:
         calibration = result.extended
         if args.validate:
             calibration, found = _validate(args, result, report, found)
-        warning = '' if args.validate and args.validate_powered_on_at_start else unjudged_warm_up(calibration)
+        judged = args.validate and args.validate_powered_on_at_start
+        warning = '' if judged else unjudged_warm_up(calibration, result.bias_instability_dph)
         if warning:
             report['warnings'] = [warning]
             print(f'calibrate fit: warning: {warning}', file=sys.stderr)

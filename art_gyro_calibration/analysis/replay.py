@@ -117,22 +117,24 @@ def own_restarts(log: GyroLog, bias_samples: int = DEFAULT_SAMPLES,
     return out
 
 
-def unjudged_warm_up(calibration: Calibration) -> str:
+def unjudged_warm_up(calibration: Calibration, bias_instability_dph: float) -> str:
     """Why ``calibration``'s warm-up term needs a cold run to judge it ('' without one).
 
     Neither the fitted log (one power-on) nor its restarts (power-on unknown) can tell a
     warm-up from a wander of the bias that happens to start high: on every cold start the
     node applies the term, and one fitted to noise is then a bias of about its amplitude
-    (up to 3.9 deg/h in the loop study's null runs).
+    (5-6 deg/h in null runs of the loop study's simulator, 4-7 times their bias instability). The
+    amplitude is given beside the log's bias instability: a person can tell 72 deg/h from
+    a wander of 3 deg/h, where a fixed ratio would be tuned to one simulator.
     """
     warm_up = next((t for t in calibration.terms if t.signal == POWER_ON_SIGNAL), None)
     if warm_up is None:
         return ''
     amplitude_dph = abs(warm_up.evaluate_one(0.0)) * SECONDS_PER_HOUR
-    return (f'the warm-up term ({amplitude_dph:.1f} deg/h at power-on) was judged on this log alone: if it is '
-            'the bias wandering at the start of this run, a node told powered_on_at_start is off by about that '
-            'much on every cold start; judge it on another cold run (--validate COLD_LOG '
-            '--validate-powered-on-at-start)')
+    return (f'the warm-up term ({amplitude_dph:.1f} deg/h at power-on; the log\'s bias instability is '
+            f'{bias_instability_dph:.2f} deg/h) was judged on this log alone: if it is the bias wandering at the '
+            'start of this run, a node told powered_on_at_start is off by about that much on every cold start; '
+            'judge it on another cold run (--validate COLD_LOG --validate-powered-on-at-start)')
 
 
 def without_terms(calibration: Calibration) -> Calibration:
