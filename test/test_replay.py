@@ -138,6 +138,7 @@ def test_fit_validate_drops_a_term_the_second_run_is_worse_with(calibration, tmp
     written = [t.signal for t in load_calibration(out).terms]
     assert 'temperature_rate' in written and 'supply_v' not in written
     assert sorted(written + list(dropped)) == sorted(e['signal'] for e in report['effects'])
+    assert report['written'] == {'calibration': str(out), 'terms': written}
     [run] = validation['runs']
     assert run['source'] == str(tmp_path / 'B.csv')
     errors = run['calibrations']
@@ -220,6 +221,10 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     assert load_calibration(out).terms == ()
     assert "nothing (temperature_lag dropped: the fitted log's restarts were better without)" in out.read_text()
     assert 'Dropped from the written calibration' in (tmp_path / 'REPORT.md').read_text()
+    # REPORT.json lists the loop's effects (the lag among them): what the file holds is said apart.
+    assert json.loads(report_path.read_text())['written'] == {'calibration': str(out), 'terms': []}
+    summary = (tmp_path / 'REPORT.md').read_text()
+    assert f'Written: {out}, the ART polynomial refitted with no term beyond it.' in summary
 
 
 def test_a_start_up_check_keeps_what_the_restarts_are_better_with(calibration, tmp_path):

@@ -111,6 +111,8 @@ def _fit(args: argparse.Namespace) -> int:
         write_calibration(out, calibration,
                           f'Fitted by calibrate fit from {args.log}: ART polynomial {args.rows} x {args.columns}, '
                           f'effects beyond it: {found}.')
+        # The effects above are the loop's; the checks may have dropped some: say what the file holds.
+        report['written'] = {'calibration': str(args.out), 'terms': [t.signal for t in calibration.terms]}
         summary = write_report(report_path, report).read_text(encoding='utf-8')
         if plots is not None:
             from art_gyro_calibration.analysis.plots import plot_all

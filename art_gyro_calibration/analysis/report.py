@@ -170,6 +170,10 @@ def markdown_summary(report: dict[str, Any]) -> str:
                                      'and is kept), each calibration applied as the node applies it')
     if 'validation' in report:
         lines += validation_markdown(report['validation'])
+    if 'written' in report:
+        written = report['written']
+        lines += ['', f'Written: {written["calibration"]}, the ART polynomial refitted with '
+                      f'{", ".join(written["terms"]) or "no term"} beyond it.']
     return '\n'.join(lines) + '\n'
 
 
