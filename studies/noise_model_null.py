@@ -148,12 +148,12 @@ def document(results: list[dict[str, Any]], loop: list[dict[str, Any]], meta: di
         if not mine:
             continue
         base = [r for r in base if r['seed'] in {m['seed'] for m in mine}]
-        lines.append(f'| {hours:g} h | {len(mine)} | {sum(bool(r["found"]) for r in mine)} | '
-                     f'{sum(bool(r["found"]) for r in base)} | '
-                     f'{sum(lv.worsening_dph(r) > lv.MAX_WORSENING_DPH for r in mine if r["found"])} | '
-                     f'{sum(lv.worsening_dph(r) > lv.MAX_WORSENING_DPH for r in base if r["found"])} | '
-                     f'{max([lv.worsening_dph(r) for r in mine if r["found"]], default=0.0):.2f} | '
-                     f'{max([lv.worsening_dph(r) for r in base if r["found"]], default=0.0):.2f} |')
+        rows = [lv._null_row('', group) for group in (mine, base)]
+        harm = [sum(bool(r['found']) and lv.worsening_dph(r) > lv.MAX_WORSENING_DPH for r in group)
+                for group in (mine, base)]
+        lines.append(f'| {hours:g} h | {len(mine)} | {rows[0]["false_alarms"]} | {rows[1]["false_alarms"]} | '
+                     f'{harm[0]} | {harm[1]} | {rows[0]["worsening_max_dph"]:.2f} | '
+                     f'{rows[1]["worsening_max_dph"]:.2f} |')
     harmful = [r for r in results if r['effect'] is None and r['found'] and lv.worsening_dph(r) > lv.MAX_WORSENING_DPH]
     if harmful:
         lines += ['', 'Null runs whose claim worsens a second run by more than 1 deg/h (noise model): ' + '; '.join(
@@ -168,16 +168,13 @@ def document(results: list[dict[str, Any]], loop: list[dict[str, Any]], meta: di
         mine, base = ours.get(key, []), theirs.get(key, [])
         if not mine:
             continue
-        row = []
-        for name, group in (('noise model', mine), ('loop', base)):
-            found = float(np.mean([lv.detected(r) for r in group]))
-            ratio = float(np.median([lv.field_dph(r, 'extended') for r in group])
-                          / np.median([lv.field_dph(r, 'oracle') for r in group]))
-            met[name] += found >= lv.MIN_DETECTION_RATE and ratio <= lv.MAX_ORACLE_RATIO
-            row.append((found, ratio))
-        (found_mine, ratio_mine), (found_base, ratio_base) = row
-        lines.append(f'| {key[0]} | {key[1]:g} | {key[2]:g} h | {len(mine)} | {100 * found_mine:.0f}% | '
-                     f'{100 * found_base:.0f}% | {ratio_mine:.2f} | {ratio_base:.2f} |')
+        cells = {name: lv._cell(*key, group) for name, group in (('noise model', mine), ('loop', base))}
+        for name, cell in cells.items():
+            met[name] += lv.at_target(cell)
+        mine_cell, base_cell = cells['noise model'], cells['loop']
+        lines.append(f'| {key[0]} | {key[1]:g} | {key[2]:g} h | {len(mine)} | {100 * mine_cell["detection"]:.0f}% | '
+                     f'{100 * base_cell["detection"]:.0f}% | {mine_cell["ratio_extended_oracle"]:.2f} | '
+                     f'{base_cell["ratio_extended_oracle"]:.2f} |')
     lines += ['', f'Cells at the loop study\'s target (found in at least {100 * lv.MIN_DETECTION_RATE:.0f}% of runs, '
               f'ratio at most {lv.MAX_ORACLE_RATIO:g}): noise model {met["noise model"]}, loop {met["loop"]} of '
               f'{len(CELLS)}.']

@@ -284,7 +284,7 @@ def test_fit_warns_of_a_warm_up_no_cold_run_judged(tmp_path, capsys):
     assert 'warnings' not in report and [d['signal'] for d in report['validation']['dropped']] == [POWER_ON_SIGNAL]
     assert load_calibration(tmp_path / 'CAL.yaml').terms == ()
     assert 'warning' not in capsys.readouterr().err
-    # Restarts told nothing of a power-on do not judge it either.
+    # A cold run the fit is not told began at power-on does not judge it either (the warm-up is not applied).
     assert main([*args, '--force', '--validate', str(tmp_path / 'COLD.csv')]) == 0
     assert json.loads((tmp_path / 'REPORT.json').read_text())['warnings'] == [warning]
 
