@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import serial
 
-from art_gyro_calibration.frame import KvhFogConfig, RawSample, make_parser
+from art_gyro_calibration.frame import Frame, KvhFogConfig, make_parser
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 # A read returns after this long without data: bounds how late stop() and an unplug are seen.
@@ -38,19 +38,6 @@ PERIOD_ACCEPT = (0.6, 1.6)
 PERIOD_SMOOTHING = 16   # the estimate averages about this many chunks
 # After the port opens, this long without a valid frame means the wrong baud rate or protocol (or no gyro).
 NO_FRAMES_WARNING_S = 2.0
-
-
-@dataclass(frozen=True, slots=True)
-class Frame:
-    """A sample and its stamps: when its first byte left the gyro, estimated.
-
-    ``stamp_ns`` is on the driver's clock (it steps when that clock steps); ``steady_ns`` is
-    the same time without those steps, continuous and increasing, for the signals.
-    """
-
-    sample: RawSample
-    stamp_ns: int
-    steady_ns: int
 
 
 @dataclass(frozen=True, slots=True)

@@ -91,6 +91,19 @@ class RawSample:
     raw_temp: float
 
 
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """A sample and its stamps, as the driver hands it on: when its first byte left the gyro, estimated.
+
+    ``stamp_ns`` is on the driver's clock (it steps when that clock steps); ``steady_ns`` is
+    the same time without those steps, continuous and increasing, for the signals.
+    """
+
+    sample: RawSample
+    stamp_ns: int
+    steady_ns: int
+
+
 @dataclass(slots=True)
 class ParserStats:
     """What a parser accepted and rejected so far."""

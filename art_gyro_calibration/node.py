@@ -56,8 +56,8 @@ from art_gyro_calibration.calibration import (CALIBRATION_KEYS, Calibration, Cal
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
                                               load_calibration, read_yaml, resolve_calibration_url)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, Compensator, RunStart, plausible
-from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver
-from art_gyro_calibration.frame import AXIS_INVALID, KVH_FOG, PROTOCOLS, KvhFogConfig
+from art_gyro_calibration.driver import STANDARD_BAUDS, Rd2100Driver
+from art_gyro_calibration.frame import AXIS_INVALID, KVH_FOG, PROTOCOLS, Frame, KvhFogConfig
 from art_gyro_calibration.log import RawLogWriter
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES,
                                               MotionError, StaticBias, StaticBiasCollector)

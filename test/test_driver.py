@@ -6,9 +6,9 @@ import time
 import numpy as np
 import pytest
 
-from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver, WireStamper
+from art_gyro_calibration.driver import STANDARD_BAUDS, Rd2100Driver, WireStamper
 from art_gyro_calibration.fake_rd2100 import FakeRd2100
-from art_gyro_calibration.frame import GARBAGE
+from art_gyro_calibration.frame import GARBAGE, Frame
 
 TIMEOUT_S = 10.0   # generous: the machine is shared; nothing asserts how fast, only that it happens
 
