@@ -22,7 +22,9 @@ from dataclasses import dataclass
 
 import serial
 
-from art_gyro_calibration.frame import Frame, KvhFogConfig, make_parser
+from art_gyro_calibration.frame import Frame
+from art_gyro_calibration.kvh_fog import KvhFogConfig
+from art_gyro_calibration.protocols import make_parser
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 # A read returns after this long without data: bounds how late stop() and an unplug are seen.

@@ -31,9 +31,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
-from art_gyro_calibration.frame import (INT16_MAX, INT16_MIN, KVH_ANGLE_UNITS, KVH_FOG, KVH_FORMATS, KVH_ROTATIONS,
-                                        KVH_TEMPERATURE_UNITS, PROTOCOLS, KvhFogConfig, make_encoder)
+from art_gyro_calibration.frame import INT16_MAX, INT16_MIN
+from art_gyro_calibration.kvh_fog import (KVH_ANGLE_UNITS, KVH_FORMATS, KVH_ROTATIONS, KVH_TEMPERATURE_UNITS,
+                                          KvhFogConfig)
 from art_gyro_calibration.model import measured_from_true
+from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS, make_encoder
 
 # White noise of an RD2100 at its 10 Hz output, one sample's standard deviation.
 DEFAULT_NOISE_DPS_AT_10HZ = 0.005

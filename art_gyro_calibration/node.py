@@ -57,8 +57,10 @@ from art_gyro_calibration.calibration import (CALIBRATION_KEYS, Calibration, Cal
                                               load_calibration, read_yaml, resolve_calibration_url)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, Compensator, RunStart, plausible
 from art_gyro_calibration.driver import STANDARD_BAUDS, Rd2100Driver
-from art_gyro_calibration.frame import AXIS_INVALID, KVH_FOG, PROTOCOLS, Frame, KvhFogConfig
+from art_gyro_calibration.frame import Frame
+from art_gyro_calibration.kvh_fog import AXIS_INVALID, KvhFogConfig
 from art_gyro_calibration.log import RawLogWriter
+from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES,
                                               MotionError, StaticBias, StaticBiasCollector)
 

@@ -21,7 +21,7 @@ from rosproc import domain_id, node_with_listener, wait_until  # noqa: E402
 from art_gyro_calibration.analysis.cli import main  # noqa: E402
 from art_gyro_calibration.calibration import load_packaged_calibration, write_calibration  # noqa: E402
 from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile, TemperatureProfile  # noqa: E402
-from art_gyro_calibration.frame import encode_binary  # noqa: E402
+from art_gyro_calibration.rd2100_binary import encode_binary  # noqa: E402
 from art_gyro_calibration.signals import SignalFilters  # noqa: E402
 from art_gyro_calibration.terms import Term  # noqa: E402
 

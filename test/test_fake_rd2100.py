@@ -15,7 +15,8 @@ import serial
 from art_gyro_calibration.calibration import CalibrationError, load_packaged_calibration
 from art_gyro_calibration.fake_rd2100 import (ART_LATITUDE_DEG, MAX_PENDING_BYTES, FakeRd2100, GyroSimulator,
                                               RateProfile, TemperatureProfile, default_noise_dps, earth_rate_dps)
-from art_gyro_calibration.frame import KvhFogConfig, make_parser
+from art_gyro_calibration.kvh_fog import KvhFogConfig
+from art_gyro_calibration.protocols import make_parser
 
 REPO = Path(__file__).resolve().parent.parent
 

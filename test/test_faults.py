@@ -26,7 +26,8 @@ from rosproc import REPO, Listener, domain_id, node_env, node_with_listener, sto
 from std_srvs.srv import Trigger  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
-from art_gyro_calibration.frame import encode_binary, make_parser  # noqa: E402
+from art_gyro_calibration.protocols import make_parser  # noqa: E402
+from art_gyro_calibration.rd2100_binary import encode_binary  # noqa: E402
 
 RATE_HZ = 50.0
 TEMP_BASE = 200        # counts: 10 degC, the bottom of NAVC3545's calibrated range

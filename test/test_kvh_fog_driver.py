@@ -7,7 +7,8 @@ from test_driver import wait_for
 
 from art_gyro_calibration.driver import BITS_PER_BYTE, Rd2100Driver
 from art_gyro_calibration.fake_rd2100 import FakeRd2100
-from art_gyro_calibration.frame import Frame, KvhFogConfig
+from art_gyro_calibration.frame import Frame
+from art_gyro_calibration.kvh_fog import KvhFogConfig
 
 
 def test_driver_reads_kvh_fog_counts_lost_frames_and_stamps_with_the_message_length():

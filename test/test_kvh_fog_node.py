@@ -21,7 +21,7 @@ from rclpy.parameter import parameter_dict_from_yaml_file, parameter_value_to_py
 from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration  # noqa: E402
 from art_gyro_calibration.compensation import apply_calibration  # noqa: E402
 from art_gyro_calibration.fake_rd2100 import FakeRd2100, GyroSimulator, RateProfile, TemperatureProfile  # noqa: E402
-from art_gyro_calibration.frame import KvhFogConfig, encode_kvh_fog  # noqa: E402
+from art_gyro_calibration.kvh_fog import KvhFogConfig, encode_kvh_fog  # noqa: E402
 from art_gyro_calibration.log import read_log, write_columns  # noqa: E402
 from art_gyro_calibration.node import (KVH_FOG_PARAMETERS, PARAMETERS, check_kvh_fog_calibration,  # noqa: E402
                                        check_settings)

@@ -241,7 +241,7 @@ def _record_frames(frames: queue.SimpleQueue[tuple[int, int, int]], out: Path, p
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``calibrate`` command line."""
-    from art_gyro_calibration.frame import PROTOCOLS
+    from art_gyro_calibration.protocols import PROTOCOLS
     from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S
     from art_gyro_calibration.analysis.simulate import ALL_EFFECTS
     parser = argparse.ArgumentParser(prog='calibrate', description=__doc__.splitlines()[0])

@@ -1,0 +1,314 @@
+"""KVH's ``kvh_fog`` message: the unit's settings, CRC, encoder and incremental parser (pure: no I/O, no ROS).
+
+The binary message of KVH's DSP-1750/1760 gyros and 1725/1750/1775 IMUs, whose manuals are
+public (1775 IMU technical manual, section 5): a 4-byte header (``FE 81 FF 55`` Format A, 36
+bytes; ``56`` Format B, 40 bytes, with a microsecond timestamp; ``57`` Format C, 38 bytes, whose
+temperature float is multiplexed with the magnetometer by the sequence number modulo 4), six
+big-endian IEEE-754 floats (X, Y, Z rotation, then X, Y, Z acceleration, reserved on the
+DSP-1760), a status byte (bits 0-2: gyro X, Y, Z valid; 4-6: the accelerometers; 3 and 7 always
+0), a sequence number 0..127 that wraps, the temperature (signed 16-bit integer in A and B) and
+a CRC-32/MPEG-2 over everything before it. The unit's settings (which axis is yaw, delta angle
+or rate, radians or degrees, output rate, temperature units) are a :class:`KvhFogConfig`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+import zlib
+from dataclasses import dataclass
+
+from art_gyro_calibration.frame import NOT_FINITE, BinaryChunkParser, RawSample, check_int16
+
+# Rejection reasons, the keys of ParserStats.rejected_by_reason (with GARBAGE and NOT_FINITE, of frame.py).
+BAD_CRC = 'bad_crc'             # a header and a message's length of bytes whose CRC is wrong
+OTHER_FORMAT = 'other_format'   # the header of another message format than the configured one
+AXIS_INVALID = 'axis_invalid'   # the status byte says the yaw axis' gyro data is invalid
+REPEATED_SEQUENCE = 'repeated_sequence'   # the sequence number of the message before (a duplicate)
+NO_TEMPERATURE_YET = 'no_temperature_yet'   # Format C: before the connection's first temperature
+
+KVH_HEADER_PREFIX = b'\xfe\x81\xff'   # every format's header; the fourth byte names the format
+KVH_SEQUENCE_MODULO = 128             # the sequence number counts 0..127 and wraps
+KVH_STATUS_ALL_VALID = 0x77           # the manuals' normal status: three gyros and three accelerometers valid
+KVH_MAX_OUTPUT_RATE_HZ = 5000.0       # the 1775's highest =DR; the DSP-1760's is 1000
+KVH_ROTATIONS = ('delta_angle', 'rate')
+KVH_ANGLE_UNITS = ('rad', 'deg')
+# =TEMPUNITS: degrees or hundredths of a degree, Celsius or Fahrenheit.
+KVH_TEMPERATURE_UNITS = ('C', 'C_100', 'F', 'F_100')
+_KVH_HEADER = re.compile(rb'\xfe\x81\xff[\x55-\x57]')
+_KVH_AXES = re.compile(r'[+-]?[xyz]')
+
+
+@dataclass(frozen=True)
+class KvhFormat:
+    """One message format: its header, total length and the layout between header and CRC (big-endian)."""
+
+    name: str
+    header: bytes
+    length: int
+    layout: struct.Struct
+    multiplexed: bool = False   # Format C: no 16-bit temperature; one float is temperature or magnetometer
+
+
+KVH_FORMATS = {
+    'A': KvhFormat('A', KVH_HEADER_PREFIX + b'\x55', 36, struct.Struct('>6fBBh')),
+    'B': KvhFormat('B', KVH_HEADER_PREFIX + b'\x56', 40, struct.Struct('>6fIBBh')),   # + timestamp, microseconds
+    'C': KvhFormat('C', KVH_HEADER_PREFIX + b'\x57', 38, struct.Struct('>7fBB'), multiplexed=True),
+}
+# Reverses the bits of a byte: CRC-32/MPEG-2 from zlib's reflected CRC-32 (see crc32_mpeg2).
+_REVERSED_BITS = bytes(int(f'{i:08b}'[::-1], 2) for i in range(256))
+
+
+def crc32_mpeg2(data: bytes) -> int:
+    """CRC-32/MPEG-2 (poly 0x04C11DB7, init 0xFFFFFFFF, no reflection, no final XOR), the kvh_fog CRC.
+
+    zlib's CRC-32 is the same polynomial and initial value with input and output reflected and a
+    final XOR: feeding it bit-reversed bytes and reversing its output cancels both reflections, and
+    XOR with 0xFFFFFFFF undoes the final XOR. It runs in C, a few microseconds per message.
+    """
+    reflected = zlib.crc32(data.translate(_REVERSED_BITS)) ^ 0xFFFFFFFF
+    return int.from_bytes(reflected.to_bytes(4, 'little').translate(_REVERSED_BITS), 'big')
+
+
+def _choice(name: str, value: object, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ValueError(f'kvh_fog.{name} must be one of {", ".join(choices)}, got {value!r}')
+
+
+@dataclass(frozen=True)
+class KvhFogConfig:
+    """What a kvh_fog unit is set to send, which its messages do not say; the defaults are the manuals' factory ones.
+
+    The fields are the node's parameters ``kvh_fog.<field>`` and errors name them so. The
+    output rate matters only for delta angles: the rate is the delta angle times it.
+    """
+
+    message_format: str = 'A'       # A (default), B or C (=OUTPUTFMT)
+    yaw_axis: str = '+z'            # the axis that points up on the robot: x, y or z, '-' if it points down
+    rotation: str = 'delta_angle'   # =ROTFMT: delta_angle (default) or rate
+    angle_units: str = 'rad'        # =ROTUNITS: rad (default) or deg
+    output_rate_hz: float = 1000.0  # =DR: messages per second
+    temperature_units: str = 'C'    # =TEMPUNITS: C (default), C_100, F or F_100
+
+    def __post_init__(self) -> None:
+        _choice('message_format', self.message_format, tuple(KVH_FORMATS))
+        if not isinstance(self.yaw_axis, str) or not _KVH_AXES.fullmatch(self.yaw_axis):
+            raise ValueError(f'kvh_fog.yaw_axis must be x, y or z with an optional sign (+z, -x, ...), '
+                             f'got {self.yaw_axis!r}')
+        _choice('rotation', self.rotation, KVH_ROTATIONS)
+        _choice('angle_units', self.angle_units, KVH_ANGLE_UNITS)
+        rate = self.output_rate_hz
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 < rate <= KVH_MAX_OUTPUT_RATE_HZ:
+            raise ValueError(f'kvh_fog.output_rate_hz must be a number of Hz in (0, {KVH_MAX_OUTPUT_RATE_HZ:g}], '
+                             f'got {rate!r}')
+        _choice('temperature_units', self.temperature_units, KVH_TEMPERATURE_UNITS)
+
+    @property
+    def format(self) -> KvhFormat:
+        """The message format."""
+        return KVH_FORMATS[self.message_format]
+
+    @property
+    def axis_index(self) -> int:
+        """0, 1, 2 for x, y, z: the rotation float and the status bit of the yaw gyro."""
+        return 'xyz'.index(self.yaw_axis[-1])
+
+    @property
+    def sign(self) -> float:
+        """-1.0 if the yaw axis points down (REP 103: yaw is counter-clockwise seen from above), else 1.0."""
+        return -1.0 if self.yaw_axis.startswith('-') else 1.0
+
+    @property
+    def dps_per_unit(self) -> float:
+        """Yaw rate in deg/s per unit of the yaw axis' rotation float."""
+        per_angle = math.degrees(1.0) if self.angle_units == 'rad' else 1.0
+        per_rate = float(self.output_rate_hz) if self.rotation == 'delta_angle' else 1.0
+        return self.sign * per_angle * per_rate
+
+    def _temperature_scale(self) -> tuple[float, float]:
+        """(a, b) with degC = a * wire value + b."""
+        unit = 0.01 if self.temperature_units.endswith('_100') else 1.0
+        if self.temperature_units.startswith('F'):
+            return unit * 5.0 / 9.0, -32.0 * 5.0 / 9.0
+        return unit, 0.0
+
+    def temperature_c(self, value: float) -> float:
+        """The temperature in degC of a temperature as sent."""
+        a, b = self._temperature_scale()
+        return a * value + b
+
+    def temperature_wire(self, temp_c: float) -> float:
+        """A temperature in degC as the unit sends it (unrounded): the inverse of :meth:`temperature_c`."""
+        a, b = self._temperature_scale()
+        return (temp_c - b) / a
+
+
+def encode_kvh_fog(rotation: tuple[float, float, float], acceleration: tuple[float, float, float], status: int,
+                   sequence: int, temperature: float, message_format: str = 'A',
+                   magnetic: tuple[float, float, float] = (0.0, 0.0, 0.0), timestamp_us: int = 0) -> bytes:
+    """One message of wire values (in the units the unit is set to), CRC appended.
+
+    Formats A and B carry ``temperature`` as a signed 16-bit integer; Format C carries it as a
+    float in the messages whose sequence number is 0 mod 4 and the magnetometer's x, y, z in the
+    others. ``timestamp_us`` is Format B's.
+    """
+    fmt = KVH_FORMATS[message_format]
+    if not 0 <= sequence < KVH_SEQUENCE_MODULO:
+        raise ValueError(f'sequence must be 0..{KVH_SEQUENCE_MODULO - 1}, got {sequence}')
+    if not 0 <= status <= 0xFF:
+        raise ValueError(f'status must be a byte, got {status}')
+    if fmt.multiplexed:
+        mux = temperature if sequence % 4 == 0 else magnetic[sequence % 4 - 1]
+        body = fmt.layout.pack(*rotation, *acceleration, mux, status, sequence)
+    else:
+        if temperature != int(temperature):
+            raise ValueError(f'Format {message_format} carries the temperature as an integer, got {temperature}')
+        check_int16('temperature', int(temperature))
+        extra = (timestamp_us,) if message_format == 'B' else ()
+        body = fmt.layout.pack(*rotation, *acceleration, *extra, status, sequence, int(temperature))
+    message = fmt.header + body
+    return message + crc32_mpeg2(message).to_bytes(4, 'big')
+
+
+class KvhFogEncoder:
+    """Messages of a unit set as ``config`` for samples in deg/s and degC, numbered 0..127 in turn (the fake gyro).
+
+    The other two gyros read 0; the accelerometer reads 1 g up the yaw axis (a level unit).
+    The temperature is rounded to what the unit's units carry. ``status`` goes into every
+    message (a test sets it to flag a gyro invalid).
+    """
+
+    def __init__(self, config: KvhFogConfig) -> None:
+        self.config = config
+        self.sequence = 0
+        self.status = KVH_STATUS_ALL_VALID
+
+    def __call__(self, rate_dps: float, temp_c: float) -> bytes:
+        """The next message: ``rate_dps`` about the yaw axis, ``temp_c``."""
+        config = self.config
+        axis = config.axis_index
+        rotation = [0.0, 0.0, 0.0]
+        rotation[axis] = rate_dps / config.dps_per_unit
+        acceleration = [0.0, 0.0, 0.0]
+        acceleration[axis] = config.sign
+        temperature = config.temperature_wire(temp_c)
+        if not config.format.multiplexed:
+            temperature = round(temperature)
+        sequence = self.sequence
+        self.sequence = (sequence + 1) % KVH_SEQUENCE_MODULO
+        return encode_kvh_fog((rotation[0], rotation[1], rotation[2]),
+                              (acceleration[0], acceleration[1], acceleration[2]),
+                              self.status, sequence, temperature, config.message_format)
+
+
+class KvhFogParser(BinaryChunkParser):
+    """Incremental parser of kvh_fog messages of the configured format; samples in deg/s and degC.
+
+    A candidate is the format's header and the message's length of bytes from it; a good CRC
+    takes it whole. After a bad CRC the search resumes at the byte after the header's first, so
+    a message cut short and followed by a whole one loses only the cut one. Every message with a
+    good CRC advances the sequence number; the numbers skipped since the message before are added
+    to ``stats.lost_frames`` (a gap of 128 or more cannot be told from a shorter one; none is
+    counted across :meth:`reset`, where the count is unknown). A good message is still rejected,
+    and counted by reason, when the status byte flags the yaw gyro invalid, when it repeats the
+    sequence number before it (a duplicate: publishing it would count the rotation twice), when a
+    value is not finite, and in Format C before the first temperature of the connection (the
+    temperature comes every fourth message and is held until the next).
+    """
+
+    def __init__(self, config: KvhFogConfig) -> None:
+        super().__init__((BAD_CRC, OTHER_FORMAT, AXIS_INVALID, REPEATED_SEQUENCE, NOT_FINITE, NO_TEMPERATURE_YET))
+        self.config = config
+        fmt = config.format
+        self.frame_bytes = fmt.length
+        self._format = fmt
+        self._axis = config.axis_index
+        self._dps_per_unit = config.dps_per_unit
+        self._last_sequence: int | None = None
+        self._temp_c: float | None = None   # Format C: the latest temperature
+
+    def reset(self) -> None:
+        """Drop a partly received message; the sequence and held temperature restart; statistics are kept."""
+        super().reset()
+        self._last_sequence = None
+        self._temp_c = None
+
+    def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
+        """Parse a chunk; each valid message with the offset just past its last byte within ``data``."""
+        buf, held = self._join(data)
+        out: list[tuple[RawSample, int]] = []
+        stats = self.stats
+        reasons = stats.rejected_by_reason
+        fmt = self._format
+        length = fmt.length
+        pos = 0
+        keep = -1
+        while (match := _KVH_HEADER.search(buf, pos)) is not None:
+            start = match.start()
+            self._skip(start - pos)
+            pos = start
+            if buf[start + 3] != fmt.header[3]:
+                reasons[OTHER_FORMAT] += 1
+                stats.bytes_skipped += 4
+                self._in_garbage = True   # the rest of that message is skipped as part of this rejection
+                pos = start + 4
+                continue
+            end = start + length
+            if end > len(buf):
+                keep = start   # still arriving
+                break
+            if crc32_mpeg2(buf[start:end - 4]) != int.from_bytes(buf[end - 4:end], 'big'):
+                reasons[BAD_CRC] += 1
+                stats.bytes_skipped += 1
+                self._in_garbage = True
+                pos = start + 1
+                continue
+            self._in_garbage = False
+            pos = end
+            sample, reason = self._decode(buf, start)
+            if sample is None:
+                reasons[reason] += 1
+                stats.bytes_skipped += length
+            else:
+                out.append((sample, end - held))
+                stats.frames += 1
+        if keep < 0:
+            # A header's first bytes at the very end may be the start of the next message.
+            keep = len(buf)
+            for k in (3, 2, 1):
+                if len(buf) - k >= pos and buf.endswith(KVH_HEADER_PREFIX[:k]):
+                    keep = len(buf) - k
+                    break
+        self._skip(keep - pos)
+        self._buffer = buf[keep:]
+        return out
+
+    def _decode(self, buf: bytes, start: int) -> tuple[RawSample | None, str]:
+        """The sample of a message whose CRC is good, or None and the reason it is rejected."""
+        values = self._format.layout.unpack_from(buf, start + 4)
+        config = self.config
+        if self._format.multiplexed:
+            mux, status, sequence = values[6:]
+        else:
+            status, sequence, temperature = values[-3:]
+        last = self._last_sequence
+        if last is not None:
+            if sequence == last:
+                return None, REPEATED_SEQUENCE
+            self.stats.lost_frames += (sequence - last - 1) % KVH_SEQUENCE_MODULO
+        self._last_sequence = sequence
+        if self._format.multiplexed:
+            if sequence % 4 == 0:
+                self._temp_c = config.temperature_c(mux)
+            temp_c = self._temp_c
+        else:
+            temp_c = config.temperature_c(temperature)
+        if not status >> self._axis & 1:
+            return None, AXIS_INVALID
+        if temp_c is None:
+            return None, NO_TEMPERATURE_YET
+        rate_dps = values[self._axis] * self._dps_per_unit
+        if not (math.isfinite(rate_dps) and math.isfinite(temp_c)):
+            return None, NOT_FINITE
+        return RawSample(rate_dps, temp_c), ''

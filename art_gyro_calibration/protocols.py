@@ -1,0 +1,39 @@
+"""The wire protocols by name: the node's ``protocol`` parameter, the fake gyro's and ``calibrate record``'s."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from art_gyro_calibration.ascii_lines import AsciiFrameParser, encode_ascii
+from art_gyro_calibration.frame import FrameParser
+from art_gyro_calibration.kvh_fog import KvhFogConfig, KvhFogEncoder, KvhFogParser
+from art_gyro_calibration.rd2100_binary import BinaryFrameParser, encode_binary
+
+KVH_FOG = 'kvh_fog'
+PROTOCOLS = ('binary', 'ascii', KVH_FOG)
+
+
+def check_protocol(protocol: str) -> str:
+    """``protocol`` if it is one of :data:`PROTOCOLS`, else a clear error."""
+    if protocol not in PROTOCOLS:
+        raise ValueError(f'unknown protocol {protocol!r}: expected one of {", ".join(PROTOCOLS)}')
+    return protocol
+
+
+def make_parser(protocol: str, kvh_fog: KvhFogConfig | None = None) -> FrameParser:
+    """A fresh parser for ``protocol`` (one of :data:`PROTOCOLS`); ``kvh_fog`` configures that protocol's."""
+    check_protocol(protocol)
+    if protocol == KVH_FOG:
+        return KvhFogParser(kvh_fog or KvhFogConfig())
+    return BinaryFrameParser() if protocol == 'binary' else AsciiFrameParser()
+
+
+def make_encoder(protocol: str, kvh_fog: KvhFogConfig | None = None) -> Callable[..., bytes]:
+    """The encoder of ``protocol``: ``(raw_rate, raw_temp) -> bytes``, as :class:`RawSample` holds them.
+
+    The ``kvh_fog`` encoder numbers its messages, so each call of :func:`make_encoder` starts a new stream.
+    """
+    check_protocol(protocol)
+    if protocol == KVH_FOG:
+        return KvhFogEncoder(kvh_fog or KvhFogConfig())
+    return encode_binary if protocol == 'binary' else encode_ascii

@@ -1,0 +1,97 @@
+"""The RD2100's 8-byte binary frames: encoder and incremental parser (pure: no I/O, no ROS).
+
+No RD2100 manual is public. The protocol follows the best public description of the E-Core
+family's output (a public driver for the E-Core 2000):
+
+- a frame is 8 bytes; the first has its top bit set, the other seven have it clear;
+- dropping the top bit of each byte and joining the 8 x 7 bits big-endian gives 7 bytes
+  ``m[0..6]``; ``m[0] = -(m[1] + ... + m[6]) mod 256`` is the checksum;
+- the rate is the signed 16-bit ``m[5]:m[6]`` in counts (x rate_scale_factor deg/s).
+
+The temperature is not documented: this package carries it as the signed 16-bit
+``m[3]:m[4]`` in counts (x 0.05 degC). ``m[1]``, ``m[2]`` are status bits of unknown
+meaning: encoded as 0 and not exposed.
+"""
+
+from __future__ import annotations
+
+import re
+
+from art_gyro_calibration.frame import BinaryChunkParser, RawSample, check_int16
+
+# Rejection reason, a key of ParserStats.rejected_by_reason (with GARBAGE, of frame.py).
+BAD_CHECKSUM = 'bad_checksum'   # well-framed 8 bytes whose checksum is wrong
+
+BINARY_FRAME_BYTES = 8
+
+# A candidate binary frame: a top-bit byte followed by seven clear bytes. A top-bit byte
+# not followed by seven clear bytes can never start a valid frame, so the regex jumps
+# straight to the next byte that can (the scan runs in C, not per byte in Python).
+_CANDIDATE = re.compile(rb'[\x80-\xff][\x00-\x7f]{7}')
+# A frame still arriving: a top-bit byte followed by at most six clear bytes, at the end.
+_PARTIAL = re.compile(rb'[\x80-\xff][\x00-\x7f]{0,6}\Z')
+
+
+def encode_binary(raw_rate: int, raw_temp: int) -> bytes:
+    """The 8-byte binary frame of one sample (status bytes 0)."""
+    check_int16('raw_rate', raw_rate)
+    check_int16('raw_temp', raw_temp)
+    payload = ((raw_temp & 0xFFFF) << 16) | (raw_rate & 0xFFFF)   # m[1..6], m[1] = m[2] = 0
+    checksum = -sum(payload.to_bytes(6, 'big')) & 0xFF
+    bits = (checksum << 48) | payload                              # 56 bits, m[0] first
+    frame = bytearray(BINARY_FRAME_BYTES)
+    for i in range(BINARY_FRAME_BYTES):
+        frame[i] = (bits >> (7 * (BINARY_FRAME_BYTES - 1 - i))) & 0x7F
+    frame[0] |= 0x80
+    return bytes(frame)
+
+
+def _decode_bits(frame: bytes) -> int:
+    """The 56 payload bits of a well-framed 8-byte frame (7-bit groups packed by masks, no loop)."""
+    v = int.from_bytes(frame, 'big') & 0x7F7F7F7F7F7F7F7F
+    v = ((v & 0x7F007F007F007F00) >> 1) | (v & 0x007F007F007F007F)   # pairs: 14 bits per 16
+    v = ((v & 0x3FFF00003FFF0000) >> 2) | (v & 0x00003FFF00003FFF)   # quads: 28 bits per 32
+    return ((v & 0x0FFFFFFF00000000) >> 4) | (v & 0x000000000FFFFFFF)
+
+
+def _int16(value: int) -> int:
+    return value - 0x10000 if value & 0x8000 else value
+
+
+class BinaryFrameParser(BinaryChunkParser):
+    """Incremental parser of 8-byte binary frames.
+
+    Every well-framed window (a top-bit byte then seven clear ones) is a candidate; two
+    candidates cannot overlap, so after a bad checksum the next candidate is the next
+    top-bit byte after the bad one, and a valid frame right after garbage is never lost.
+    """
+
+    frame_bytes = BINARY_FRAME_BYTES
+
+    def __init__(self) -> None:
+        super().__init__((BAD_CHECKSUM,))
+
+    def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
+        """Parse a chunk; each valid frame with the offset just past its last byte within ``data``."""
+        buf, held = self._join(data)
+        out: list[tuple[RawSample, int]] = []
+        stats = self.stats
+        pos = 0
+        search = _CANDIDATE.search
+        while (match := search(buf, pos)) is not None:
+            start, end = match.span()
+            self._skip(start - pos)
+            bits = _decode_bits(match.group())
+            if sum(bits.to_bytes(7, 'big')) & 0xFF:
+                stats.rejected_by_reason[BAD_CHECKSUM] += 1
+                stats.bytes_skipped += BINARY_FRAME_BYTES
+            else:
+                out.append((RawSample(_int16(bits & 0xFFFF), _int16((bits >> 16) & 0xFFFF)), end - held))
+                stats.frames += 1
+            self._in_garbage = False
+            pos = end
+        partial = _PARTIAL.search(buf, max(pos, len(buf) - BINARY_FRAME_BYTES + 1))
+        keep = partial.start() if partial is not None else len(buf)
+        self._skip(keep - pos)
+        self._buffer = buf[keep:]
+        return out

@@ -1,0 +1,56 @@
+"""Tests of the protocol registry over the RD2100 protocols: round trips through make_encoder/make_parser, errors."""
+
+import itertools
+
+import pytest
+
+from art_gyro_calibration.ascii_lines import encode_ascii
+from art_gyro_calibration.protocols import make_encoder, make_parser
+from art_gyro_calibration.rd2100_binary import encode_binary
+
+EXTREMES = (-32768, -32767, -256, -129, -128, -1, 0, 1, 127, 128, 255, 256, 12345, 32766, 32767)
+PAIRS = list(itertools.product(EXTREMES, repeat=2))
+
+
+def samples(results):
+    return [(s.raw_rate, s.raw_temp) for s, _ in results]
+
+
+@pytest.mark.parametrize('protocol', ['binary', 'ascii'])
+def test_round_trip_of_many_values_including_extremes(protocol):
+    encode = make_encoder(protocol)
+    data = b''.join(encode(r, t) for r, t in PAIRS)
+    parser = make_parser(protocol)
+    out = parser.feed(data)
+    assert samples(out) == PAIRS
+    assert out[-1][1] == len(data)
+    assert parser.stats.frames == len(PAIRS) and parser.stats.rejected == 0 and parser.stats.bytes_skipped == 0
+
+
+@pytest.mark.parametrize('protocol', ['binary', 'ascii'])
+def test_one_byte_at_a_time_gives_the_same_frames_with_offsets(protocol):
+    encode = make_encoder(protocol)
+    data = b''.join(encode(r, t) for r, t in PAIRS[:40])
+    parser = make_parser(protocol)
+    got = []
+    for i in range(len(data)):
+        for sample, end in parser.feed(data[i:i + 1]):
+            assert end == 1   # the frame completes with the byte just fed
+            got.append((sample.raw_rate, sample.raw_temp))
+    assert got == PAIRS[:40]
+
+
+@pytest.mark.parametrize('value', [32768, -32769, 1 << 20])
+@pytest.mark.parametrize('encode', [encode_binary, encode_ascii])
+def test_encoders_refuse_values_outside_16_bits(encode, value):
+    with pytest.raises(ValueError, match='signed 16-bit'):
+        encode(value, 0)
+    with pytest.raises(ValueError, match='raw_temp'):
+        encode(0, value)
+
+
+def test_unknown_protocol_is_a_clear_error():
+    with pytest.raises(ValueError, match=r"unknown protocol 'nmea'.*binary, ascii"):
+        make_parser('nmea')
+    with pytest.raises(ValueError, match='unknown protocol'):
+        make_encoder('')

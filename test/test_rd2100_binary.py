@@ -1,0 +1,75 @@
+"""Tests of the RD2100 8-byte binary frames: layout, offsets, garbage, checksums, reset."""
+
+from test_protocols import samples
+
+from art_gyro_calibration.frame import GARBAGE, RawSample
+from art_gyro_calibration.rd2100_binary import BAD_CHECKSUM, BinaryFrameParser, encode_binary
+
+
+def test_binary_frame_layout_follows_the_e_core_description():
+    frame = encode_binary(-2, 500)
+    assert len(frame) == 8
+    assert frame[0] & 0x80 and not any(b & 0x80 for b in frame[1:])
+    bits = 0
+    for b in frame:
+        bits = (bits << 7) | (b & 0x7F)
+    m = bits.to_bytes(7, 'big')
+    assert m[0] == -sum(m[1:]) & 0xFF
+    assert m[1] == m[2] == 0
+    assert int.from_bytes(m[3:5], 'big', signed=True) == 500
+    assert int.from_bytes(m[5:7], 'big', signed=True) == -2
+
+
+def test_binary_offsets_point_just_past_each_frame_in_the_chunk():
+    frames = [encode_binary(i, -i) for i in range(5)]
+    parser = BinaryFrameParser()
+    assert parser.feed(frames[0][:3]) == []
+    out = parser.feed(frames[0][3:] + frames[1] + frames[2][:7])
+    assert out == [(RawSample(0, 0), 5), (RawSample(1, -1), 13)]
+    assert parser.feed(frames[2][7:]) == [(RawSample(2, -2), 1)]
+
+
+def test_binary_garbage_before_and_between_is_skipped_and_counted():
+    parser = BinaryFrameParser()
+    data = (b'\x00\x7f\xff\x80\x81' + encode_binary(10, 20) + b'\xfe\x01\x02' + encode_binary(-5, 7)
+            + b'\x90' + encode_binary(3, 4))
+    assert samples(parser.feed(data)) == [(10, 20), (-5, 7), (3, 4)]
+    assert parser.stats.rejected_by_reason == {BAD_CHECKSUM: 0, GARBAGE: 3}
+    assert parser.stats.bytes_skipped == 5 + 3 + 1
+
+
+def test_binary_bad_checksum_counted_and_the_next_good_frame_kept():
+    good = encode_binary(100, 200)
+    bad = bytearray(encode_binary(1, 2))
+    bad[7] ^= 0x01   # flip a rate bit: still well framed, checksum now wrong
+    parser = BinaryFrameParser()
+    assert samples(parser.feed(bytes(bad) + good)) == [(100, 200)]
+    assert parser.stats.rejected_by_reason[BAD_CHECKSUM] == 1
+    assert parser.stats.rejected == 1 and parser.stats.frames == 1
+
+
+def test_binary_truncated_frame_followed_by_a_frame_loses_only_the_truncated_one():
+    truncated = encode_binary(7, 8)[:5]
+    parser = BinaryFrameParser()
+    assert samples(parser.feed(truncated)) == []
+    assert samples(parser.feed(encode_binary(9, 10))) == [(9, 10)]
+    assert parser.stats.rejected_by_reason == {BAD_CHECKSUM: 0, GARBAGE: 1}
+    assert parser.stats.bytes_skipped == 5
+
+
+def test_binary_garbage_straddling_feeds_counts_as_one_run():
+    parser = BinaryFrameParser()
+    parser.feed(b'\x01\x02')
+    parser.feed(b'\x03\xff')
+    parser.feed(b'\x05' + encode_binary(1, 1))
+    assert parser.stats.rejected_by_reason[GARBAGE] == 1
+    assert parser.stats.bytes_skipped == 5
+
+
+def test_reset_drops_a_partial_frame():
+    parser = BinaryFrameParser()
+    frame = encode_binary(4, 5)
+    parser.feed(frame[:4])
+    parser.reset()
+    assert parser.feed(frame[4:]) == []
+    assert samples(parser.feed(frame)) == [(4, 5)]
