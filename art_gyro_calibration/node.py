@@ -57,7 +57,7 @@ from art_gyro_calibration.calibration import (CALIBRATION_KEYS, Calibration, Cal
                                               load_calibration, read_yaml, resolve_calibration_url)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, Compensator, RunStart, plausible
 from art_gyro_calibration.driver import STANDARD_BAUDS, Rd2100Driver
-from art_gyro_calibration.frame import Frame
+from art_gyro_calibration.frame import NOT_FINITE, Frame
 from art_gyro_calibration.kvh_fog import AXIS_INVALID, KvhFogConfig
 from art_gyro_calibration.log import RawLogWriter
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
@@ -77,7 +77,6 @@ LOG_RETRY_S = 5.0
 TEMPERATURE_WARNING_PERIOD_S = 60.0
 # Why a frame read was not published (counted per reason in the link status).
 IMPLAUSIBLE_TEMPERATURE = 'implausible_temperature'
-NOT_FINITE = 'not_finite'
 IMU_TOPIC = 'imu/data_raw'
 # Calls to imu/static_bias that can wait for one collection at once (requests and replies are queued this deep).
 SERVICE_QUEUE_DEPTH = 1000
