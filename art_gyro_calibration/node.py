@@ -55,7 +55,8 @@ from std_srvs.srv import Trigger
 from art_gyro_calibration.calibration import (CALIBRATION_KEYS, Calibration, CalibrationError, closest,
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
                                               load_calibration, read_yaml, resolve_calibration_url)
-from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, Compensator, RunStart, plausible
+from art_gyro_calibration.compensation import (IMPLAUSIBLE_TEMPERATURE, NOT_FINITE, PLAUSIBLE_TEMPERATURE_C,
+                                               FrameCorrector, RunStart)
 from art_gyro_calibration.driver import STANDARD_BAUDS, Frame, Rd2100Driver
 from art_gyro_calibration.frame import AXIS_INVALID, KVH_FOG, PROTOCOLS, KvhFogConfig
 from art_gyro_calibration.log import RawLogWriter
@@ -73,9 +74,6 @@ COLLECTION_STALL_S = 5.0
 LOG_RETRY_S = 5.0
 # An out-of-range temperature is said on the console at most this often.
 TEMPERATURE_WARNING_PERIOD_S = 60.0
-# Why a frame read was not published (counted per reason in the link status).
-IMPLAUSIBLE_TEMPERATURE = 'implausible_temperature'
-NOT_FINITE = 'not_finite'
 IMU_TOPIC = 'imu/data_raw'
 # Calls to imu/static_bias that can wait for one collection at once (requests and replies are queued this deep).
 SERVICE_QUEUE_DEPTH = 1000
@@ -285,17 +283,23 @@ def params_file_values(paths: Sequence[str], node_name: str) -> dict[str, dict[s
     return values
 
 
-class _Collection:
+class _Collection(StaticBiasCollector):
     """One static bias collection, which the reader thread feeds and callers wait for."""
 
-    __slots__ = ('collector', 'result', 'error', 'last_sample', 'waiting')
+    __slots__ = ('bias', 'error', 'last_sample', 'waiting')
 
-    def __init__(self, collector: StaticBiasCollector) -> None:
-        self.collector = collector
-        self.result: StaticBias | None = None
+    def __init__(self, samples: int, max_mean_dps: float, max_std_dps: float, keep_window: bool) -> None:
+        super().__init__(samples, max_mean_dps, max_std_dps, keep_window)
+        self.bias: StaticBias | None = None
         self.error = ''
         self.last_sample = time.monotonic()
         self.waiting: list[Any] = []   # request headers of the calls to answer when it ends
+
+    def add(self, rate_dps: float, error_dps: float, t: float = 0.0, temp_c: float = 0.0,
+            causal_dps: float = 0.0) -> bool:
+        """Add a sample, noting when (a collection that gets none for long is abandoned)."""
+        self.last_sample = time.monotonic()
+        return super().add(rate_dps, error_dps, t, temp_c, causal_dps)
 
 
 class GyroNode(Node):
@@ -316,7 +320,8 @@ class GyroNode(Node):
         self.calibration, self.calibration_source = self._load_calibration()
         if self.settings.protocol == KVH_FOG:
             check_kvh_fog_calibration(self.calibration, self.calibration_source)
-        self._compensator = Compensator(self.calibration, RunStart(self.settings.powered_on_at_start))
+        self._corrector = FrameCorrector(self.calibration, RunStart(self.settings.powered_on_at_start),
+                                         self._finish_collection)
         self._lock = threading.Lock()
         self._closing = threading.Event()
         self._collection: _Collection | None = None
@@ -330,10 +335,8 @@ class GyroNode(Node):
         self._temp_range = self.calibration.temperature_range_c
         # Frames outside the calibrated range: the latest temperature alone would hide a glitch.
         self._outside_range_reported = 0   # frames clamped (Compensator.clamped) as of the last diagnostics
-        self._dropped = {IMPLAUSIBLE_TEMPERATURE: 0, NOT_FINITE: 0}
-        self._dropped_reported = dict(self._dropped)
+        self._dropped_reported = dict(self._corrector.dropped)
         self._implausible_reported = 0
-        self._last_drop_error = ''
         self._rate_window = (time.monotonic(), 0)
         self._lost_reported = self._invalid_reported = 0   # kvh_fog: as of the last diagnostics
         self._log_lock = threading.Lock()
@@ -542,29 +545,14 @@ class GyroNode(Node):
         self._write_log(stamp_ns * 1e-9, sample.raw_rate, sample.raw_temp)   # the log keeps what the wire said
 
     def _publish(self, raw_rate: int, raw_temp: int, stamp_ns: int, t: float) -> None:
-        compensator = self._compensator
-        rate_dps, temp_c = compensator.scale(raw_rate, raw_temp)
-        if not plausible(temp_c):
-            self._dropped[IMPLAUSIBLE_TEMPERATURE] += 1
-            return
-        try:
-            error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals
-        except ArithmeticError as e:
-            error_dps = math.nan
-            self._last_drop_error = f'{type(e).__name__}: {e}'
-        if not math.isfinite(error_dps):
-            self._dropped[NOT_FINITE] += 1
-            return
-        collection = self._collection
-        if collection is not None:
-            collection.last_sample = time.monotonic()
-            if collection.collector.add(rate_dps, error_dps, t, temp_c, compensator.causal_dps()):
-                self._finish_collection(collection)
-        corrected = compensator.correct(rate_dps, error_dps)   # with the bias this frame may have completed
+        corrector = self._corrector
+        if corrector.step(raw_rate, raw_temp, t):
+            return   # dropped, and counted by the corrector
         imu = self._imu
         imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        imu.angular_velocity.z = math.radians(corrected)
+        imu.angular_velocity.z = math.radians(corrector.rate_dps)
         self._imu_pub.publish(imu)
+        temp_c = corrector.temp_c
         self._temperature.data = temp_c
         self._temp_pub.publish(self._temperature)
         self._last_temp_c = temp_c
@@ -589,16 +577,17 @@ class GyroNode(Node):
     def _start_collection(self) -> _Collection:
         with self._lock:
             if self._collection is None:
-                self._collection = _Collection(StaticBiasCollector(
+                self._collection = self._corrector.collector = _Collection(
                     self.settings.bias_samples, self.settings.static_bias_max_mean_dps,
-                    self.settings.static_bias_max_std_dps, keep_window=self._compensator.refinable))
+                    self.settings.static_bias_max_std_dps, self._corrector.compensator.refinable)
                 self.get_logger().info(f'static bias: collecting {self.settings.bias_samples} samples; '
                                        'keep the gyro still')
             return self._collection
 
-    def _finish_collection(self, collection: _Collection) -> None:
+    def _finish_collection(self, collection: StaticBiasCollector) -> None:
+        assert isinstance(collection, _Collection)
         try:
-            bias = collection.collector.result()
+            bias = collection.result()
         except (MotionError, ValueError) as e:
             self._end_collection(collection, None, str(e))
         else:
@@ -608,9 +597,9 @@ class GyroNode(Node):
         with self._lock:
             if self._collection is not collection:
                 return   # abandoned meanwhile
-            self._collection = None
+            self._collection = self._corrector.collector = None
             if bias is not None:
-                self._compensator.bias = bias
+                self._corrector.compensator.bias = bias
                 self._bias_outcome = 'ok'
                 self._bias_time = time.monotonic()
                 self.get_logger().info(f'static bias: {bias.describe()}')
@@ -618,7 +607,7 @@ class GyroNode(Node):
                 self._bias_outcome = 'refused'
                 self._bias_refusal = error
                 self.get_logger().warning(f'static bias refused, previous bias kept: {error}')
-            collection.result = bias
+            collection.bias = bias
             collection.error = error
             self._finished.append(collection)
         self._replies.trigger()   # the replies go out on the executor
@@ -638,8 +627,8 @@ class GyroNode(Node):
 
     @staticmethod
     def _reply(collection: _Collection) -> Trigger.Response:
-        if collection.result is not None:
-            return Trigger.Response(success=True, message=collection.result.describe())
+        if collection.bias is not None:
+            return Trigger.Response(success=True, message=collection.bias.describe())
         return Trigger.Response(success=False, message=f'refused, previous bias kept: {collection.error}')
 
     def _send_replies(self) -> None:
@@ -693,14 +682,14 @@ class GyroNode(Node):
         for reason, count in stats.rejected_by_reason.items():
             values[f'rejected_{reason}'] = count
         # Frames read but not published, per reason: since the last report, and in all.
-        dropped = dict(self._dropped)
+        dropped = dict(self._corrector.dropped)
         recent = {reason: count - self._dropped_reported[reason] for reason, count in dropped.items()}
         self._dropped_reported = dropped
         values['dropped'] = sum(dropped.values())
         for reason, count in dropped.items():
             values[f'dropped_{reason}'] = count
         if dropped[NOT_FINITE]:
-            values['last_not_finite_error'] = self._last_drop_error or 'a non-finite compensated rate'
+            values['last_not_finite_error'] = self._corrector.last_drop_error or 'a non-finite compensated rate'
         # kvh_fog: frames the gyro numbered but that never came, and frames it flagged invalid, since the last report.
         invalid = stats.rejected_by_reason.get(AXIS_INVALID, 0)
         lost, self._lost_reported = stats.lost_frames - self._lost_reported, stats.lost_frames
@@ -732,18 +721,18 @@ class GyroNode(Node):
         with self._lock:   # one consistent snapshot: the reader thread may end a collection meanwhile
             collection = self._collection
             state = 'collecting' if collection is not None else self._bias_outcome
-            bias, refusal, bias_time = self._compensator.bias, self._bias_refusal, self._bias_time
+            bias, refusal, bias_time = self._corrector.compensator.bias, self._bias_refusal, self._bias_time
         values: dict[str, Any] = {
             'state': state, 'static_bias_drift_dps': f'{bias.static_bias_drift_dps:.6f}',
             'calc_static_bias_drift_dps': f'{bias.calc_static_bias_drift_dps:.6f}',
             'samples': bias.samples, 'rate_std_dps': f'{bias.rate_std_dps:.6f}',
             'age_s': f'{time.monotonic() - bias_time:.0f}' if bias.samples else 'none',
             # The temperature-rate refinement: pending while the bias window is kept, then its change.
-            'refinement': ('pending' if bias.window is not None and self._compensator.refinable
+            'refinement': ('pending' if bias.window is not None and self._corrector.compensator.refinable
                            else f'{bias.refined_dps:+.6f} dps' if bias.refined_dps else 'none'),
             'last_refusal': refusal}
         if collection is not None:
-            progress = f'{collection.collector.count}/{self.settings.bias_samples}'
+            progress = f'{collection.count}/{self.settings.bias_samples}'
             return self._status('static bias', DiagnosticStatus.OK, f'collecting ({progress})', values)
         if state == 'ok':
             return self._status('static bias', DiagnosticStatus.OK, bias.describe(), values)
@@ -757,9 +746,9 @@ class GyroNode(Node):
     def _temperature_status(self) -> DiagnosticStatus:
         temp = self._last_temp_c
         low, high = self._temp_range
-        outside = self._compensator.clamped
+        outside = self._corrector.compensator.clamped
         recent, self._outside_range_reported = outside - self._outside_range_reported, outside
-        implausible = self._dropped[IMPLAUSIBLE_TEMPERATURE]
+        implausible = self._corrector.dropped[IMPLAUSIBLE_TEMPERATURE]
         dropped, self._implausible_reported = implausible - self._implausible_reported, implausible
         values = {'temperature_c': f'{temp:.2f}', 'calibrated_min_c': low, 'calibrated_max_c': high,
                   'frames_outside_range': outside, 'frames_implausible_temperature': implausible}
