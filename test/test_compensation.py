@@ -164,8 +164,8 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
     def collected(collector: StaticBiasCollector) -> None:
         corrector.compensator.bias, corrector.collector = collector.result(), None
 
-    corrector = FrameCorrector(cal, start, collected)
-    corrector.collector = StaticBiasCollector(n, keep_window=corrector.compensator.refinable)
+    corrector = FrameCorrector(cal, start)
+    corrector.collect(StaticBiasCollector(n, keep_window=corrector.compensator.refinable), collected)
     published, reasons = [], []
     for ti, r, temp in zip(t.tolist(), raw_rate.tolist(), raw_temp.tolist()):
         reason = corrector.step(r, temp, ti)
