@@ -29,7 +29,7 @@ setup(
     tests_require=['pytest', 'hypothesis'],
     entry_points={
         'console_scripts': [
-            'gyro_node = art_gyro_calibration.node:main',
+            'gyro_node = art_gyro_calibration.ros.node:main',
             'fake_rd2100 = art_gyro_calibration.fake_rd2100:main',
             'calibrate = art_gyro_calibration.analysis.cli:main',
             'imu_echo = art_gyro_calibration.monitor:main',

@@ -1,4 +1,4 @@
-"""Import time and resident memory of ``art_gyro_calibration.node`` in fresh interpreters.
+"""Import time and resident memory of ``art_gyro_calibration.ros.node`` in fresh interpreters.
 
 ``python bench/bench_import.py [--source DIR] [--runs N]``: each run starts a new interpreter
 that imports the node module and reports the wall time of the import, VmRSS afterwards
@@ -18,13 +18,13 @@ import sys
 CHILD = '''
 import json, sys, time
 t0 = time.perf_counter()
-import art_gyro_calibration.node
+import art_gyro_calibration.ros.node
 seconds = time.perf_counter() - t0
 status = open('/proc/self/status').read()
 rss_mib = int(status.split('VmRSS:')[1].split()[0]) / 1024
 heavy = sorted(m for m in ('scipy', 'matplotlib', 'h5py') if m in sys.modules)
 print(json.dumps({'seconds': seconds, 'rss_mib': rss_mib, 'heavy': heavy,
-                  'file': art_gyro_calibration.node.__file__}))
+                  'file': art_gyro_calibration.ros.node.__file__}))
 '''
 
 

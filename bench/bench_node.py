@@ -4,7 +4,7 @@ Three processes: this one writes binary RD2100 frames to the pty master (each fr
 ``os.write``, its time taken just before the write: the frame's last byte is in the pty
 within the write's duration after it, so latencies are over-estimated by that much at most,
 and a writer pre-empted after its write cannot make a latency look shorter); ``gyro_node``
-(unchanged, ``python -m art_gyro_calibration.node``) reads the slave; a subscriber (this
+(unchanged, ``python -m art_gyro_calibration.ros.node``) reads the slave; a subscriber (this
 script with ``--subscriber``, its own process so it shares no GIL with the writer) stamps
 each ``imu/data_raw`` message on arrival with the same CLOCK_MONOTONIC.
 
@@ -246,8 +246,9 @@ def run(args: argparse.Namespace) -> int:
         out = str(Path(tmp) / 'received')
         with open(log, 'wb') as node_out:
             node = subprocess.Popen(
-                [sys.executable, '-m', 'art_gyro_calibration.node', '--ros-args', '-p', f'serial_number:={args.serial}',
-                 '-p', f'port:={port}', '-p', f'baud:={args.baud}', '-p', 'static_bias_on_startup:=false'],
+                [sys.executable, '-m', 'art_gyro_calibration.ros.node', '--ros-args',
+                 '-p', f'serial_number:={args.serial}', '-p', f'port:={port}', '-p', f'baud:={args.baud}',
+                 '-p', 'static_bias_on_startup:=false'],
                 env=child_env(domain), cwd=REPO, stdout=node_out, stderr=subprocess.STDOUT)
         sub = subprocess.Popen([sys.executable, __file__, '--subscriber', out], env=child_env(domain), cwd=REPO,
                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)

@@ -48,7 +48,8 @@ def node_env(domain: int) -> dict[str, str]:
 def start_node(domain: int, output: Path, *ros_args: str) -> subprocess.Popen[bytes]:
     """``gyro_node`` as a process, its output to a file."""
     with open(output, 'wb') as out:
-        return subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.node', '--ros-args', *ros_args],
+        return subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.ros.node', '--ros-args',
+                                 *ros_args],
                                 env=node_env(domain), cwd=REPO, stdout=out, stderr=subprocess.STDOUT)
 
 

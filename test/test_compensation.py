@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
-from art_gyro_calibration.compensation import Compensator, RunStart, apply_calibration
+from art_gyro_calibration.compensation import (IMPLAUSIBLE_TEMPERATURE, Compensator, FrameCorrector, RunStart,
+                                               apply_calibration)
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import measured_from_true
 from art_gyro_calibration.signals import SignalFilters, compute_signals
+from art_gyro_calibration.static_bias import StaticBiasCollector
 from art_gyro_calibration.terms import Term
 
 RATE_HZ = 10.0
@@ -139,3 +141,44 @@ def test_temperatures_outside_the_calibrated_range_are_clamped_and_counted() -> 
     applied = apply_calibration(GyroLog(t, rate, temp), cal, 50, max_mean_dps=10.0)   # turning at 5 deg/s
     assert applied.clamped == comp.clamped
     np.testing.assert_allclose(applied.comp_dps, errors, rtol=0, atol=1e-12)
+
+
+def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops() -> None:
+    """The node's per-frame step (raw counts in) against ``calibrate apply`` on the same frames, ROS aside.
+
+    Warming and turning, every signal the node tracks, a refinement within the run, and two frames whose
+    temperature no gyro survives: dropped by both, counted by the corrector.
+    """
+    cal = dataclasses.replace(load_packaged_calibration('NAVC3545'), terms=(
+        Term('temperature_rate', 'power', (0.02,), (1,)), Term('time', 'power', (1e-4,), (1,)),
+        Term('time_since_power_on', 'exp_decay', (0.03,), (), 5.0),
+        Term('temperature_lag', 'power', (1e-4, 2e-5), (1,), 3.0, (0, 1)),
+        Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(temperature_rate_tau_s=0.2))
+    n, rate_hz = 20, 50.0
+    t = np.arange(1500) / rate_hz
+    raw_rate = np.where(t < 2.0, 0, np.round(30.0 * np.sin(t) / cal.rate_scale_factor)).astype(int)
+    raw_temp = np.round((20.0 + 0.5 * t) / cal.temp_scale_factor).astype(int)
+    raw_temp[[700, 900]] = 4000, -1400   # 200, -70 degC
+    start = RunStart(powered_on_at_start=True)
+
+    def collected(collector: StaticBiasCollector) -> None:
+        corrector.compensator.bias, corrector.collector = collector.result(), None
+
+    corrector = FrameCorrector(cal, start)
+    corrector.collect(StaticBiasCollector(n, keep_window=corrector.compensator.refinable), collected)
+    published, reasons = [], []
+    for ti, r, temp in zip(t.tolist(), raw_rate.tolist(), raw_temp.tolist()):
+        reason = corrector.step(r, temp, ti)
+        reasons.append(reason)
+        if not reason:
+            published.append(corrector.rate_dps)
+    assert [i for i, r in enumerate(reasons) if r] == [700, 900] and reasons[700] == IMPLAUSIBLE_TEMPERATURE
+    assert corrector.dropped == {IMPLAUSIBLE_TEMPERATURE: 2, 'not_finite': 0}
+    applied = apply_calibration(GyroLog(t, raw_rate * cal.rate_scale_factor, raw_temp * cal.temp_scale_factor),
+                                cal, n, max_mean_dps=1.0, start=start)
+    assert applied.bias.refined_dps and corrector.compensator.bias.refined_dps
+    rate = raw_rate[applied.kept] * cal.rate_scale_factor
+    # The corrector had no static bias for its first n - 1 frames.
+    expected = np.concatenate((rate[:n - 1] - applied.comp_dps[:n - 1], applied.corrected_dps[n - 1:]))
+    np.testing.assert_allclose(published, expected, rtol=0, atol=2e-9)
+    assert corrector.compensator.clamped == applied.clamped

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from art_gyro_calibration.node import PARAMETERS
+from art_gyro_calibration.ros.parameters import PARAMETERS
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -387,7 +387,7 @@ def test_log_failures_stop_logging_not_publishing(tmp_path: Path, loopback: None
     fake.simulator = SequenceCounts(200.0)
     listener = Listener(domain)
     with open(output, 'wb') as out:
-        proc = subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.node', '--ros-args',
+        proc = subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.ros.node', '--ros-args',
                                  '--disable-external-lib-logs', *node_args(fake.path, 'static_bias_on_startup:=false',
                                                                            f'log_path:={logs}')],
                                 env=node_env(domain), cwd=REPO, stdout=out, stderr=subprocess.STDOUT,

@@ -23,7 +23,8 @@ from sensor_msgs.msg import Imu  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile  # noqa: E402
 from art_gyro_calibration.log import read_log  # noqa: E402
-from art_gyro_calibration.node import PARAMETERS, UNMEASURED_VARIANCE, check_settings, params_files  # noqa: E402
+from art_gyro_calibration.ros.node import UNMEASURED_VARIANCE  # noqa: E402
+from art_gyro_calibration.ros.parameters import PARAMETERS, check_settings, params_files  # noqa: E402
 from rclpy.parameter import parameter_dict_from_yaml_file  # noqa: E402
 
 
@@ -249,7 +250,7 @@ def test_example_params_file_sets_every_node_parameter_validly() -> None:
 
 def test_help_lists_every_parameter_with_default_and_range() -> None:
     """gyro_node --help printed nothing useful (issue 9)."""
-    result = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.node', '--help'], cwd=REPO,
+    result = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.ros.node', '--help'], cwd=REPO,
                             capture_output=True, text=True, timeout=TIMEOUT_S)
     assert result.returncode == 0 and result.stdout.startswith('usage: gyro_node'), result.stdout + result.stderr
     for name, (default, *_) in PARAMETERS.items():
@@ -390,7 +391,7 @@ def test_a_signal_between_two_waits_of_the_executor_is_a_clean_stop(monkeypatch:
     Seen once in a dozen use_sim_time runs: "gyro_node: error: failed to initialize wait set: the
     given context is not valid", exit 1 on SIGINT. A stop as asked exits 0.
     """
-    from art_gyro_calibration import node as node_module
+    from art_gyro_calibration.ros import node as node_module
     from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
     closed = []
 
@@ -424,7 +425,7 @@ _START_UP_SIGINT = r"""
 import signal, sys
 import rclpy
 import rclpy.node
-from art_gyro_calibration import node as node_module
+from art_gyro_calibration.ros import node as node_module
 when = sys.argv[1]
 built = []
 

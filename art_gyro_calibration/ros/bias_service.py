@@ -1,0 +1,189 @@
+"""Service ``imu/static_bias`` (std_srvs/Trigger): a static bias collection, its deferred replies, its lifecycle.
+
+A call starts a collection over ``bias_samples`` frames, or joins the one running and gets its
+result; the reply comes when it ends. Motion refuses it and keeps the previous bias;
+publishing goes on meanwhile with the previous bias. The reply is deferred, not waited for:
+the callback returns at once and the executor thread is free. A collection that gets no
+frame for :data:`COLLECTION_STALL_S`, or that the shutdown cuts short, ends with the reason.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from std_srvs.srv import Trigger
+
+from art_gyro_calibration.compensation import FrameCorrector
+from art_gyro_calibration.ros.parameters import Settings
+from art_gyro_calibration.static_bias import MotionError, StaticBias, StaticBiasCollector
+
+# A static bias collection with no frame for this long has lost its gyro: it is abandoned.
+COLLECTION_STALL_S = 5.0
+# Calls to imu/static_bias that can wait for one collection at once (requests and replies are queued this deep).
+SERVICE_QUEUE_DEPTH = 1000
+
+
+class _Collection(StaticBiasCollector):
+    """One static bias collection, which the reader thread feeds and callers wait for."""
+
+    __slots__ = ('bias', 'error', 'last_sample', 'waiting')
+
+    def __init__(self, samples: int, max_mean_dps: float, max_std_dps: float, keep_window: bool) -> None:
+        super().__init__(samples, max_mean_dps, max_std_dps, keep_window)
+        self.bias: StaticBias | None = None
+        self.error = ''
+        self.last_sample = time.monotonic()
+        self.waiting: list[Any] = []   # request headers of the calls to answer when it ends
+
+    def add(self, rate_dps: float, error_dps: float, t: float = 0.0, temp_c: float = 0.0,
+            causal_dps: float = 0.0) -> bool:
+        """Add a sample, noting when (a collection that gets none for long is abandoned)."""
+        self.last_sample = time.monotonic()
+        return super().add(rate_dps, error_dps, t, temp_c, causal_dps)
+
+
+class BiasState(NamedTuple):
+    """One consistent look at the static bias, for its diagnostics status.
+
+    ``state`` is 'collecting' while a collection runs (``collected`` frames so far), else how
+    the last one ended: 'none' yet, 'ok' or 'refused' (``refusal`` says why).
+    """
+
+    state: str
+    bias: StaticBias
+    refusal: str
+    bias_time: float   # time.monotonic() when ``bias`` was found
+    collected: int
+
+
+class StaticBiasService:
+    """The service on ``node``: feeds collections to ``corrector`` and sets its bias from them."""
+
+    def __init__(self, node: Node, settings: Settings, corrector: FrameCorrector, closing: threading.Event,
+                 link_error: Callable[[], str]) -> None:
+        """``link_error`` says why the gyro sends nothing, for a collection that stalls."""
+        self._node = node
+        self._settings = settings
+        self._corrector = corrector
+        self._closing = closing
+        self._link_error = link_error
+        self._lock = threading.Lock()
+        self._collection: _Collection | None = None
+        self._finished: list[_Collection] = []   # ended, their replies not sent yet
+        self._outcome = 'none'
+        self._refusal = ''
+        self._bias_time = 0.0
+        # The reply is deferred: the callback returns at once and the executor sends the reply
+        # through send_response, which this takes over to hold it until the collection ends.
+        # (rclpy 7 re-runs a waiting coroutine callback in a busy loop, so an async callback is not used.)
+        # Deep queues: the replies to every joined call go out at once, and a reliable writer keeping
+        # the default last 10 would drop all but 10 of them.
+        self._service = node.create_service(Trigger, 'imu/static_bias', lambda request, response: response,
+                                            qos_profile=QoSProfile(depth=SERVICE_QUEUE_DEPTH))
+        self._send_reply = self._service.send_response
+        self._service.send_response = self._defer_reply
+        self._replies = node.create_guard_condition(self._send_replies)
+        node.create_timer(0.5, self._watch)
+
+    def start(self) -> _Collection:
+        """The collection running, started now if none was (a call, or the node's startup static bias)."""
+        with self._lock:
+            if self._collection is None:
+                self._collection = _Collection(
+                    self._settings.bias_samples, self._settings.static_bias_max_mean_dps,
+                    self._settings.static_bias_max_std_dps, self._corrector.compensator.refinable)
+                self._corrector.collect(self._collection, self._collected)
+                self._node.get_logger().info(f'static bias: collecting {self._settings.bias_samples} samples; '
+                                             'keep the gyro still')
+            return self._collection
+
+    def _collected(self, collection: StaticBiasCollector) -> None:
+        """The frame that completed ``collection`` (reader thread): its bias is used from that frame on."""
+        assert isinstance(collection, _Collection)
+        try:
+            bias = collection.result()
+        except (MotionError, ValueError) as e:
+            self._end(collection, None, str(e))
+        else:
+            self._end(collection, bias, '')
+
+    def _end(self, collection: _Collection, bias: StaticBias | None, error: str) -> None:
+        with self._lock:
+            if self._collection is not collection:
+                return   # abandoned meanwhile
+            self._collection = self._corrector.collector = None
+            if bias is not None:
+                self._corrector.compensator.bias = bias
+                self._outcome = 'ok'
+                self._bias_time = time.monotonic()
+                self._node.get_logger().info(f'static bias: {bias.describe()}')
+            else:
+                self._outcome = 'refused'
+                self._refusal = error
+                self._node.get_logger().warning(f'static bias refused, previous bias kept: {error}')
+            collection.bias = bias
+            collection.error = error
+            self._finished.append(collection)
+        self._replies.trigger()   # the replies go out on the executor
+
+    def _defer_reply(self, response: Trigger.Response, header: Any) -> None:
+        """Take the place of the service's send_response: join (or start) the collection; reply when it ends."""
+        if self._closing.is_set():
+            response.success, response.message = False, 'refused: the node is shutting down'
+            self._send_reply(response, header)
+            return
+        collection = self.start()
+        with self._lock:
+            if self._collection is collection:
+                collection.waiting.append(header)
+                return
+        self._send_reply(self._reply(collection), header)   # it ended meanwhile
+
+    @staticmethod
+    def _reply(collection: _Collection) -> Trigger.Response:
+        if collection.bias is not None:
+            return Trigger.Response(success=True, message=collection.bias.describe())
+        return Trigger.Response(success=False, message=f'refused, previous bias kept: {collection.error}')
+
+    def _send_replies(self) -> None:
+        with self._lock:
+            finished, self._finished = self._finished, []
+        for collection in finished:
+            response = self._reply(collection)
+            for header in collection.waiting:
+                self._send_reply(response, header)
+
+    def _watch(self) -> None:
+        """Give up a collection that gets no frames (the replies say why), or one the shutdown cuts short."""
+        collection = self._collection
+        if collection is None:
+            return
+        if self._closing.is_set():
+            self._end(collection, None, 'the node is shutting down')
+        elif collection.waiting and time.monotonic() - collection.last_sample > COLLECTION_STALL_S:
+            self._end(collection, None, f'no frame from the gyro for {COLLECTION_STALL_S:.0f} s '
+                                        f'(link: {self._link_error() or "no data"})')
+
+    def state(self) -> BiasState:
+        """The static bias in use and where its collection stands, read together."""
+        with self._lock:   # one consistent snapshot: the reader thread may end a collection meanwhile
+            collection = self._collection
+            return BiasState('collecting' if collection is not None else self._outcome,
+                             self._corrector.compensator.bias, self._refusal, self._bias_time,
+                             collection.count if collection is not None else 0)
+
+    def close(self) -> None:
+        """End a running collection (the driver is stopped): the calls waiting for it hear why, rather than time out."""
+        collection = self._collection
+        if collection is not None:
+            self._end(collection, None, 'the node is shutting down')
+            try:
+                self._send_replies()
+            except Exception as e:   # the context may be shut down already (SIGINT): nothing more to say
+                self._node.get_logger().warning(
+                    f'static bias replies not sent at shutdown: {type(e).__name__}: {e}')

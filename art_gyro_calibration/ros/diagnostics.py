@@ -1,0 +1,176 @@
+"""The node's ``/diagnostics`` (1 Hz): link, static bias, temperature and, when logging, the raw log.
+
+A glitch between two reports (frames lost, dropped, outside the calibrated range) must show
+in the next one, not only in a running total: each such count is told "since the last
+report" by a :class:`SinceLastReport`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import TYPE_CHECKING, Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+
+from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, PLAUSIBLE_TEMPERATURE_C
+from art_gyro_calibration.frame import NOT_FINITE
+from art_gyro_calibration.kvh_fog import AXIS_INVALID
+from art_gyro_calibration.protocols import KVH_FOG
+from art_gyro_calibration.ros.raw_log import LOG_RETRY_S
+
+if TYPE_CHECKING:
+    from art_gyro_calibration.ros.node import GyroNode
+
+DIAGNOSTICS_PERIOD_S = 1.0
+
+
+class SinceLastReport:
+    """A running total's part that the last report has not told yet."""
+
+    __slots__ = ('_told',)
+
+    def __init__(self) -> None:
+        self._told = 0
+
+    def take(self, total: int) -> int:
+        """How much ``total`` grew since the last call (the first: since 0); now told."""
+        new, self._told = total - self._told, total
+        return new
+
+
+class Diagnostics:
+    """Publishes the statuses of ``node`` on a timer of its own."""
+
+    def __init__(self, node: GyroNode) -> None:
+        """Reads ``node``'s settings, calibration, corrector, driver, static bias service and raw log."""
+        self._node = node
+        self._window_start = time.monotonic()
+        self._frames = SinceLastReport()
+        self._dropped = {reason: SinceLastReport() for reason in node.corrector.dropped}
+        self._lost = SinceLastReport()                # kvh_fog: sequence gaps
+        self._invalid = SinceLastReport()             # kvh_fog: frames the gyro flagged invalid
+        self._outside_range = SinceLastReport()       # frames clamped (Compensator.clamped)
+        self._implausible = SinceLastReport()
+        self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        node.create_timer(DIAGNOSTICS_PERIOD_S, self._publish, callback_group=MutuallyExclusiveCallbackGroup())
+
+    def _publish(self) -> None:
+        node = self._node
+        msg = DiagnosticArray()
+        msg.header.stamp = node.get_clock().now().to_msg()
+        msg.status = [self._link_status(), self._bias_status(), self._temperature_status()]
+        if node.settings.log_path:
+            node.raw_log.check_file()
+            msg.status.append(self._log_status())
+        self._pub.publish(msg)
+
+    def _status(self, name: str, level: bytes, message: str, values: dict[str, Any]) -> DiagnosticStatus:
+        node = self._node
+        # The fully qualified name: two gyros in two namespaces report apart.
+        return DiagnosticStatus(level=level, name=f'{node.get_fully_qualified_name()}: {name}', message=message,
+                                hardware_id=f'KVH {"FOG" if node.settings.protocol == KVH_FOG else "RD2100"} '
+                                            f'{node.calibration.serial_number}',
+                                values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+
+    def _link_status(self) -> DiagnosticStatus:
+        stats = self._node.driver.stats
+        corrector = self._node.corrector
+        now = time.monotonic()
+        then, self._window_start = self._window_start, now
+        frames = self._frames.take(stats.frames)
+        rate_hz = frames / (now - then) if now > then else 0.0
+        values: dict[str, Any] = {
+            'port': stats.port, 'connected': stats.connected, 'reopens': stats.reopens,
+            'last_error': stats.last_error, 'frame_rate_hz': f'{rate_hz:.2f}', 'frames': stats.frames,
+            'rejected': stats.rejected, 'bytes_skipped': stats.bytes_skipped, 'published': self._node.published,
+            'lost_frames': stats.lost_frames}
+        for reason, count in stats.rejected_by_reason.items():
+            values[f'rejected_{reason}'] = count
+        # Frames read but not published, per reason: since the last report, and in all.
+        dropped = dict(corrector.dropped)
+        recent = {reason: self._dropped[reason].take(count) for reason, count in dropped.items()}
+        values['dropped'] = sum(dropped.values())
+        for reason, count in dropped.items():
+            values[f'dropped_{reason}'] = count
+        if dropped[NOT_FINITE]:
+            values['last_not_finite_error'] = corrector.last_drop_error or 'a non-finite compensated rate'
+        # kvh_fog: frames the gyro numbered but that never came, and frames it flagged invalid, since the last report.
+        lost = self._lost.take(stats.lost_frames)
+        flagged = self._invalid.take(stats.rejected_by_reason.get(AXIS_INVALID, 0))
+        if not stats.connected:
+            return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
+        if rate_hz == 0.0:
+            return self._status('link', DiagnosticStatus.WARN, 'connected, no frames', values)
+        # An implausible temperature is the temperature status's ERROR; the others would show nowhere else.
+        if any(count for reason, count in recent.items() if reason != IMPLAUSIBLE_TEMPERATURE):
+            not_published = ', '.join(f'{count} {reason}' for reason, count in recent.items() if count)
+            return self._status('link', DiagnosticStatus.ERROR, f'connected, {rate_hz:.1f} Hz; frames not '
+                                f'published since the last report: {not_published}', values)
+        if lost or flagged:
+            return self._status('link', DiagnosticStatus.WARN,
+                                f'connected, {rate_hz:.1f} Hz; since the last report {lost} frames lost (sequence '
+                                f'gaps), {flagged} flagged invalid by the gyro', values)
+        return self._status('link', DiagnosticStatus.OK, f'connected, {rate_hz:.1f} Hz', values)
+
+    def _log_status(self) -> DiagnosticStatus:
+        log = self._node.raw_log.state()
+        values = {'file': log.file, 'rows_not_logged': log.rows_not_logged, 'last_error': log.last_error}
+        if not log.logging:
+            return self._status('raw log', DiagnosticStatus.ERROR,
+                                f'not logging: {log.last_error}; retrying every {LOG_RETRY_S:g} s', values)
+        return self._status('raw log', DiagnosticStatus.OK, f'logging to {log.file}', values)
+
+    def _bias_status(self) -> DiagnosticStatus:
+        node = self._node
+        state, bias, refusal, bias_time, collected = node.bias_service.state()
+        values: dict[str, Any] = {
+            'state': state, 'static_bias_drift_dps': f'{bias.static_bias_drift_dps:.6f}',
+            'calc_static_bias_drift_dps': f'{bias.calc_static_bias_drift_dps:.6f}',
+            'samples': bias.samples, 'rate_std_dps': f'{bias.rate_std_dps:.6f}',
+            'age_s': f'{time.monotonic() - bias_time:.0f}' if bias.samples else 'none',
+            # The temperature-rate refinement: pending while the bias window is kept, then its change.
+            'refinement': ('pending' if bias.window is not None and node.corrector.compensator.refinable
+                           else f'{bias.refined_dps:+.6f} dps' if bias.refined_dps else 'none'),
+            'last_refusal': refusal}
+        if state == 'collecting':
+            progress = f'{collected}/{node.settings.bias_samples}'
+            return self._status('static bias', DiagnosticStatus.OK, f'collecting ({progress})', values)
+        if state == 'ok':
+            return self._status('static bias', DiagnosticStatus.OK, bias.describe(), values)
+        if state == 'refused':
+            kept = 'previous bias kept' if bias.samples else 'no bias applied'
+            return self._status('static bias', DiagnosticStatus.WARN, f'refused ({refusal}); {kept}',
+                                values)
+        return self._status('static bias', DiagnosticStatus.WARN,
+                            'none: call imu/static_bias with the gyro still', values)
+
+    def _temperature_status(self) -> DiagnosticStatus:
+        node = self._node
+        temp = node.last_temp_c
+        low, high = node.calibration.temperature_range_c
+        outside = node.corrector.compensator.clamped
+        recent = self._outside_range.take(outside)
+        implausible = node.corrector.dropped[IMPLAUSIBLE_TEMPERATURE]
+        dropped = self._implausible.take(implausible)
+        values = {'temperature_c': f'{temp:.2f}', 'calibrated_min_c': low, 'calibrated_max_c': high,
+                  'frames_outside_range': outside, 'frames_implausible_temperature': implausible}
+        if math.isnan(temp) and not dropped:
+            return self._status('temperature', DiagnosticStatus.STALE, 'no frame yet', values)
+        level, parts = DiagnosticStatus.OK, [f'{temp:.2f} degC' if not math.isnan(temp) else 'no valid frame yet']
+        if not math.isnan(temp) and not low <= temp <= high:
+            level = DiagnosticStatus.WARN
+            parts = [f'{temp:.2f} degC is outside the calibrated range {low}..{high} degC']
+        elif recent:
+            level = DiagnosticStatus.WARN
+            parts.append(f'{recent} frames since the last report were outside the calibrated range {low}..{high} degC '
+                         '(compensated at its edge)')
+        if dropped:
+            level = DiagnosticStatus.ERROR
+            parts.append(f'{dropped} frames since the last report claimed a temperature outside '
+                         f'{PLAUSIBLE_TEMPERATURE_C[0]:g}..{PLAUSIBLE_TEMPERATURE_C[1]:g} degC and were dropped: '
+                         'corrupt frames, or ' + ('kvh_fog.temperature_units is not what the unit sends'
+                                                  if node.settings.protocol == KVH_FOG
+                                                  else 'the temperature field is not m[3]:m[4] on this unit'))
+        return self._status('temperature', level, '; '.join(parts), values)

@@ -1,0 +1,210 @@
+"""ROS 2 node ``gyro_node``: the RD2100 on a serial port as a compensated yaw-rate source.
+
+Per frame (on the driver's reader thread, so latency is one serial read) the core's
+:class:`~art_gyro_calibration.compensation.FrameCorrector` scales, drops, compensates, feeds
+a running static bias collection and corrects; the node publishes what it answers.
+
+Topics (relative names, so they follow the node's namespace and remappings):
+
+- ``imu/data_raw`` (sensor_msgs/Imu): ``angular_velocity.z`` is the compensated yaw rate in
+  rad/s (REP 103: counter-clockwise seen from above is positive). Orientation and linear
+  acceleration are not measured: element 0 of their covariances is -1 (REP 145). The gyro
+  measures z only: x and y are reported as 0 with variance :data:`UNMEASURED_VARIANCE`, so a
+  filter that fuses them gives them no weight; element 8 is ``yaw_rate_stddev`` squared.
+- ``imu/temperature`` (std_msgs/Float64): the gyro temperature in degC.
+- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): link, static bias, temperature, raw log
+  (:mod:`.diagnostics`).
+
+Service ``imu/static_bias`` (std_srvs/Trigger): collect a new static bias (:mod:`.bias_service`).
+The raw log: :mod:`.raw_log`. Parameters are strict (:mod:`.parameters`): an unknown name, a value
+of the wrong type or out of its range, or a calibration that does not fit, ends the node at
+startup with a message naming it.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import Imu
+from std_msgs.msg import Float64
+
+from art_gyro_calibration.calibration import CalibrationError
+from art_gyro_calibration.compensation import FrameCorrector, RunStart
+from art_gyro_calibration.driver import Rd2100Driver
+from art_gyro_calibration.frame import Frame
+from art_gyro_calibration.ros.bias_service import StaticBiasService
+from art_gyro_calibration.ros.diagnostics import Diagnostics
+from art_gyro_calibration.ros.parameters import IMU_TOPIC, NODE_NAME, NodeParameters, ParameterError, usage
+from art_gyro_calibration.ros.raw_log import RawLog
+
+# Variance (rad/s)^2 given to the x and y rates, which a single-axis gyro does not measure:
+# large enough that any filter fusing them ignores them, finite so that it stays usable.
+UNMEASURED_VARIANCE = 1.0e6
+# An out-of-range temperature is said on the console at most this often.
+TEMPERATURE_WARNING_PERIOD_S = 60.0
+
+
+class GyroNode(Node):
+    """Owns the serial driver; corrects and publishes every frame; wires the service, raw log and diagnostics."""
+
+    def __init__(self, argv: Sequence[str] = ()) -> None:
+        super().__init__(NODE_NAME)
+        parameters = NodeParameters(self, argv)
+        self.settings, self.kvh_fog = parameters.settings, parameters.kvh_fog
+        self.calibration, self.calibration_source = parameters.calibration, parameters.calibration_source
+        self.corrector = FrameCorrector(self.calibration, RunStart(self.settings.powered_on_at_start))
+        self._closing = threading.Event()
+        self.published = 0
+        self.last_temp_c = math.nan   # of the last frame published
+        self._temp_range = self.calibration.temperature_range_c
+        self.raw_log = RawLog(self, self.settings.log_path, self.calibration.serial_number, self._closing)
+
+        self._imu = Imu()
+        self._imu.header.frame_id = self.settings.frame_id
+        self._imu.orientation_covariance[0] = -1.0
+        self._imu.linear_acceleration_covariance[0] = -1.0
+        self._imu.angular_velocity_covariance[0] = UNMEASURED_VARIANCE
+        self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
+        self._imu.angular_velocity_covariance[8] = self.settings.yaw_rate_stddev ** 2
+        self._temperature = Float64()
+        # Reliable, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
+        try:
+            self._imu_pub = self.create_publisher(Imu, IMU_TOPIC, 10,
+                                                  qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        except Exception as e:   # rclpy raises several types for a bad override; all end here
+            raise ParameterError(f'QoS override of {IMU_TOPIC}: {e}') from None
+        parameters.check_known_names(self.has_parameter)
+        self._temp_pub = self.create_publisher(Float64, 'imu/temperature', 10)
+        self.bias_service = StaticBiasService(self, self.settings, self.corrector, self._closing,
+                                              lambda: self.driver.stats.last_error)
+        self._diagnostics = Diagnostics(self)
+
+        if self.settings.static_bias_on_startup:
+            self.bias_service.start()
+        self.get_logger().info(
+            f'calibration loaded: {self.calibration.serial_number} from {self.calibration_source}; '
+            f'reading {self.settings.port} at {self.settings.baud} baud ({self.settings.protocol})')
+        self.driver = Rd2100Driver(self.settings.port, self.settings.baud, self.settings.protocol,
+                                   self._on_frame, on_link=self._on_link, on_warning=self._on_driver_warning,
+                                   clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog)
+        self.driver.start()
+
+    # --- per frame (driver reader thread) ------------------------------------------------
+
+    def _on_frame(self, frame: Frame) -> None:
+        try:
+            self._handle_frame(frame)
+        except Exception as e:   # an exception here would end the driver's reader thread
+            if not self._closing.is_set() and self.context.ok():
+                self.get_logger().error(f'frame not published: {type(e).__name__}: {e}',
+                                        throttle_duration_sec=5.0)
+
+    def _handle_frame(self, frame: Frame) -> None:
+        sample = frame.sample
+        stamp_ns = frame.stamp_ns
+        self._publish(sample.raw_rate, sample.raw_temp, stamp_ns, frame.steady_ns * 1e-9)
+        # After publishing: a log that fails (full disk) must not delay or stop the messages.
+        self.raw_log.write(stamp_ns * 1e-9, sample.raw_rate, sample.raw_temp)   # the log keeps what the wire said
+
+    def _publish(self, raw_rate: int, raw_temp: int, stamp_ns: int, t: float) -> None:
+        corrector = self.corrector
+        if corrector.step(raw_rate, raw_temp, t):
+            return   # dropped, and counted by the corrector
+        imu = self._imu
+        imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        imu.angular_velocity.z = math.radians(corrector.rate_dps)
+        self._imu_pub.publish(imu)
+        temp_c = corrector.temp_c
+        self._temperature.data = temp_c
+        self._temp_pub.publish(self._temperature)
+        self.last_temp_c = temp_c
+        low, high = self._temp_range
+        if not low <= temp_c <= high:   # the Compensator clamped it and counted it
+            self.get_logger().warning(f'gyro temperature {temp_c:.2f} degC is outside the calibrated range '
+                                      f'{low:g}..{high:g} degC: compensated as at the nearest end of it',
+                                      throttle_duration_sec=TEMPERATURE_WARNING_PERIOD_S)
+        self.published += 1
+
+    def _on_link(self, connected: bool, message: str) -> None:
+        if connected:
+            self.get_logger().info(f'gyro link up: {message}')
+        else:
+            self.get_logger().warning(f'gyro link down: {message}')
+
+    def _on_driver_warning(self, message: str) -> None:
+        self.get_logger().warning(message)
+
+    # --- shutdown ------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Stop the driver (no frame after this), end a static bias collection and close the raw log."""
+        self._closing.set()
+        self.driver.stop()
+        self.bias_service.close()
+        self.raw_log.close()
+
+
+# Set by Python's part of SIGINT: one that came before rclpy.init installed rclpy's handler stops the node too.
+_INTERRUPTED = threading.Event()
+
+
+def _stop_through_rclpy(signum: int, frame: object) -> None:
+    """Python's part of SIGINT: only noted (rclpy's handler, chained before it, stops the node)."""
+    _INTERRUPTED.set()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``gyro_node``; returns the exit code."""
+    argv = sys.argv if args is None else args
+    if any(arg in ('-h', '--help') for arg in argv[1:argv.index('--ros-args') if '--ros-args' in argv else None]):
+        print(usage(__doc__.splitlines()[0]))
+        return 0
+    node: GyroNode | None = None
+    # SIGINT stops the node through rclpy's handler, which shuts the context down and the executor with it.
+    # Python's own handler would also raise KeyboardInterrupt wherever the main thread is: inside the thread
+    # pool's `with lock:` it leaves the lock held, the pool's workers wait on it, and the exit waits on them
+    # for ever (seen about once in 25 SIGINTs; faulthandler showed the three workers in Semaphore.release).
+    _INTERRUPTED.clear()
+    signal.signal(signal.SIGINT, _stop_through_rclpy)
+    try:
+        rclpy.init(args=argv)
+        if _INTERRUPTED.is_set():   # before rclpy's handler was there to shut the context down
+            return 0
+        node = GyroNode(argv)
+        executor = MultiThreadedExecutor(num_threads=3)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as e:
+        if not rclpy.ok() and (_INTERRUPTED.is_set() or node is not None and isinstance(e, _rclpy.RCLError)):
+            # A signal shut the context down under a call to it: between two waits of the executor ("failed to
+            # initialize wait set: the given context is not valid") or while the node was being built ("rclpy.init()
+            # has not been called"). A stop as asked, not a failure.
+            return 0
+        if not isinstance(e, (ParameterError, CalibrationError, _rclpy.RCLError)):
+            raise
+        # RCLError: rcl refused the command line, such as a params file it cannot parse.
+        print(f'{NODE_NAME}: error: {e}', file=sys.stderr)
+        return 1
+    finally:
+        if node is not None:
+            try:
+                node.close()
+            finally:
+                node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,326 @@
+"""The node's parameters: declaration, ranges, descriptors, ``--help``, and their checks at startup.
+
+Parameters are strict: an unknown name (with the closest valid one), a value of the wrong type
+or out of its range, or a calibration that does not fit, is a :class:`ParameterError` naming it.
+The node's own look into its params files says which file gave a value and refuses another
+gyro's calibration.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+
+from art_gyro_calibration.calibration import (CALIBRATION_KEYS, Calibration, CalibrationError, closest,
+                                              find_calibration_file, flatten, from_parameters, is_calibration_key,
+                                              load_calibration, read_yaml, resolve_calibration_url)
+from art_gyro_calibration.driver import STANDARD_BAUDS
+from art_gyro_calibration.kvh_fog import KvhFogConfig
+from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
+from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES
+
+NODE_NAME = 'gyro_node'
+IMU_TOPIC = 'imu/data_raw'
+
+
+class Range(NamedTuple):
+    """Inclusive bounds of a numeric parameter."""
+
+    low: float
+    high: float
+
+
+# name: (default, description[, constraint]), the node's parameters besides a calibration's own.
+# The constraint is a Range for a number or a tuple of the allowed values; the type is the default's.
+PARAMETERS: dict[str, tuple[Any, ...]] = {
+    'port': ('/dev/ttyUSB0', 'Serial port of the gyro.'),
+    'baud': (9600, 'Serial baud rate (check the unit\'s setting; a 1 kHz unit needs 115200 or more).',
+             STANDARD_BAUDS),
+    'protocol': ('binary', 'Frame format on the wire: binary (8-byte RD2100 frames) or ascii '
+                           '("<raw_rate> <raw_temp>" lines).', PROTOCOLS),
+    'serial_number': ('', 'KVH serial number of the gyro; loads the packaged config/<serial_number>.yaml '
+                          'unless calibration_file is set or a calibration comes in by --params-file, which '
+                          'must be for this serial.'),
+    'calibration_file': ('', 'A calibration file instead of the packaged one: a path, file:///path or '
+                             'package://<package>/<path> (as camera_info_url); its serial_number must match.'),
+    'frame_id': ('imu_link', 'header.frame_id of the published messages.'),
+    'bias_samples': (DEFAULT_SAMPLES, 'Frames per static bias collection (100 = 10 s at 10 Hz).',
+                     Range(2, 1_000_000)),
+    'static_bias_on_startup': (True, 'Collect a static bias at startup (the gyro must be still).'),
+    'static_bias_max_mean_dps': (DEFAULT_MAX_MEAN_DPS, 'A static bias whose mean compensated rate exceeds '
+                                                       'this (deg/s) is refused: the gyro was turning.',
+                                 Range(1e-6, 10.0)),
+    'static_bias_max_std_dps': (DEFAULT_MAX_STD_DPS, 'A static bias whose rate spread (standard deviation, '
+                                                     'deg/s) exceeds this is refused: the gyro was moving.',
+                                Range(1e-6, 10.0)),
+    'yaw_rate_stddev': (0.001, 'Standard deviation of the compensated yaw rate (rad/s); its square is '
+                               'angular_velocity_covariance[8].', Range(1e-7, 1.0)),
+    'powered_on_at_start': (False, 'The gyro was switched on with the node (a cold start): a warm-up term of the '
+                                   'calibration then decays from the node\'s first frame. Otherwise (the default, '
+                                   'safe on a warm restart) a warm-up term counts as decayed.'),
+    'log_path': ('', 'If set, every received frame is appended as t,raw_rate,raw_temp: a file to create '
+                     '(must not exist) or a directory, where <serial>_<UTC time>.csv is created.'),
+}
+
+# --- protocol kvh_fog (KVH DSP-1750/1760, 1725/1750/1775) ------------------------------------------
+# What the unit is set to send, which its messages do not say: name: (default, description). Declared
+# and checked at startup whatever the protocol; read by the kvh_fog parser only. Defaults: the manuals'.
+_KVH_FOG_DESCRIPTIONS = {
+    'message_format': 'kvh_fog message format (=OUTPUTFMT): A (36 bytes, the default), B (40) or C (38).',
+    'yaw_axis': 'kvh_fog axis that points up on the robot: x, y or z, or -x, -y, -z if it points down.',
+    'rotation': 'kvh_fog rotation output (=ROTFMT): delta_angle (the default) or rate.',
+    'angle_units': 'kvh_fog angle units (=ROTUNITS): rad (the default) or deg.',
+    'output_rate_hz': 'kvh_fog messages per second (=DR); a delta angle times it is the rate.',
+    'temperature_units': 'kvh_fog temperature units (=TEMPUNITS): C (the default), C_100, F or F_100.',
+}
+KVH_FOG_PARAMETERS: dict[str, tuple[Any, str]] = {
+    f'kvh_fog.{name}': (getattr(KvhFogConfig(), name), description)
+    for name, description in _KVH_FOG_DESCRIPTIONS.items()}
+
+
+class ParameterError(ValueError):
+    """A node parameter that cannot be used, named in the message."""
+
+
+def check_kvh_fog_calibration(calibration: Calibration, source: str) -> None:
+    """Refuse for protocol kvh_fog a calibration whose scale factors are not 1.0 (its samples are deg/s, degC)."""
+    if calibration.rate_scale_factor != 1.0 or calibration.temp_scale_factor != 1.0:
+        raise ParameterError(
+            f'parameter protocol is {KVH_FOG}, whose samples are deg/s and degC, but the calibration of '
+            f'{calibration.serial_number} from {source} has rate_scale_factor {calibration.rate_scale_factor} and '
+            f'temp_scale_factor {calibration.temp_scale_factor}: both must be 1.0 '
+            '(config/KVH_DSP1760_EXAMPLE.yaml is an example)')
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The node's parameters, checked."""
+
+    port: str
+    baud: int
+    protocol: str
+    serial_number: str
+    calibration_file: str
+    frame_id: str
+    bias_samples: int
+    static_bias_on_startup: bool
+    static_bias_max_mean_dps: float
+    static_bias_max_std_dps: float
+    yaw_rate_stddev: float
+    powered_on_at_start: bool
+    log_path: str
+
+
+def _constraint(name: str) -> Any:
+    entry = PARAMETERS[name]
+    return entry[2] if len(entry) > 2 else None
+
+
+def describe_constraint(name: str) -> str:
+    """The allowed values of a parameter for people, or ''."""
+    constraint = _constraint(name)
+    if isinstance(constraint, Range):
+        return f'{constraint.low:g}..{constraint.high:g}' if isinstance(constraint.low, float) else \
+            f'{constraint.low}..{constraint.high}'
+    if constraint:
+        return 'one of ' + ', '.join(map(str, constraint))
+    return ''
+
+
+def check_settings(values: dict[str, Any]) -> Settings:
+    """Check the node's parameter values (already of the declared types) against their constraints."""
+    for name in ('port', 'frame_id'):
+        if not values[name].strip():
+            raise ParameterError(f'parameter {name} must not be empty')
+    for name, value in values.items():
+        constraint = _constraint(name)
+        if isinstance(constraint, Range):
+            if not (math.isfinite(value) and constraint.low <= value <= constraint.high):
+                raise ParameterError(f'parameter {name} must be in {describe_constraint(name)}, got {value!r}')
+        elif constraint and value not in constraint:
+            raise ParameterError(f'parameter {name} must be {describe_constraint(name)}, got {value!r}')
+    return Settings(**values)
+
+
+def descriptor(name: str) -> ParameterDescriptor:
+    """Read-only descriptor of a node parameter, with its range where it is a number."""
+    default, description = PARAMETERS[name][:2]
+    d = ParameterDescriptor(description=description, read_only=True)
+    constraint = _constraint(name)
+    if isinstance(constraint, Range) and isinstance(default, int):
+        d.integer_range = [IntegerRange(from_value=int(constraint.low), to_value=int(constraint.high), step=1)]
+    elif isinstance(constraint, Range):
+        d.floating_point_range = [FloatingPointRange(from_value=float(constraint.low),
+                                                     to_value=float(constraint.high), step=0.0)]
+    elif constraint and isinstance(default, int):
+        d.integer_range = [IntegerRange(from_value=min(constraint), to_value=max(constraint), step=0)]
+        d.additional_constraints = describe_constraint(name)
+    elif constraint:
+        d.additional_constraints = describe_constraint(name)
+    return d
+
+
+def _coerce(name: str, value: Any, default: Any) -> Any:
+    """``value`` as the type of ``default`` (an integer is a valid float), or a :class:`ParameterError`."""
+    kind = type(default)
+    if isinstance(value, kind) and (kind is bool or not isinstance(value, bool)):
+        return value
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    names = {bool: 'a boolean', int: 'an integer', float: 'a number', str: 'a string'}
+    raise ParameterError(f'parameter {name} must be {names[kind]}, got {value!r}')
+
+
+def usage(summary: str) -> str:
+    """``gyro_node --help``: how to run it, ``summary`` (what it does), every parameter with its default and range."""
+    lines = [f'usage: {NODE_NAME} [--help] --ros-args [-p NAME:=VALUE]... [--params-file FILE]... '
+             '[-r __ns:=/NAMESPACE]', '', summary, '',
+             'parameters (read-only; checked at startup, an unknown or bad one ends the node with exit 1):']
+    for name, (default, description, *_) in PARAMETERS.items():
+        allowed = describe_constraint(name)
+        lines.append(f'  {name} ({type(default).__name__}, default {default!r}{", " + allowed if allowed else ""})')
+        lines.append(f'      {description}')
+    lines += ['', 'calibration parameters (from the calibration file, read-only): '
+              + ', '.join(sorted(CALIBRATION_KEYS)) + ', extended.<signal>.*',
+              f'QoS of {IMU_TOPIC} (default reliable, depth 10): qos_overrides./<namespace>/{IMU_TOPIC}.publisher.'
+              '{reliability,history,depth,durability}',
+              'topics: imu/data_raw (sensor_msgs/Imu), imu/temperature (std_msgs/Float64), /diagnostics; '
+              'service: imu/static_bias (std_srvs/Trigger)']
+    return '\n'.join(lines)
+
+
+def params_files(argv: Sequence[str]) -> list[str]:
+    """The ``--params-file`` paths among the ROS arguments of a command line."""
+    files = []
+    in_ros_args = False
+    for i, arg in enumerate(argv):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg == '--params-file' and i + 1 < len(argv):
+            files.append(argv[i + 1])
+    return files
+
+
+def _entry_pattern(key: str) -> re.Pattern[str]:
+    """A params file's node entry (``/**``, ``gyro_node``, ``/robot/*``) as a pattern of fully qualified names."""
+    key = key if key.startswith('/') else '/' + key
+    parts = re.split(r'(\*\*|\*)', key)
+    return re.compile(''.join('.*' if p == '**' else '[^/]*' if p == '*' else re.escape(p) for p in parts) + '$')
+
+
+def params_file_values(paths: Sequence[str], node_name: str) -> dict[str, dict[str, Any]]:
+    """Per params file, the flat parameters it gives the node ``node_name`` (fully qualified).
+
+    Read safely (size-bounded, no aliases); a file rcl parsed but that is refused here is an error.
+    """
+    values: dict[str, dict[str, Any]] = {}
+    for path in paths:
+        doc = read_yaml(path, 'params file')
+        flat: dict[str, Any] = {}
+        for key, body in (doc.items() if isinstance(doc, Mapping) else ()):
+            params = body.get('ros__parameters') if isinstance(body, Mapping) else None
+            if isinstance(params, Mapping) and _entry_pattern(str(key)).match(node_name):
+                flat.update(flatten(params))
+        values[path] = flat
+    return values
+
+
+class NodeParameters:
+    """A node's parameters read, checked and declared (read-only) at startup: its own, kvh_fog's, the calibration's.
+
+    It looks at the node's overrides (rclpy's ``_parameter_overrides``) before declaring anything,
+    so that a name nothing reads is refused, not ignored, and every value is checked first.
+    """
+
+    def __init__(self, node: Node, argv: Sequence[str]) -> None:
+        self._node = node
+        self._files = params_file_values(params_files(argv), node.get_fully_qualified_name())
+        # Known now: the node's own, a calibration's, rclpy's (use_sim_time); QoS overrides once the publisher is made.
+        self.check_known_names(lambda name: name in PARAMETERS or name in KVH_FOG_PARAMETERS
+                               or is_calibration_key(name) or node.has_parameter(name)
+                               or name.startswith('qos_overrides.'))
+        self.settings = check_settings({name: self._override(name, entry[0]) for name, entry in PARAMETERS.items()})
+        for name in PARAMETERS:
+            # Read-only: the node reads them once at startup, so a later change is refused, not ignored.
+            node.declare_parameter(name, getattr(self.settings, name), descriptor(name), ignore_override=True)
+        self.kvh_fog = self._kvh_fog_config()
+        self.calibration, self.calibration_source = self._load_calibration()
+        if self.settings.protocol == KVH_FOG:
+            check_kvh_fog_calibration(self.calibration, self.calibration_source)
+
+    def _where(self, name: str) -> str:
+        """Which params file gave a parameter (the last one, as rcl applies them), else the command line."""
+        files = [path for path, values in self._files.items() if name in values]
+        return files[-1] if files else 'the command line'
+
+    def check_known_names(self, known: Callable[[str], bool]) -> None:
+        """Refuse a parameter given to the node that nothing reads, naming the closest valid name."""
+        names = set(PARAMETERS) | set(KVH_FOG_PARAMETERS) | set(CALIBRATION_KEYS) | set(self._node._parameters)
+        for name in self._node._parameter_overrides:
+            if not known(name):
+                raise ParameterError(f'unknown parameter {name!r} (from {self._where(name)}){closest(name, names)}')
+
+    def _override(self, name: str, default: Any) -> Any:
+        if name not in self._node._parameter_overrides:
+            return default
+        return _coerce(name, self._node._parameter_overrides[name].value, default)
+
+    def _kvh_fog_config(self) -> KvhFogConfig:
+        values = {}
+        for name, (default, description) in KVH_FOG_PARAMETERS.items():
+            value = self._override(name, default)
+            self._node.declare_parameter(
+                name, value, ParameterDescriptor(description=description, read_only=True), ignore_override=True)
+            values[name.removeprefix('kvh_fog.')] = value
+        try:
+            return KvhFogConfig(**values)
+        except ValueError as e:
+            raise ParameterError(f'parameter {e}') from None
+
+    def _load_calibration(self) -> tuple[Calibration, str]:
+        serial = self.settings.serial_number
+        given = {name: p.value for name, p in self._node._parameter_overrides.items()
+                 if is_calibration_key(name) and name != 'serial_number'}
+        # Every params file that names a serial must agree with the node's (a node params file and
+        # another gyro's calibration file would otherwise load that gyro's calibration silently).
+        for path, values in self._files.items():
+            file_serial = values.get('serial_number')
+            if file_serial is not None and serial and str(file_serial) != serial:
+                what = (f'the calibration in {path} is' if 'polynomial.coefficients' in values
+                        else f'the parameters in {path} are')
+                raise ParameterError(f'parameter serial_number is {serial!r} but {what} for '
+                                     f'{str(file_serial)!r}: refusing a calibration of another gyro')
+        if given:
+            if self.settings.calibration_file:
+                raise ParameterError(f'parameter calibration_file is set and a calibration came in as parameters '
+                                     f'(from {self._where("polynomial.coefficients")}): give one or the other')
+            files = sorted({self._where(name) for name in given})
+            where = 'parameters (' + ', '.join(files) + ')'
+            calibration = from_parameters({**given, 'serial_number': serial}, where)
+        elif self.settings.calibration_file:
+            path = resolve_calibration_url(self.settings.calibration_file)
+            calibration, where = load_calibration(path, expected_serial=serial or None), str(path)
+        elif not serial:
+            raise ParameterError('parameter serial_number is required: the KVH serial number (such as '
+                                 'NAVC3545) of the packaged calibration to load, unless calibration_file is '
+                                 'set or a calibration file comes in by --params-file')
+        else:
+            try:
+                path = find_calibration_file(serial)
+            except CalibrationError as e:
+                raise ParameterError(f'parameter serial_number: {e}') from None
+            calibration, where = load_calibration(path, expected_serial=serial), str(path)
+        for name, value in calibration.to_parameters().items():
+            if name != 'serial_number':
+                self._node.declare_parameter(name, value, ParameterDescriptor(
+                    description=f'calibration of {calibration.serial_number} (from {where})', read_only=True),
+                    ignore_override=True)
+        return calibration, where
