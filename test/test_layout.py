@@ -12,8 +12,8 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = REPO / 'art_gyro_calibration'
 ANALYSIS_ONLY = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl')
-RUNTIME_MODULES = ('node', 'monitor', 'driver', 'frame', 'fake_rd2100', 'compensation', 'calibration',
-                   'static_bias', 'signals', 'terms', 'model', 'log')
+RUNTIME_MODULES = ('node', 'monitor', 'driver', 'frame', 'fake_rd2100', 'gyro_physics', 'compensation',
+                   'calibration', 'static_bias', 'signals', 'terms', 'model', 'log')
 # Imports of the analysis-only packages fail in the child, as on a robot without the extra.
 BLOCK = f'''
 import importlib.abc, sys
