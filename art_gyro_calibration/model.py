@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from art_gyro_calibration.signals import LAGGED_SIGNAL, Signals, SignalTracker
+from art_gyro_calibration.signals import LAGGED_SIGNAL, SIGNALS, Signals, SignalTracker
 from art_gyro_calibration.terms import Term
 
 
@@ -73,7 +73,7 @@ class ArtPolynomial:
 
 
 # Signals that are temperatures: clamped to the calibrated range with the polynomial's.
-_TEMPERATURES = ('temperature', LAGGED_SIGNAL)
+_TEMPERATURES = tuple(name for name, signal in SIGNALS.items() if signal.temperature)
 # The terms a static bias taken while the temperature-rate filter still starts up gets wrong.
 _REFINABLE = 'temperature_rate'
 
