@@ -40,9 +40,9 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from art_gyro_calibration.calibration import Calibration
-from art_gyro_calibration.log import GyroLog, write_columns
 from art_gyro_calibration.gyro_physics import (ANN_ARBOR_LATITUDE_DEG, earth_rate_dps, measured_from_true, to_counts,
                                                white_noise_dps)
+from art_gyro_calibration.log import GyroLog, write_columns
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals, first_order_smooth
 
 FULL_SCALE_DPS = 100.0
