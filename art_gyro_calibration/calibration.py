@@ -38,7 +38,8 @@ import yaml
 
 from art_gyro_calibration.frame import INT16_MIN
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
-from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, SignalFilters
+from art_gyro_calibration.signals import (DERIVED_SIGNALS, LAGGED_SIGNAL, POWER_ON_SIGNAL, SIGNALS, Envelope,
+                                          SignalFilters)
 from art_gyro_calibration.terms import FORMS, Term
 
 PACKAGE = 'art_gyro_calibration'
@@ -228,20 +229,14 @@ def signal_envelope(calibration: Calibration, signal: str) -> tuple[float, float
     """Range of a derived signal over the calibration's envelope; None for a signal with no known range.
 
     The envelope: the temperature in ``temperature_range_c``, the rate within +-full scale, a run of
-    up to TIME_HORIZON_S. A log column (a supply voltage) has no known range. The filtered
-    derivatives ``(x - ema(x)) / tau`` are bounded by the span of ``x`` over ``tau``.
+    up to TIME_HORIZON_S; each signal's range over it is the registry's (:data:`signals.SIGNALS`).
+    A log column (a supply voltage) has no known range.
     """
-    low_c, high_c = calibration.temperature_range_c
-    full_scale = FULL_SCALE_COUNTS * calibration.rate_scale_factor
-    filters = calibration.filters
-    span_c = (high_c - low_c) / filters.temperature_rate_tau_s
-    change = 2.0 * full_scale / filters.rate_change_tau_s
-    return {
-        'temperature': (low_c, high_c), 'temperature_lag': (low_c, high_c), 'temperature_rate': (-span_c, span_c),
-        'time': (0.0, TIME_HORIZON_S), 'time_since_power_on': (0.0, TIME_HORIZON_S),
-        'rate': (-full_scale, full_scale), 'rate_abs': (0.0, full_scale), 'rate_sign': (-1.0, 1.0),
-        'rate_change': (-change, change), 'angle': (-full_scale * TIME_HORIZON_S, full_scale * TIME_HORIZON_S),
-    }.get(signal)
+    derived = SIGNALS.get(signal)
+    if derived is None:
+        return None
+    return derived.range(Envelope(calibration.temperature_range_c, FULL_SCALE_COUNTS * calibration.rate_scale_factor,
+                                  calibration.filters, TIME_HORIZON_S))
 
 
 def check_envelope(calibration: Calibration, where: str) -> None:
@@ -319,12 +314,13 @@ def _whole_numbers(value: Any, key: str, where: str) -> list[int]:
 
 def _check_start_up_safe(term: Term, prefix: str, where: str) -> None:
     """Refuse a term the node would apply wrongly from whatever state it starts in."""
-    if term.form == 'harmonic' or term.signal == 'angle':
+    # A signal the node does not track: the angle, which would need an absolute heading.
+    if term.form == 'harmonic' or (term.signal in SIGNALS and not SIGNALS[term.signal].per_sample):
         raise CalibrationError(f'{where}: {prefix}form: a term of the heading needs an absolute heading, which '
                                'the node does not have (calibrate fit reports such an effect, it does not write it)')
     if term.form == 'exp_decay' and term.signal == 'time':
         raise CalibrationError(f'{where}: {prefix}form: a warm-up decays from the gyro\'s power-on, not from the '
-                               'node\'s start: use the signal time_since_power_on (the node applies it when '
+                               f'node\'s start: use the signal {POWER_ON_SIGNAL} (the node applies it when '
                                'told powered_on_at_start)')
 
 

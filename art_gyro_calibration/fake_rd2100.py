@@ -6,7 +6,8 @@ pty at a steady rate, can be unplugged and replugged, and can inject garbage.
 
 A reading is ``measured_from_true(polynomial, true_rate, T) + turn_on_bias + earth_rate
 + white noise`` in deg/s, quantised to counts with the calibration's rate scale factor;
-the temperature is ``round(T / temp_scale_factor)`` counts. Like the gyro, readings
+the temperature is ``round(T / temp_scale_factor)`` counts (the physics of
+:mod:`art_gyro_calibration.gyro_physics`, shared with ``calibrate simulate``). Like the gyro, readings
 saturate at the signed 16-bit count range (about +-100 deg/s at 0.00305 deg/s per count).
 With ``protocol='kvh_fog'`` the fake is a KVH DSP-1760/1775 instead: the reading and the
 temperature go unquantised into its float message, set as a :class:`KvhFogConfig` says, at the
@@ -32,15 +33,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
 from art_gyro_calibration.frame import INT16_MAX, INT16_MIN
+from art_gyro_calibration.gyro_physics import (ANN_ARBOR_LATITUDE_DEG, earth_rate_dps, measured_from_true, to_counts,
+                                               white_noise_dps)
 from art_gyro_calibration.kvh_fog import (KVH_ANGLE_UNITS, KVH_FORMATS, KVH_ROTATIONS, KVH_TEMPERATURE_UNITS,
                                           KvhFogConfig)
-from art_gyro_calibration.model import measured_from_true
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS, make_encoder
 
-# White noise of an RD2100 at its 10 Hz output, one sample's standard deviation.
-DEFAULT_NOISE_DPS_AT_10HZ = 0.005
-EARTH_RATE_DPS = 360.0 / 86164.0905   # one turn per sidereal day
-ART_LATITUDE_DEG = 42.28               # Ann Arbor, where ART calibrated the gyros
+# White noise of an RD2100: 0.005 deg/s per sample at its 10 Hz output, as an angle random walk.
+DEFAULT_ARW_DEG_RTHR = 0.005 * 60.0 / math.sqrt(10.0)
 DEFAULT_TURN_ON_BIAS_SIGMA_DPS = 0.02
 # Bytes a slow or absent reader may leave unsent before the fake drops them, as a
 # real gyro's UART would: about a second of binary frames at 1 kHz.
@@ -48,13 +48,8 @@ MAX_PENDING_BYTES = 8192
 
 
 def default_noise_dps(rate_hz: float) -> float:
-    """Per-sample noise at ``rate_hz``: white noise of fixed density, so it grows as sqrt(rate)."""
-    return DEFAULT_NOISE_DPS_AT_10HZ * math.sqrt(rate_hz / 10.0)
-
-
-def earth_rate_dps(latitude_deg: float) -> float:
-    """What a level yaw gyro at rest reads of the Earth's rotation."""
-    return EARTH_RATE_DPS * math.sin(math.radians(latitude_deg))
+    """Per-sample noise at ``rate_hz`` of an RD2100: white noise of fixed density, so it grows as sqrt(rate)."""
+    return white_noise_dps(DEFAULT_ARW_DEG_RTHR, rate_hz)
 
 
 @dataclass(frozen=True)
@@ -129,7 +124,7 @@ class GyroSimulator:
 
     def __init__(self, calibration: Calibration, profile: RateProfile, temperature: TemperatureProfile,
                  noise_dps: float, seed: int | None = None, turn_on_bias_dps: float | None = None,
-                 latitude_deg: float = ART_LATITUDE_DEG) -> None:
+                 latitude_deg: float = ANN_ARBOR_LATITUDE_DEG) -> None:
         if not (math.isfinite(noise_dps) and noise_dps >= 0):
             raise ValueError(f'noise must be a non-negative number of deg/s, got {noise_dps}')
         self.calibration = calibration
@@ -158,8 +153,9 @@ class GyroSimulator:
     def counts(self, t: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """Raw (rate, temperature) counts at times ``t``, with fresh noise."""
         reading, temp = self.readings(t)
-        raw_rate = np.clip(np.rint(reading / self.calibration.rate_scale_factor), INT16_MIN, INT16_MAX)
-        raw_temp = np.clip(np.rint(temp / self.calibration.temp_scale_factor), INT16_MIN, INT16_MAX)
+        # Like the gyro, saturated at the signed 16-bit count range.
+        raw_rate = np.clip(to_counts(reading, self.calibration.rate_scale_factor), INT16_MIN, INT16_MAX)
+        raw_temp = np.clip(to_counts(temp, self.calibration.temp_scale_factor), INT16_MIN, INT16_MAX)
         return raw_rate.astype(np.int64), raw_temp.astype(np.int64)
 
 

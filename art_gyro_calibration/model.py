@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from art_gyro_calibration.signals import LAGGED_SIGNAL, Signals, SignalTracker
+from art_gyro_calibration.signals import LAGGED_SIGNAL, SIGNALS, Signals, SignalTracker
 from art_gyro_calibration.terms import Term
 
 
@@ -73,7 +73,7 @@ class ArtPolynomial:
 
 
 # Signals that are temperatures: clamped to the calibrated range with the polynomial's.
-_TEMPERATURES = ('temperature', LAGGED_SIGNAL)
+_TEMPERATURES = tuple(name for name, signal in SIGNALS.items() if signal.temperature)
 # The terms a static bias taken while the temperature-rate filter still starts up gets wrong.
 _REFINABLE = 'temperature_rate'
 
@@ -133,22 +133,3 @@ class ErrorModel:
     def refinable_error_one(self, tracker: SignalTracker) -> float:
         """The part of :meth:`error_one` the temperature-rate terms make."""
         return sum(t.evaluate_one(tracker.for_term(t), tracker.rate) for t in self.refinable)
-
-
-def measured_from_true(polynomial: ArtPolynomial, true_rate_dps: ArrayLike, temp_c: ArrayLike,
-                       tolerance_dps: float = 1e-12, max_iterations: int = 100) -> NDArray[np.float64]:
-    """Reading ``m`` of a gyro whose error is ``comp(m, T)``: solves ``m - comp(m, T) = true``.
-
-    The model is written in the measured rate, so a simulator must invert it; the
-    fixed point converges because the scale-factor error is far below one.
-    """
-    true_rate = np.asarray(true_rate_dps, dtype=float)
-    measured = true_rate.copy()
-    for _ in range(max_iterations):
-        updated = true_rate + polynomial.error(measured, temp_c)
-        step = np.max(np.abs(updated - measured), initial=0.0)
-        measured = updated
-        if step <= tolerance_dps:
-            return measured
-    raise ValueError(f'the model does not invert: its rate derivative is not small over these inputs '
-                     f'(last step {step:.3g} deg/s)')

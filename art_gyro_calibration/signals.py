@@ -10,7 +10,7 @@ one ended in (:meth:`Signals.end_state`), and gives the same values as the whole
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Protocol
@@ -18,15 +18,10 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-# Signals derived from (t, rate, temperature); any other name is an extra log column.
-# ``time`` counts from the run's first sample (a linear drift needs no other origin);
-# ``time_since_power_on`` from the gyro's power-on, infinite when the run did not start
-# with it (a warm-up has then decayed: a warm restart must not replay it);
-# ``temperature_lag`` is the temperature through a first-order lag whose time constant
-# the term carries (a fibre coil that lags the sensor).
-DERIVED_SIGNALS = ('temperature', 'temperature_rate', 'time', 'time_since_power_on', 'temperature_lag', 'rate',
-                   'rate_abs', 'rate_sign', 'rate_change', 'angle')
+# The signal whose value a term's own time constant sets: the temperature through a first-order lag.
 LAGGED_SIGNAL = 'temperature_lag'
+# The signal that counts from the gyro's power-on: only a run declared to start with it can judge a term on it.
+POWER_ON_SIGNAL = 'time_since_power_on'
 
 # A temperature count is 0.05 degC and a chamber ramps at about 1 degC/min: the
 # derivative needs minutes of smoothing to rise above the quantisation.
@@ -61,6 +56,78 @@ class SignalFilters:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'filters.{name} must be a positive number of seconds, got {value!r}')
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """Where a calibration is meant to hold: the signals' ranges follow from it (:attr:`DerivedSignal.range`)."""
+
+    temperature_range_c: tuple[float, float]
+    full_scale_dps: float       # the rate's full scale, either sign
+    filters: SignalFilters
+    horizon_s: float            # how long a node may run
+
+
+@dataclass(frozen=True)
+class DerivedSignal:
+    """One signal derived from (t, rate, temperature), once for every reader.
+
+    :class:`Signals` (over a log) and :class:`SignalTracker` (the node, per sample) compute
+    it as the attribute of its name; the calibration checks bound a term on it by ``range``;
+    the fit's loop and screen read the flags.
+    """
+
+    name: str
+    unit: str
+    description: str
+    range: Callable[[Envelope], tuple[float, float]]   # its bounds over a calibration's envelope
+    per_sample: bool = True        # the node tracks it (the angle needs an absolute heading the node lacks)
+    temperature: bool = False      # a temperature: clamped to the calibrated range, as the polynomial's is
+    from_rate: bool = False        # computed from the measured rate alone (its own error, on a gyro at rest)
+    squarable: bool = False        # the loop may grow its linear term a square (not a copy of the polynomial's)
+
+
+def _temperature_range(e: Envelope) -> tuple[float, float]:
+    low_c, high_c = e.temperature_range_c
+    return low_c, high_c
+
+
+def _temperature_rate_range(e: Envelope) -> tuple[float, float]:
+    """A filtered derivative ``(x - ema(x)) / tau`` is bounded by the span of ``x`` over ``tau``."""
+    low_c, high_c = e.temperature_range_c
+    span_c = (high_c - low_c) / e.filters.temperature_rate_tau_s
+    return -span_c, span_c
+
+
+def _rate_change_range(e: Envelope) -> tuple[float, float]:
+    change = 2.0 * e.full_scale_dps / e.filters.rate_change_tau_s
+    return -change, change
+
+
+SIGNALS: dict[str, DerivedSignal] = {s.name: s for s in (
+    DerivedSignal('temperature', 'degC', 'the gyro\'s temperature', _temperature_range, temperature=True),
+    DerivedSignal('temperature_rate', 'degC/s', 'the temperature\'s rate of change, causally filtered',
+                  _temperature_rate_range, squarable=True),
+    DerivedSignal('time', 's', 'seconds since the run\'s first sample (a linear drift needs no other origin)',
+                  lambda e: (0.0, e.horizon_s)),
+    DerivedSignal(POWER_ON_SIGNAL, 's', 'seconds since the gyro\'s power-on, infinite when the run did not start '
+                  'with it (a warm-up has then decayed: a warm restart must not replay it)',
+                  lambda e: (0.0, e.horizon_s)),
+    DerivedSignal(LAGGED_SIGNAL, 'degC', 'the temperature through a first-order lag whose time constant the term '
+                  'carries (a fibre coil that lags the sensor)', _temperature_range, temperature=True),
+    DerivedSignal('rate', 'deg/s', 'the measured rate', lambda e: (-e.full_scale_dps, e.full_scale_dps),
+                  from_rate=True),
+    DerivedSignal('rate_abs', 'deg/s', 'the measured rate\'s magnitude', lambda e: (0.0, e.full_scale_dps),
+                  from_rate=True),
+    DerivedSignal('rate_sign', '', 'the measured rate\'s sign (-1, 0, 1)', lambda e: (-1.0, 1.0), from_rate=True),
+    DerivedSignal('rate_change', 'deg/s^2', 'the measured rate\'s rate of change, causally filtered',
+                  _rate_change_range, from_rate=True, squarable=True),
+    DerivedSignal('angle', 'deg', 'the angle turned, the measured rate integrated',
+                  lambda e: (-e.full_scale_dps * e.horizon_s, e.full_scale_dps * e.horizon_s), per_sample=False,
+                  from_rate=True),
+)}
+# Their names, in the registry's order; any other name is an extra log column.
+DERIVED_SIGNALS = tuple(SIGNALS)
 
 
 @dataclass(frozen=True)
@@ -372,24 +439,41 @@ class SignalTracker:
             return lag.smooth if lag.smooth is not None else self.temperature
         return self.value(term.signal)
 
+    @property
+    def temperature_rate(self) -> float:
+        """Filtered temperature rate of change, degC/s."""
+        return self._temperature_rate.value
+
+    @property
+    def time(self) -> float:
+        """Seconds since the first sample."""
+        return self.t - (self.t0 if self.t0 is not None else self.t)
+
+    @property
+    def time_since_power_on(self) -> float:
+        """Seconds since the gyro's power-on: infinite when it is unknown."""
+        return self.time + self.power_on_offset_s
+
+    @property
+    def rate_abs(self) -> float:
+        """Magnitude of the measured rate, deg/s."""
+        return abs(self.rate)
+
+    @property
+    def rate_sign(self) -> float:
+        """Sign of the measured rate (-1, 0, 1)."""
+        return 1.0 if self.rate > 0.0 else -1.0 if self.rate < 0.0 else 0.0
+
+    @property
+    def rate_change(self) -> float:
+        """Filtered rate of change of the measured rate, deg/s^2."""
+        return self._rate_change.value
+
     def value(self, name: str) -> float:
-        """Current value of derived signal ``name``."""
-        if name == 'temperature':
-            return self.temperature
-        if name == 'temperature_rate':
-            return self._temperature_rate.value
-        if name == 'time':
-            return self.t - (self.t0 if self.t0 is not None else self.t)
-        if name == 'time_since_power_on':
-            return self.t - (self.t0 if self.t0 is not None else self.t) + self.power_on_offset_s
-        if name == 'rate':
-            return self.rate
-        if name == 'rate_abs':
-            return abs(self.rate)
-        if name == 'rate_sign':
-            return 1.0 if self.rate > 0.0 else -1.0 if self.rate < 0.0 else 0.0
-        if name == 'rate_change':
-            return self._rate_change.value
-        raise KeyError(f'signal {name!r} is not available per sample; the node tracks '
-                       f'{", ".join(n for n in DERIVED_SIGNALS if n not in ("angle", LAGGED_SIGNAL))} '
-                       f'and {LAGGED_SIGNAL} (with a time constant)')
+        """Current value of derived signal ``name`` (the attribute of its name)."""
+        signal = SIGNALS.get(name)
+        if signal is None or not signal.per_sample or name == LAGGED_SIGNAL:
+            raise KeyError(f'signal {name!r} is not available per sample; the node tracks '
+                           f'{", ".join(n for n, s in SIGNALS.items() if s.per_sample and n != LAGGED_SIGNAL)} '
+                           f'and {LAGGED_SIGNAL} (with a time constant)')
+        return getattr(self, name)

@@ -10,8 +10,8 @@ import pytest
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
 from art_gyro_calibration.compensation import (IMPLAUSIBLE_TEMPERATURE, Compensator, FrameCorrector, RunStart,
                                                apply_calibration)
+from art_gyro_calibration.gyro_physics import measured_from_true
 from art_gyro_calibration.log import GyroLog
-from art_gyro_calibration.model import measured_from_true
 from art_gyro_calibration.signals import SignalFilters, compute_signals
 from art_gyro_calibration.static_bias import StaticBiasCollector
 from art_gyro_calibration.terms import Term

@@ -13,8 +13,9 @@ import pytest
 import serial
 
 from art_gyro_calibration.calibration import CalibrationError, load_packaged_calibration
-from art_gyro_calibration.fake_rd2100 import (ART_LATITUDE_DEG, MAX_PENDING_BYTES, FakeRd2100, GyroSimulator,
-                                              RateProfile, TemperatureProfile, default_noise_dps, earth_rate_dps)
+from art_gyro_calibration.fake_rd2100 import (MAX_PENDING_BYTES, FakeRd2100, GyroSimulator, RateProfile,
+                                              TemperatureProfile, default_noise_dps)
+from art_gyro_calibration.gyro_physics import ANN_ARBOR_LATITUDE_DEG, earth_rate_dps
 from art_gyro_calibration.kvh_fog import KvhFogConfig
 from art_gyro_calibration.protocols import make_parser
 
@@ -37,7 +38,7 @@ def test_mean_reading_carries_the_calibrated_error(serial, true_rate, temp):
     cal = sim.calibration
     raw_rate, raw_temp = sim.counts(np.arange(4000) * 0.1)
     mean_reading = raw_rate.mean() * cal.rate_scale_factor
-    offset = 0.015 + earth_rate_dps(ART_LATITUDE_DEG)
+    offset = 0.015 + earth_rate_dps(ANN_ARBOR_LATITUDE_DEG)
     expected_error = cal.polynomial.error_one(mean_reading - offset, temp) + offset
     # Standard error of the mean 0.005 / sqrt(4000) < 1e-4; the noise dithers the 0.003 deg/s counts.
     assert mean_reading - true_rate == pytest.approx(expected_error, abs=5e-4)
@@ -49,7 +50,7 @@ def test_error_is_the_model_not_zero():
     reading = sim.reading_dps(90.0, 40.0).item()
     assert abs(reading - 90.0) > 0.5   # the polynomial's scale-factor error at 90 deg/s is large
     # Less the earth rate, compensating the noise-free reading with the calibration recovers the true rate.
-    sensor = reading - earth_rate_dps(ART_LATITUDE_DEG)
+    sensor = reading - earth_rate_dps(ANN_ARBOR_LATITUDE_DEG)
     assert sensor - sim.calibration.polynomial.error_one(sensor, 40.0) == pytest.approx(90.0, abs=1e-9)
 
 
@@ -98,11 +99,6 @@ def test_temperature_ramps_then_holds():
     for bad in ('15:35', '15:35:0', 'a:b:c'):
         with pytest.raises(ValueError, match='temperature ramp'):
             TemperatureProfile.parse_ramp(bad)
-
-
-def test_earth_rate():
-    assert earth_rate_dps(90.0) == pytest.approx(15.041 / 3600, rel=1e-4)
-    assert earth_rate_dps(0.0) == pytest.approx(0.0, abs=1e-15)
 
 
 def test_constructor_refusals(tmp_path):

@@ -14,7 +14,7 @@ PACKAGE = REPO / 'art_gyro_calibration'
 ANALYSIS_ONLY = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl')
 RUNTIME_MODULES = ('ros.node', 'ros.parameters', 'ros.bias_service', 'ros.raw_log', 'ros.diagnostics', 'monitor',
                    'driver', 'frame', 'rd2100_binary', 'ascii_lines', 'kvh_fog', 'protocols', 'fake_rd2100',
-                   'compensation', 'calibration', 'static_bias', 'signals', 'terms', 'model', 'log')
+                   'gyro_physics', 'compensation', 'calibration', 'static_bias', 'signals', 'terms', 'model', 'log')
 # Imports of the analysis-only packages fail in the child, as on a robot without the extra.
 BLOCK = f'''
 import importlib.abc, sys

@@ -10,8 +10,9 @@ from c_reference import compile_reference, run_reference
 
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
 from art_gyro_calibration.compensation import Compensator, apply_calibration
+from art_gyro_calibration.gyro_physics import measured_from_true
 from art_gyro_calibration.log import GyroLog
-from art_gyro_calibration.model import ArtPolynomial, measured_from_true
+from art_gyro_calibration.model import ArtPolynomial
 
 RATES = np.linspace(-100.0, 100.0, 41)     # the RD2100's full scale, deg/s
 TEMPS = np.linspace(-10.0, 60.0, 15)       # beyond the calibrated range on both sides, degC

@@ -10,12 +10,13 @@ import pytest
 from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.analysis.metrics import field_errors, heading_error_deg, steady_segments
 from art_gyro_calibration.analysis.loop import close_loop
-from art_gyro_calibration.analysis.replay import (POWER_ON_SIGNAL, field_score_dps, own_restarts, replay, replay_field,
-                                                  restart, startup_check, validate, without_terms)
+from art_gyro_calibration.analysis.replay import (field_score_dps, own_restarts, replay, replay_field, restart,
+                                                  startup_check, validate, without_terms)
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
 from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration
 from art_gyro_calibration.compensation import RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog, write_columns
+from art_gyro_calibration.signals import POWER_ON_SIGNAL
 from art_gyro_calibration.static_bias import MotionError
 from art_gyro_calibration.terms import Term
 

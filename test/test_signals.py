@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
-from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalFilters, Signals, SignalTracker, compute_signals
+from art_gyro_calibration.signals import (DERIVED_SIGNALS, LAGGED_SIGNAL, SIGNALS, SignalFilters, Signals,
+                                          SignalTracker, compute_signals)
 from art_gyro_calibration.terms import Term
 
 
@@ -75,6 +76,20 @@ def test_extra_columns_and_unknown_names() -> None:
         signals.get('humidity')
     with pytest.raises(KeyError, match='not available per sample'):
         SignalTracker().value('supply_v')
+
+
+def test_every_registered_signal_is_computed_by_its_readers() -> None:
+    """A signal added to the registry is an attribute of Signals, and of SignalTracker when the node tracks it.
+
+    The lagged temperature is the exception: its time constant comes with the term (``for_term``).
+    """
+    for name, signal in SIGNALS.items():
+        assert signal.description, name
+        if name == LAGGED_SIGNAL:
+            continue
+        assert name in Signals.__dict__ or name in Signals.__dataclass_fields__, name
+        if signal.per_sample:
+            assert hasattr(SignalTracker, name), name
 
 
 def test_error_model_per_sample_equals_batch() -> None:

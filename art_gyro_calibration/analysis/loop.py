@@ -23,7 +23,7 @@ from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.analysis.metrics import (DEFAULT_SETTLE_S, Segments, correlation_time_s, noise_floor,
                                                    steady_segments)
-from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals
+from art_gyro_calibration.signals import SIGNALS, SignalFilters, Signals, compute_signals
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_DRAWS,
@@ -34,15 +34,14 @@ from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, D
 DEFAULT_MAX_EFFECTS = 4
 # Most RD2100s read 0.00305 deg/s per count (report, section 1).
 DEFAULT_RATE_SCALE_FACTOR = 0.00305
-# Signals computed from the measured rate alone.
-RATE_SIGNALS = ('rate', 'rate_abs', 'rate_sign', 'rate_change', 'angle', 'rate_x_temperature',
-                'rate_x_temperature_rate')
-# Effects of the heading: found and reported, never written into a calibration.
-HEADING_SIGNALS = ('angle',)
+# Signals computed from the measured rate alone, and the screen's forms on the rate.
+RATE_SIGNALS = (*(name for name, s in SIGNALS.items() if s.from_rate), 'rate_x_temperature', 'rate_x_temperature_rate')
+# Effects of the heading (a signal the node does not track): found and reported, never written into a calibration.
+HEADING_SIGNALS = tuple(name for name, s in SIGNALS.items() if not s.per_sample)
 DEFAULT_SERIAL = 'UNSPECIFIED'
 # Signals whose linear term may grow a square when the held-out error says so; the others
 # would duplicate the polynomial (rate_abs**2 = rate**2) or a constant (rate_sign**2).
-_SQUARABLE = ('temperature_rate', 'rate_change')
+_SQUARABLE = tuple(name for name, s in SIGNALS.items() if s.squarable)
 
 
 @dataclass(frozen=True)

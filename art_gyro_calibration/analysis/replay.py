@@ -32,6 +32,7 @@ from art_gyro_calibration.analysis.metrics import (DEFAULT_SETTLE_S, SECONDS_PER
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import Applied, RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
+from art_gyro_calibration.signals import POWER_ON_SIGNAL
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.terms import Term
 
@@ -91,8 +92,6 @@ def restart(log: GyroLog, start_s: float) -> GyroLog:
 RESTART_FRACTIONS = (0.25, 0.5)
 # How the drops of the start-up check name the runs they were judged on.
 RESTARTS_NAME = 'the fitted log\'s restarts'
-# A warm-up is applied only from a declared power-on: a restart, power-on unknown, cannot judge it.
-POWER_ON_SIGNAL = 'time_since_power_on'
 
 
 def own_restarts(log: GyroLog, bias_samples: int = DEFAULT_SAMPLES,
@@ -248,7 +247,8 @@ def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_
     names = [f'restarted at {start_s / 60.0:.0f} min' for start_s, _ in restarts]
     # The restarts are an hour or two of one run: a true term that matters little can score a few tenths of
     # a deg/h worse on them by chance (a quarter-size supply effect in 6 h logs: 0.1-0.9 deg/h in 9 of 20 runs),
-    # where a term fitted to noise that shifts the static bias scores worse by several deg/h.
+    # where a term fitted to noise that shifts the static bias scores worse by several deg/h. A warm-up is
+    # kept: it is applied only from a declared power-on, and a restart, power-on unknown, cannot judge it.
     check = validate(result, [run for _, run in restarts], bias_samples, settle_s, RunStart(),
                      kept_signals=(POWER_ON_SIGNAL,), margin_dps=result.materiality_dph / SECONDS_PER_HOUR,
                      strict=False, runs_name=RESTARTS_NAME)

@@ -3,7 +3,7 @@
 The table steps through positive and negative rates up to the full scale, each step a
 whole number of turns, with rests between; the chamber holds and ramps through the
 calibrated temperature range and the gyro follows it with a thermal lag. The gyro's
-error is its report polynomial (:func:`model.measured_from_true`) plus a turn-on bias,
+error is its report polynomial (:func:`gyro_physics.measured_from_true`) plus a turn-on bias,
 the Earth's rate, a first-order Gauss-Markov bias instability, white noise and count
 quantisation. Switchable effects the ART model lacks:
 
@@ -40,12 +40,11 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from art_gyro_calibration.calibration import Calibration
+from art_gyro_calibration.gyro_physics import (ANN_ARBOR_LATITUDE_DEG, earth_rate_dps, measured_from_true, to_counts,
+                                               white_noise_dps)
 from art_gyro_calibration.log import GyroLog, write_columns
-from art_gyro_calibration.model import measured_from_true
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals, first_order_smooth
 
-EARTH_RATE_DPS = 15.041 / 3600.0  # sidereal rate, deg/s
-ANN_ARBOR_LATITUDE_DEG = 42.3
 FULL_SCALE_DPS = 100.0
 # Table rates of one cycle (both signs of each); a cycle lasts about 27 minutes.
 TABLE_RATES_DPS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
@@ -86,7 +85,7 @@ class SimulationSettings:
     effects: tuple[str, ...] = ()
     seed: int = 0
     latitude_deg: float = ANN_ARBOR_LATITUDE_DEG
-    # Angle random walk in deg/sqrt(h); the per-sample noise is arw / 60 * sqrt(rate_hz) deg/s.
+    # Angle random walk in deg/sqrt(h); the per-sample noise is arw / 60 * sqrt(rate_hz) deg/s (white_noise_dps).
     arw_deg_rthr: float = 0.1
     turn_on_bias_std_dps: float = 0.005
     bias_instability_dps: float = 0.0003
@@ -179,7 +178,7 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
     t = np.arange(n) / settings.rate_hz
     table = table_profile(t, settings, rng)
     temp = chamber_profile(t, settings, calibration.temperature_range_c)
-    earth = EARTH_RATE_DPS * math.sin(math.radians(settings.latitude_deg))
+    earth = earth_rate_dps(settings.latitude_deg)
     turn_on = float(rng.normal(0.0, settings.turn_on_bias_std_dps))
     # Gauss-Markov bias instability: stationary from the first sample.
     phi = math.exp(-1.0 / (settings.rate_hz * settings.bias_instability_tau_s))
@@ -205,12 +204,12 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
         effects[name] = entry
     true_input = table + earth + turn_on + instability + _slow_noise(n, settings) + effect_error
     measured = measured_from_true(calibration.polynomial, true_input, polynomial_temp)
-    noise_dps = settings.arw_deg_rthr / 60.0 * math.sqrt(settings.rate_hz)
+    noise_dps = white_noise_dps(settings.arw_deg_rthr, settings.rate_hz)
     measured += rng.normal(0.0, noise_dps, n)
     columns = {
         't': t,
-        'raw_rate': np.round(measured / calibration.rate_scale_factor),
-        'raw_temp': np.round(temp / calibration.temp_scale_factor),
+        'raw_rate': to_counts(measured, calibration.rate_scale_factor),
+        'raw_temp': to_counts(temp, calibration.temp_scale_factor),
         'ref_rate': table,
         'supply_v': np.round(supply_v, 3),
     }

@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from art_gyro_calibration.analysis.chunks import Chunk, chunks
 from art_gyro_calibration.analysis.fit import Design, Ranges, TermSpec, centring, fit_model, solve_normal
 from art_gyro_calibration.analysis.metrics import Segments, noise_floor
-from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, Signals
+from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, POWER_ON_SIGNAL, Signals
 
 DEFAULT_FOLDS = 6
 # Fewer folds than this leave too little to fit on; a short log gets this many, not shorter blocks.
@@ -128,7 +128,7 @@ def candidate_specs(signals: Signals, rows: int, columns: int, exclude: Sequence
     log that starts at power-on.
     """
     duration = duration_s(signals)
-    taus = np.geomspace(*time_constant_bounds(TermSpec('time_since_power_on', 'exp_decay'), duration),
+    taus = np.geomspace(*time_constant_bounds(TermSpec(POWER_ON_SIGNAL, 'exp_decay'), duration),
                         TIME_CONSTANT_GRID_SIZE)
     lags = np.geomspace(*time_constant_bounds(TermSpec(LAGGED_SIGNAL, 'power'), duration), TIME_CONSTANT_GRID_SIZE)
     temperature_powers = tuple(range(1, rows))
@@ -145,9 +145,9 @@ def candidate_specs(signals: Signals, rows: int, columns: int, exclude: Sequence
         'temperature_lag': [TermSpec(LAGGED_SIGNAL, 'power', temperature_powers, float(tau), rate_powers)
                             for tau in lags],
         'time': [TermSpec('time', 'power', (1,))],
-        'time_since_power_on': [TermSpec('time_since_power_on', 'exp_decay', (), float(tau))
+        'time_since_power_on': [TermSpec(POWER_ON_SIGNAL, 'exp_decay', (), float(tau))
                                 for tau in taus if tau <= duration / 2],
-        'time_since_power_on_slow': [TermSpec('time_since_power_on', 'exp_decay', (), float(tau))
+        'time_since_power_on_slow': [TermSpec(POWER_ON_SIGNAL, 'exp_decay', (), float(tau))
                                      for tau in taus if tau > duration / 2],
         'rate_abs': [TermSpec('rate_abs', 'power', (1,))],
         'rate_sign': [TermSpec('rate_sign', 'power', (1,))],
@@ -156,8 +156,8 @@ def candidate_specs(signals: Signals, rows: int, columns: int, exclude: Sequence
     }
     if rows < 2:
         del out['rate_x_temperature'], out['temperature_lag']   # no temperature terms to lag
-    if not signals.powered_on_at_start:
-        del out['time_since_power_on'], out['time_since_power_on_slow']
+    if not signals.powered_on_at_start:   # nothing counts from a power-on the log did not start with
+        out = {name: specs for name, specs in out.items() if all(s.signal != POWER_ON_SIGNAL for s in specs)}
     out.update({name: [TermSpec(name, 'power', (1,))] for name in signals.extras})
     return {name: specs for name, specs in out.items() if name not in exclude and specs}
 
