@@ -26,12 +26,12 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from art_gyro_calibration.calibration import (TEMP_SCALE_FACTOR, Calibration, CalibrationError,
-                                              find_calibration_file, load_calibration, write_calibration)
+from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
+                                              CalibrationError, find_calibration_file, load_calibration,
+                                              write_calibration)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, RunStart
 from art_gyro_calibration.log import LogError, RawLogWriter, read_log
-from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RATE_SCALE_FACTOR, DEFAULT_SERIAL,
-                                                LoopResult, close_loop)
+from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopResult, close_loop
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
 from art_gyro_calibration.analysis.replay import RESTARTS_NAME, Validation, startup_check, unjudged_warm_up

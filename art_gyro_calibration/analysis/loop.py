@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.calibration import TEMP_SCALE_FACTOR, Calibration
+from art_gyro_calibration.calibration import DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration
 from art_gyro_calibration.compensation import RunStart
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.log import GyroLog, LogError
@@ -32,8 +32,6 @@ from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, D
                                                  time_constant_bounds, trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
-# Most RD2100s read 0.00305 deg/s per count (report, section 1).
-DEFAULT_RATE_SCALE_FACTOR = 0.00305
 # Signals computed from the measured rate alone.
 RATE_SIGNALS = ('rate', 'rate_abs', 'rate_sign', 'rate_change', 'angle', 'rate_x_temperature',
                 'rate_x_temperature_rate')
