@@ -25,9 +25,10 @@ from art_gyro_calibration.analysis.metrics import (DEFAULT_SETTLE_S, Segments, c
                                                    steady_segments)
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals
 from art_gyro_calibration.terms import Term
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_DRAWS,
-                                                 DEFAULT_FOLDS, DEG_PER_H_PER_DPS, Binned, CandidateScore, Screen,
+                                                 DEFAULT_FOLDS, Binned, CandidateScore, Screen,
                                                  TraceResult, duration_s, held_out_residual, joined,
                                                  time_constant_bounds, trace_residual)
 

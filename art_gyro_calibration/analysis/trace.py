@@ -42,6 +42,7 @@ from art_gyro_calibration.analysis.chunks import Chunk, chunks
 from art_gyro_calibration.analysis.fit import Design, Ranges, TermSpec, centring, fit_model, solve_normal
 from art_gyro_calibration.analysis.metrics import Segments, noise_floor
 from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, Signals
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
 DEFAULT_FOLDS = 6
 # Fewer folds than this leave too little to fit on; a short log gets this many, not shorter blocks.
@@ -59,7 +60,6 @@ SURROGATE_BATCH = 20
 DEFAULT_BIN_S = 1.0
 # Held-out blocks of time: several times the bias instability's correlation time.
 DEFAULT_BLOCK_S = 900.0
-DEG_PER_H_PER_DPS = 3600.0
 # A log column stands for a derived signal when each spans the other's columns to this R^2 beyond the base.
 STANDS_FOR_CORRELATION = 0.9
 # A richer form goes after a simpler significant one that explains this share of its effect (R^2).
@@ -100,7 +100,7 @@ FORMS_TRIED = {
              'written (the node has no absolute heading)',
     'extra columns': 'c x for every further numeric column of the log (a supply voltage, ...)',
 }
-LAG_GRID_S = (60.0, 3600.0 * 2)
+LAG_GRID_S = (60.0, 2 * SECONDS_PER_HOUR)
 # A lag is tried up to this share of the log: the lagged temperature must follow the chamber over the log to be
 # told from it. (A 4 h lag fitted on 2 h moved little; its polynomial, extrapolated on a warm restart, read
 # 650 deg/h.)
