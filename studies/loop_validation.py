@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model  # noqa: E402
-from art_gyro_calibration.analysis.loop import close_loop  # noqa: E402
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop  # noqa: E402
 from art_gyro_calibration.analysis.replay import replay_field, startup_check  # noqa: E402
 from art_gyro_calibration.analysis.simulate import (ALL_EFFECTS, COIL_LAG_TAU_S, EFFECTS,  # noqa: E402
                                                     SimulatedRun, SimulationSettings, effect_size, lagged,
@@ -149,8 +149,8 @@ def run_case(case: Case) -> dict[str, Any]:
     truth = load_packaged_calibration(SERIAL)
     rows, columns = truth.polynomial.rows, truth.polynomial.columns
     log = simulate_run(truth, case.settings()).log(truth)
-    loop = close_loop(log, rows, columns, serial_number=SERIAL, rate_scale_factor=truth.rate_scale_factor,
-                      seed=case.seed)
+    loop = close_loop(log, rows, columns,
+                      LoopOptions(serial_number=SERIAL, rate_scale_factor=truth.rate_scale_factor, seed=case.seed))
     # As ``calibrate fit`` does: the loop, then its start-up check on restarts of the fitted log.
     result, check, _ = startup_check(loop, log)
     calibrations = {'art': result.art, 'extended': result.extended,

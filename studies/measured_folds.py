@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from art_gyro_calibration.analysis.allan import AllanDeviation, allan_deviation
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.analysis.importers import segment_labels
-from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, LoopResult, close_loop
+from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, LoopOptions, LoopResult, close_loop
 from art_gyro_calibration.analysis.replay import startup_check
 from art_gyro_calibration.analysis.metrics import FieldErrors, field_errors, heading_error_deg
 from art_gyro_calibration.analysis.report import STAGES
@@ -225,8 +225,9 @@ def run_fold(log: GyroLog, days: NDArray[np.int_], day: int, held_name: str, axi
     train = log.slice(~held)
     # The record starts at the power-on; training days after it do not (no warm-up is then a candidate).
     from_power_on = bool(train.t[0] == log.t[0])
-    loop = close_loop(train, rows, COLUMNS, serial_number=f'{serial_number}_{axis}', max_effects=max_effects,
-                      seed=seed, exclude=exclude, bin_s=LOOP_BIN_S, from_power_on=from_power_on)
+    options = LoopOptions(serial_number=f'{serial_number}_{axis}', max_effects=max_effects, seed=seed,
+                          exclude=tuple(exclude), bin_s=LOOP_BIN_S, from_power_on=from_power_on)
+    loop = close_loop(train, rows, COLUMNS, options)
     # As calibrate fit: the terms the training days' own warm restarts are better without are dropped.
     loop, check, _ = startup_check(loop, train, BIAS_SAMPLES)
     restart_dropped = () if check is None else tuple(d.term for d in check.dropped)

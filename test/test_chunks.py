@@ -9,7 +9,7 @@ import pytest
 from art_gyro_calibration.analysis import chunks, metrics
 from art_gyro_calibration.analysis import report as report_module
 from art_gyro_calibration.analysis import fit as fit_module
-from art_gyro_calibration.analysis.loop import close_loop
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.report import build_report
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run
 from art_gyro_calibration.calibration import load_packaged_calibration
@@ -24,7 +24,7 @@ def simulated(hours, rate_hz, effects=(), seed=3):
 
 
 def fit(log):
-    result = close_loop(log, 3, 4, serial_number=SERIAL)
+    result = close_loop(log, 3, 4, LoopOptions(serial_number=SERIAL))
     return result, build_report(log, result, 100)
 
 
@@ -138,7 +138,7 @@ def test_no_matrix_with_a_row_per_log_row(monkeypatch):
     tracemalloc.start()
     try:
         before = tracemalloc.get_traced_memory()[0]
-        close_loop(log, 3, 4, serial_number=SERIAL)
+        close_loop(log, 3, 4, LoopOptions(serial_number=SERIAL))
         peak = tracemalloc.get_traced_memory()[1] - before
     finally:
         tracemalloc.stop()

@@ -31,7 +31,7 @@ from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SC
                                               write_calibration)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, RunStart
 from art_gyro_calibration.log import LogError, RawLogWriter, read_log
-from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopResult, close_loop
+from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopOptions, LoopResult, close_loop
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
 from art_gyro_calibration.analysis.replay import RESTARTS_NAME, Validation, startup_check, unjudged_warm_up
@@ -83,11 +83,11 @@ def _fit(args: argparse.Namespace) -> int:
         plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
         rate_scale, temp_scale = _scale_factors(args)
         log = read_log(args.log, rate_scale, temp_scale)
-        loop = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
-                          rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
-                          settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
-                          exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
-                          draws=args.draws, alpha=args.alpha, from_power_on=not args.not_from_power_on)
+        loop = close_loop(log, args.rows, args.columns, LoopOptions(
+            serial_number=args.serial or DEFAULT_SERIAL, rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
+            settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed, exclude=tuple(args.exclude),
+            block_s=args.block_s, materiality_dph=args.materiality, draws=args.draws, alpha=args.alpha,
+            from_power_on=not args.not_from_power_on))
         # The report and plots are the loop's; what the check drops is in its section, as --validate's drops are.
         report = build_report(log, loop, args.bias_samples, source=str(args.log))
         result, check, restarts = startup_check(loop, log, args.bias_samples, args.settle_s)

@@ -650,21 +650,34 @@ TAIL_QUANTILE = 0.9
 JUDGED_PER_VARIANT = ('time_since_power_on',)
 
 
+@dataclass(frozen=True)
+class ScreenOptions:
+    """How a screen judges candidates: held-out folds, bins of ``bin_s``, ``draws`` chance copies, level ``alpha``.
+
+    ``seed`` seeds the chance copies. (The loop's options extend these: :class:`loop.LoopOptions`.)
+    """
+
+    folds: int = DEFAULT_FOLDS
+    draws: int = DEFAULT_DRAWS
+    alpha: float = DEFAULT_ALPHA
+    bin_s: float = DEFAULT_BIN_S
+    seed: int = 0
+
+
 def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
-                   specs: Sequence[TermSpec] = (), *, folds: int = DEFAULT_FOLDS, draws: int = DEFAULT_DRAWS,
-                   alpha: float = DEFAULT_ALPHA, bin_s: float = DEFAULT_BIN_S, materiality_dph: float = 0.0,
-                   seed: int = 0, noise_floor_dps: float | None = None,
+                   specs: Sequence[TermSpec] = (), options: ScreenOptions = ScreenOptions(), *,
+                   materiality_dph: float = 0.0, noise_floor_dps: float | None = None,
                    exclude: Sequence[str] = (), binned: Binned | None = None, still: bool = False) -> TraceResult:
     """Screen every signal not yet modelled (nor in ``exclude``) against what the model (polynomial + ``specs``) leaves.
 
     ``error`` is ``rate_dps - ref_rate`` per log row; only the steady rows of ``segments``
     are used. Each candidate's statistic is how much its best variant (time constant)
     explains of the residual, fitted to all bins (a warm-up's every time constant is judged
-    apart, :data:`JUDGED_PER_VARIANT`). Chance: ``draws`` phase-randomised copies
+    apart, :data:`JUDGED_PER_VARIANT`). Chance: ``options.draws`` phase-randomised copies
     of the residual, each explained by every candidate in the same way (its variant chosen
     again); a candidate's statistic is standardised by its own chance draws (a form of eight
     columns explains more by chance than one of one, a slow signal more than a fast one),
-    and it is significant if it beats the ``1 - alpha`` quantile of the best standardised
+    and it is significant if it beats the ``1 - options.alpha`` quantile of the best standardised
     chance score of any candidate (one test for the whole round, whatever the number and
     kind of candidates: a maximum statistic) and its fitted size reaches
     ``materiality_dph`` over the logged envelope. (Held out, the statistic was dominated on
@@ -677,10 +690,11 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
         residual = np.zeros(len(signals))
         residual[base.index] = base.residual
         noise_floor_dps = noise_floor(residual, segments)
+    draws, alpha = options.draws, options.alpha
     if binned is None:
-        binned = Binned(signals, error, segments, rows, columns, folds, bin_s)
+        binned = Binned(signals, error, segments, rows, columns, options.folds, options.bin_s)
     screen = Screen(binned, specs)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(options.seed)
     floor_var = noise_floor_dps ** 2
     families = candidate_specs(signals, rows, columns, exclude, still)
     # One term per signal in a calibration file: a candidate on a signal the model has must join its term.
