@@ -44,6 +44,8 @@ from art_gyro_calibration.terms import FORMS, Term
 
 PACKAGE = 'art_gyro_calibration'
 TEMP_SCALE_FACTOR = 0.05  # degC per count, the same for every RD2100 (report, section 1)
+# deg/s per count of most RD2100s (report, section 1): what ``calibrate fit`` writes when told no better.
+DEFAULT_RATE_SCALE_FACTOR = 0.00305
 SERIAL_PATTERN = re.compile(r'^[A-Za-z0-9_-]+$')
 SIGNAL_PATTERN = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
 # A calibration or params file is a few kB: anything far larger is not one (and is not read whole).

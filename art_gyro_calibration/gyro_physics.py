@@ -14,8 +14,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from art_gyro_calibration.model import ArtPolynomial
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 
-EARTH_RATE_DPS = 15.041 / 3600.0   # sidereal rate, deg/s
+EARTH_RATE_DPS = 15.041 / DEG_PER_H_PER_DPS   # sidereal rate, deg/s
 ANN_ARBOR_LATITUDE_DEG = 42.3      # where ART calibrated the gyros
 
 

@@ -51,8 +51,9 @@ class GyroLog:
                        {k: v[index] for k, v in self.extras.items()})
 
 
-# Rows per chunk of :func:`read_log_chunks`: a few MB of text, so memory stays bounded and numpy stays fast.
-CHUNK_ROWS = 1 << 16
+# Rows of text parsed at a time by :func:`read_log_chunks` (and compensated at a time by ``calibrate apply``):
+# a few MB of text, so memory stays bounded and numpy stays fast.
+READ_CHUNK_ROWS = 1 << 16
 # A header longer than this is not a log's (a binary file without line breaks).
 _MAX_HEADER_CHARS = 1 << 16
 # Decimals written: ``t`` to the microsecond at any epoch, the rest to 1e-9 of its unit.
@@ -133,7 +134,7 @@ def concatenate(chunks: list[GyroLog]) -> GyroLog:
 
 
 def read_log_chunks(path: str | os.PathLike[str], rate_scale_factor: float | None = None,
-                    temp_scale_factor: float | None = None, chunk_rows: int = CHUNK_ROWS) -> Iterator[GyroLog]:
+                    temp_scale_factor: float | None = None, chunk_rows: int = READ_CHUNK_ROWS) -> Iterator[GyroLog]:
     """Read a CSV log in chunks of about ``chunk_rows`` rows, each checked as :func:`read_log` checks the whole.
 
     Memory stays bounded whatever the log's length. A UTF-8 byte order mark, quoted

@@ -325,7 +325,9 @@ class Signals:
 
 # Span of log-decay one chunk of :func:`first_order_smooth` covers: exp(500) stays far from overflow.
 _CHUNK_LOG_DECAY = 500.0
-_CHUNK_ROWS = 1 << 16
+# Steps of :func:`first_order_smooth` taken per chunk at most: bounds its temporaries. Where a chunk ends, the
+# closed form restarts: the value sets the rounding of the smoothed signals, and every fit's numbers with them.
+_SMOOTH_CHUNK_ROWS = 1 << 16
 
 
 def _log_decay(t: NDArray[np.float64], tau_s: float) -> NDArray[np.float64]:
@@ -352,7 +354,7 @@ def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64],
     start = 0
     while start < n:
         # A step decaying by more than exp(-500) forgets the past: its gain is 1.0 either way.
-        step = np.maximum(log_decay[start:start + _CHUNK_ROWS], -_CHUNK_LOG_DECAY)
+        step = np.maximum(log_decay[start:start + _SMOOTH_CHUNK_ROWS], -_CHUNK_LOG_DECAY)
         span = np.cumsum(step)
         stop = start + max(1, int(np.searchsorted(-span, _CHUNK_LOG_DECAY, side='right')))
         cumulative = span[:stop - start]

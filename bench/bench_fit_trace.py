@@ -14,7 +14,7 @@ import resource
 import time
 
 from art_gyro_calibration.calibration import load_packaged_calibration
-from art_gyro_calibration.analysis.loop import close_loop
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.replay import startup_check
 from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run
 
@@ -32,7 +32,7 @@ def main() -> None:
     run = simulate_run(cal, SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=effects))
     log = run.log(cal)
     start, cpu_start = time.perf_counter(), time.process_time()
-    result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, serial_number=args.serial)
+    result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, LoopOptions(serial_number=args.serial))
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     check_cpu = time.process_time()
     _, check, _ = startup_check(result, log)

@@ -35,6 +35,7 @@ import numpy as np
 from art_gyro_calibration.calibration import load_packaged_calibration, write_calibration
 from art_gyro_calibration.log import CsvWriter
 from art_gyro_calibration.terms import Term
+from art_gyro_calibration.units import SECONDS_PER_HOUR
 
 SERIAL = 'NAVC3545'
 GIB = 1 << 30
@@ -68,11 +69,11 @@ def run_child(args: list[str], cap_gib: float) -> Run:
     return Run(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024, proc.returncode, stderr)
 
 
-def write_raw_log(path: Path, hours: float, rate_hz: float, chunk_s: float = 3600.0) -> int:
+def write_raw_log(path: Path, hours: float, rate_hz: float, chunk_s: float = SECONDS_PER_HOUR) -> int:
     """A node-style raw log: a still minute, then rate-table steps while the temperature ramps; returns its rows."""
     cal = load_packaged_calibration(SERIAL)
     rng = np.random.default_rng(1)
-    rows = int(round(hours * 3600 * rate_hz))
+    rows = int(round(hours * SECONDS_PER_HOUR * rate_hz))
     step = int(chunk_s * rate_hz)
     t0 = 1.7e9
     with open(path, 'wb') as stream:
@@ -120,7 +121,7 @@ def bench_fit(args: argparse.Namespace, work: Path) -> None:
     measured: list[tuple[int, float]] = []
     for spec in args.runs:
         hours, rate_hz = (float(v) for v in spec.split(':'))
-        rows = int(round(hours * 3600 * rate_hz))
+        rows = int(round(hours * SECONDS_PER_HOUR * rate_hz))
         if len(measured) >= 2:
             slope, intercept = np.polyfit(*np.array(measured).T, 1)
             expected = (slope * rows + intercept) / 1024

@@ -16,7 +16,7 @@ import time
 import tracemalloc
 
 from art_gyro_calibration.calibration import load_packaged_calibration
-from art_gyro_calibration.analysis.loop import close_loop
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.report import build_report
 from art_gyro_calibration.log import read_log
 
@@ -64,8 +64,8 @@ def main() -> None:
         log = read_log(args.log, cal.rate_scale_factor, cal.temp_scale_factor)
         stages.append(('read_log', tracemalloc.get_traced_memory()))
         tracemalloc.reset_peak()
-        result = close_loop(log, 3, 4, serial_number=args.serial, rate_scale_factor=cal.rate_scale_factor,
-                            temp_scale_factor=cal.temp_scale_factor)
+        result = close_loop(log, 3, 4, LoopOptions(serial_number=args.serial, rate_scale_factor=cal.rate_scale_factor,
+                                                   temp_scale_factor=cal.temp_scale_factor))
         stages.append(('close_loop', tracemalloc.get_traced_memory()))
         tracemalloc.reset_peak()
         build_report(log, result, 100)

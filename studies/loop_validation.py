@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model  # noqa: E402
-from art_gyro_calibration.analysis.loop import close_loop  # noqa: E402
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop  # noqa: E402
 from art_gyro_calibration.analysis.replay import replay_field, startup_check  # noqa: E402
 from art_gyro_calibration.analysis.simulate import (ALL_EFFECTS, COIL_LAG_TAU_S, EFFECTS,  # noqa: E402
                                                     SimulatedRun, SimulationSettings, effect_size, lagged,
@@ -46,18 +46,19 @@ from art_gyro_calibration.compensation import RunStart  # noqa: E402
 from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.signals import compute_signals  # noqa: E402
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES  # noqa: E402
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 SERIAL = 'NAVC3545'
 RATE_HZ = 10.0
 # Slow noise of every run: a bias wander of 0.0003 deg/s (1.1 deg/h) over an hour, a rate random walk.
 WANDER_DPS = 3e-4
-WANDER_TAU_S = 3600.0
+WANDER_TAU_S = SECONDS_PER_HOUR
 RATE_RANDOM_WALK_DPH_RTHR = 0.5
 MAGNITUDES = (0.1, 0.25, 0.5, 1.0)
 HOURS = (2.0, 6.0)
 VALIDATION_HOURS = 2.0
-WARM_START_S = 3 * 3600.0
+WARM_START_S = 3 * SECONDS_PER_HOUR
 WARM_HEADING_DEG = 137.0
 SCENARIOS = ('cold', 'warm')
 CALIBRATIONS = ('art', 'extended', 'oracle')
@@ -148,8 +149,8 @@ def run_case(case: Case) -> dict[str, Any]:
     truth = load_packaged_calibration(SERIAL)
     rows, columns = truth.polynomial.rows, truth.polynomial.columns
     log = simulate_run(truth, case.settings()).log(truth)
-    loop = close_loop(log, rows, columns, serial_number=SERIAL, rate_scale_factor=truth.rate_scale_factor,
-                      seed=case.seed)
+    loop = close_loop(log, rows, columns,
+                      LoopOptions(serial_number=SERIAL, rate_scale_factor=truth.rate_scale_factor, seed=case.seed))
     # As ``calibrate fit`` does: the loop, then its start-up check on restarts of the fitted log.
     result, check, _ = startup_check(loop, log)
     calibrations = {'art': result.art, 'extended': result.extended,
@@ -434,15 +435,15 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
         f'- Gyro: the packaged {SERIAL} polynomial ({meta["rows"]} x {meta["columns"]}) is the true error; '
         f'{RATE_HZ:g} Hz; `calibrate simulate`\'s rate table and chamber (10-50 degC, 1 degC/min ramps); white '
         f'noise 0.1 deg/sqrt(h); turn-on bias 0.005 deg/s; bias instability 0.0003 deg/s (Gauss-Markov, 300 s); '
-        f'**slow bias wander {WANDER_DPS} deg/s ({WANDER_DPS * 3600:.1f} deg/h, Gauss-Markov, '
-        f'{WANDER_TAU_S / 3600:g} h)** and **rate random walk {RATE_RANDOM_WALK_DPH_RTHR} deg/h/sqrt(h)** in every '
-        'run.',
+        f'**slow bias wander {WANDER_DPS} deg/s ({WANDER_DPS * DEG_PER_H_PER_DPS:.1f} deg/h, Gauss-Markov, '
+        f'{WANDER_TAU_S / SECONDS_PER_HOUR:g} h)** and **rate random walk {RATE_RANDOM_WALK_DPH_RTHR} '
+        'deg/h/sqrt(h)** in every run.',
         '- Fit: `close_loop` (the loop of `calibrate fit`, defaults) on one run of 2 h or 6 h.',
         f'- Validation: two more runs of the same gyro ({VALIDATION_HOURS:g} h each; other seeds for noise, turn-on '
         f'bias, wander and table order): **cold** (powered on at the start) and **warm** (a node restarted '
-        f'{WARM_START_S / 3600:g} h after power-on, after the table turned to {WARM_HEADING_DEG:g} deg). Each '
-        'calibration is applied as the node applies it (`analysis.replay.replay`: static bias over the first '
-        f'{DEFAULT_SAMPLES} rows, causal signals from the first sample{START_NOTE}) and measured against the '
+        f'{WARM_START_S / SECONDS_PER_HOUR:g} h after power-on, after the table turned to {WARM_HEADING_DEG:g} '
+        'deg). Each calibration is applied as the node applies it (`analysis.replay.replay`: static bias over the '
+        f'first {DEFAULT_SAMPLES} rows, causal signals from the first sample{START_NOTE}) and measured against the '
         'table from the end of the static bias: systematic rms = rms of the steady segments\' mean errors **with '
         'the bias included**, and the heading error after 1 h.',
         '- Calibrations: **ART** (the polynomial alone), **extended** (the loop\'s), **oracle** (`fit_model` '

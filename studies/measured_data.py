@@ -29,6 +29,7 @@ from art_gyro_calibration.analysis.importers import StaticRecord, runs, static_l
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS
 from art_gyro_calibration.analysis.report import STAGES
 from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import measured_figures as figures  # noqa: E402
@@ -37,7 +38,7 @@ from measured_folds import (AGREEMENT_SIGMAS, BIAS_SAMPLES, LOOP_BIN_S, ROWS, SE
 from measured_injection import (EFFECT_TITLES, EFFECTS, EXPECTED_SIGNALS, SIZES, WARMUP_TAU_S, Cell,  # noqa: E402
                                 cells, run_injections)
 from measured_phone import STAND_IN_C, TRAIN_FRACTION, PhoneAxis, phone_summary, run_phone_axis  # noqa: E402
-from measured_record import (AXES, BLOCK_S, DEFAULT_DATA_DIR, HOUR, MEMBERS, PACKAGE_SPEC,  # noqa: E402
+from measured_record import (AXES, BLOCK_S, DEFAULT_DATA_DIR, MEMBERS, PACKAGE_SPEC,  # noqa: E402
                              DataUnavailable, fetch_records, import_cats, import_phone, orientation_labels)
 
 
@@ -119,7 +120,7 @@ def _version() -> str:
 
 
 def _dph(dps: float) -> str:
-    return f'{dps * HOUR:.0f}'
+    return f'{dps * DEG_PER_H_PER_DPS:.0f}'
 
 
 def _deg(value: float) -> str:
@@ -177,9 +178,10 @@ def axis_table(study: Study, i: int) -> list[str]:
 def fold_notes(fold: Fold) -> str:
     """One line per fold: materiality, blocks, the transient, effects and their agreement, near misses."""
     t = fold.log.t
-    settled_h = (t[fold.bias_windows['bias_settled'][0]] - t[fold.bias_windows['bias_start'][0]]) / HOUR
+    settled_h = (t[fold.bias_windows['bias_settled'][0]] - t[fold.bias_windows['bias_start'][0]]) / SECONDS_PER_HOUR
     text = (f'{fold.held_name} held out (materiality {fold.loop.materiality_dph:.1f} deg/h, held-out blocks of '
-            f'{fold.loop.held_out_block_s / HOUR:.1f} h; the temperature settled {settled_h:.1f} h into the day): ')
+            f'{fold.loop.held_out_block_s / SECONDS_PER_HOUR:.1f} h; the temperature settled {settled_h:.1f} h '
+            'into the day): ')
     if fold.loop.effects:
         text += 'traced ' + '; '.join(f'{e.term.describe()} (cross-validated rms on the training days '
                                       f'{e.held_out_rms_without_dps:.5f} -> {e.held_out_rms_with_dps:.5f} deg/s)'
@@ -258,7 +260,7 @@ def baseline_claims(study: Study) -> str:
 def markdown(study: Study, figs: dict[str, Any]) -> str:
     """The text of doc/measured-data.md."""
     record, still = study.record, study.still
-    hours = float(still.sum()) / HOUR
+    hours = float(still.sum()) / SECONDS_PER_HOUR
     every = [f for day in study.folds for f in study.folds[day]]
     materiality = [f.loop.materiality_dph for f in every]
     white = [f.allan['art'].adev[0] for f in every]
@@ -298,7 +300,7 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
         f'`{MEMBERS["cats"][0]}` from the PyPI package `{PACKAGE_SPEC}` (AGPL: downloaded at run time into '
         '`data/`, never committed): a CATS tag\'s MEMS IMU lying still in three orientations, one day each, while '
         'its temperature swung between about 5 and 28 degC, resampled to 1 Hz. '
-        f'{len(record.t)} samples over {(record.t[-1] - record.t[0]) / HOUR:.1f} h; the importer '
+        f'{len(record.t)} samples over {(record.t[-1] - record.t[0]) / SECONDS_PER_HOUR:.1f} h; the importer '
         f'(`importers.still_mask`) keeps {hours:.1f} h in {len(runs(still))} still runs, cutting the handling '
         f'between orientations with 5 min either side. Orientations in turn: {", ".join(study.names)}. Each day '
         f'starts with a handling transient: the temperature falls by {min(drops):.1f}-{max(drops):.1f} degC before '
@@ -376,13 +378,15 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
         'wander stay) and every fold is run again exactly as above; nothing about the effect is told to the loop. '
         f'Sizes are rms over the still record in units of the axis\'s bias instability (Allan floor of what the '
         f'ART polynomial fitted to the whole record leaves: {min(floors):.4f}-{max(floors):.4f} deg/s, '
-        f'{min(floors) * HOUR:.0f}-{max(floors) * HOUR:.0f} deg/h), {", ".join(f"{s:g}" for s in plan.sizes)} '
-        f'times it. Trials: gyro {", ".join(plan.injection_axes)} with day {", ".join(map(str, plan.injection_days))} '
+        f'{min(floors) * DEG_PER_H_PER_DPS:.0f}-{max(floors) * DEG_PER_H_PER_DPS:.0f} deg/h), '
+        f'{", ".join(f"{s:g}" for s in plan.sizes)} times it. '
+        f'Trials: gyro {", ".join(plan.injection_axes)} with day {", ".join(map(str, plan.injection_days))} '
         'held out (day 1 is not held out here: a warm-up lives in it, and with it held out the training days '
         'never see the step).',
         '',
         f'- **Effects**: {EFFECT_TITLES["shupe"]} (`temperature_rate`, the node\'s own filtered dT/dt); '
-        f'{EFFECT_TITLES["warmup"]} from the record\'s start (`time_since_power_on`, tau {WARMUP_TAU_S / HOUR:g} h); '
+        f'{EFFECT_TITLES["warmup"]} from the record\'s start (`time_since_power_on`, tau '
+        f'{WARMUP_TAU_S / SECONDS_PER_HOUR:g} h); '
         f'{EFFECT_TITLES["drift"]} over the whole record (`time`); {EFFECT_TITLES["step"]} (a constant added from '
         'day 2 on).',
         '- **Signal named**: the loop kept a term on the effect\'s signal (for the step: any accelerometer or '
@@ -399,8 +403,8 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
         '## A second record: a phone lying still',
         '',
         f'`{MEMBERS["phone"][0]}` (same wheel, AGPL, fetched at run time): a Samsung Galaxy S5 lying still, '
-        f'{(study.phone[0].log.t[-1] - study.phone[0].log.t[0]) / HOUR if study.phone else 0:.1f} h of still '
-        'samples at 10 Hz, two gyro streams (the phone\'s output and its measured stream, nearly the same '
+        f'{(study.phone[0].log.t[-1] - study.phone[0].log.t[0]) / SECONDS_PER_HOUR if study.phone else 0:.1f} h '
+        'of still samples at 10 Hz, two gyro streams (the phone\'s output and its measured stream, nearly the same '
         'readings), no temperature (`importers.read_phone_netcdf`). The loop runs on the output stream with '
         f'no temperature power (a constant {STAND_IN_C:g} degC stands in, said so to `static_log`), the other '
         f'stream never a candidate, trained on the first {TRAIN_FRACTION:.0%} and judged on the rest.',

@@ -11,11 +11,12 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.analysis.importers import StaticRecord, runs
 from art_gyro_calibration.analysis.report import STAGES
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
 from measured_folds import STAGE_TITLES, Fold
 from measured_injection import EFFECT_TITLES, Cell
 from measured_phone import STREAMS, PhoneAxis
-from measured_record import AXES, HOUR, block_means, orientation_labels
+from measured_record import AXES, block_means, orientation_labels
 
 STAGE_COLOURS = {'uncalibrated': 'tab:gray', 'art': 'tab:blue', 'extended': 'tab:red'}
 
@@ -52,19 +53,19 @@ def plot_record(record: StaticRecord, still: NDArray[np.bool_], path: Path) -> P
     fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
     for a in AXES:
         tm, vm = block_means(record.t[still], record.channels[f'gyro_{a}'][still])
-        axes[0].plot((tm - t0) / HOUR, vm, '.', ms=2, label=f'gyro {a}')
+        axes[0].plot((tm - t0) / SECONDS_PER_HOUR, vm, '.', ms=2, label=f'gyro {a}')
     axes[0].set_ylabel('rate, 10-min means (deg/s)')
-    axes[1].plot((record.t - t0) / HOUR, record.temp_c, color='tab:orange')
+    axes[1].plot((record.t - t0) / SECONDS_PER_HOUR, record.temp_c, color='tab:orange')
     axes[1].set_ylabel('IMU temperature (degC)')
     for a in AXES:
-        axes[2].plot((record.t - t0) / HOUR, record.channels[f'acc_{a}'], lw=0.6, label=f'acc {a}')
+        axes[2].plot((record.t - t0) / SECONDS_PER_HOUR, record.channels[f'acc_{a}'], lw=0.6, label=f'acc {a}')
     axes[2].set_ylim(-12, 12)
     axes[2].set_ylabel('acceleration (m/s^2)')
     axes[2].set_xlabel('hours since the record started')
     for start, stop in runs(still):
         for ax in axes:
-            ax.axvspan((record.t[start] - t0) / HOUR, (record.t[stop - 1] - t0) / HOUR, color='tab:green',
-                       alpha=0.07, lw=0)
+            ax.axvspan((record.t[start] - t0) / SECONDS_PER_HOUR, (record.t[stop - 1] - t0) / SECONDS_PER_HOUR,
+                       color='tab:green', alpha=0.07, lw=0)
     for ax in (axes[0], axes[2]):
         ax.legend(fontsize=8, ncol=3)
     for ax in axes:
@@ -106,28 +107,29 @@ def plot_fold(fold: Fold, path: Path) -> Path:
     for rows, label, colour in ((~fold.held, 'training days', 'tab:blue'),
                                 (fold.held, f'held-out day ({fold.held_name})', 'tab:purple')):
         tm, vm = block_means(log.t[rows], art_residual[rows] - np.mean(art_residual[~fold.held]))
-        axes[0].plot((tm - t0) / HOUR, vm, '.', ms=3, color=colour, label=f'{label}: rate - ART polynomial')
+        axes[0].plot((tm - t0) / SECONDS_PER_HOUR, vm, '.', ms=3, color=colour, label=f'{label}: rate - ART polynomial')
     terms = fold.kept_effects
     if terms:
         effect = sum(term.evaluate(fold.signals.get(term.signal)) for term in terms)
         tm, vm = block_means(log.t, effect - np.mean(effect[~fold.held]))
-        axes[0].plot((tm - t0) / HOUR, vm, '-', color='tab:red', lw=1,
+        axes[0].plot((tm - t0) / SECONDS_PER_HOUR, vm, '-', color='tab:red', lw=1,
                      label='effects kept: ' + '; '.join(t.describe() for t in terms))
     axes[0].set_ylabel('10-min means (deg/s)')
     axes[0].set_title(f'gyro {fold.axis}: what the ART polynomial fitted on the training days leaves')
     twin = axes[0].twinx()
-    twin.plot((log.t - t0) / HOUR, log.temp_c, color='tab:orange', lw=0.6, alpha=0.6)
+    twin.plot((log.t - t0) / SECONDS_PER_HOUR, log.temp_c, color='tab:orange', lw=0.6, alpha=0.6)
     twin.set_ylabel('temperature (degC)', color='tab:orange')
     axes[0].set_xlabel('hours since the record started')
     t_span = log.t[fold.span]
     for stage in STAGES:
         tm, vm = block_means(t_span, fold.errors[stage, 'bias_settled'])
         rms = fold.field[stage, 'bias_settled'].systematic_rms_dps
-        axes[1].plot((tm - t0) / HOUR, vm, '.-', ms=3, lw=0.8, color=STAGE_COLOURS[stage],
-                     label=f'{STAGE_TITLES[stage]}: 10-min rms {rms:.4f} deg/s ({rms * HOUR:.0f} deg/h)')
+        axes[1].plot((tm - t0) / SECONDS_PER_HOUR, vm, '.-', ms=3, lw=0.8, color=STAGE_COLOURS[stage],
+                     label=f'{STAGE_TITLES[stage]}: 10-min rms {rms:.4f} deg/s ({rms * DEG_PER_H_PER_DPS:.0f} deg/h)')
     for way, colour in (('bias_start', 'tab:gray'), ('bias_settled', 'tab:green')):
         window = log.t[fold.bias_windows[way]]
-        axes[1].axvspan((window[0] - t0) / HOUR, (window[-1] - t0) / HOUR, color=colour, alpha=0.3, lw=0)
+        axes[1].axvspan((window[0] - t0) / SECONDS_PER_HOUR, (window[-1] - t0) / SECONDS_PER_HOUR, color=colour,
+                        alpha=0.3, lw=0)
     axes[1].set_ylabel('held-out error, 10-min means (deg/s)')
     axes[1].set_xlabel('hours since the record started (shaded: static bias at the start, grey; '
                        'after the transient, green)')

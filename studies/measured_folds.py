@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from art_gyro_calibration.analysis.allan import AllanDeviation, allan_deviation
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.analysis.importers import segment_labels
-from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, LoopResult, close_loop
+from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, LoopOptions, LoopResult, close_loop
 from art_gyro_calibration.analysis.replay import startup_check
 from art_gyro_calibration.analysis.metrics import FieldErrors, field_errors, heading_error_deg
 from art_gyro_calibration.analysis.report import STAGES
@@ -28,8 +28,9 @@ from art_gyro_calibration.model import ArtPolynomial, ErrorModel
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals
 from art_gyro_calibration.static_bias import static_bias
 from art_gyro_calibration.terms import Term
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
-from measured_record import BLOCK_S, HOUR, RUN_GAP_S, block_segments, settled_start
+from measured_record import BLOCK_S, RUN_GAP_S, block_segments, settled_start
 
 ROWS, COLUMNS = 3, 1  # the report's three temperature powers; a still gyro has only rate power 0
 BIAS_SAMPLES = 600  # 10 min at 1 Hz: a MEMS gyro's 0.1 deg/s per-sample noise needs that many
@@ -178,7 +179,7 @@ class Fold:
     @property
     def bias_instability_dps(self) -> float:
         """The loop's bias instability of what ART leaves on the training days (deg/s)."""
-        return self.loop.bias_instability_dph / HOUR
+        return self.loop.bias_instability_dph / DEG_PER_H_PER_DPS
 
     @property
     def kept_effects(self) -> tuple[Term, ...]:
@@ -224,12 +225,13 @@ def run_fold(log: GyroLog, days: NDArray[np.int_], day: int, held_name: str, axi
     train = log.slice(~held)
     # The record starts at the power-on; training days after it do not (no warm-up is then a candidate).
     from_power_on = bool(train.t[0] == log.t[0])
-    loop = close_loop(train, rows, COLUMNS, serial_number=f'{serial_number}_{axis}', max_effects=max_effects,
-                      seed=seed, exclude=exclude, bin_s=LOOP_BIN_S, from_power_on=from_power_on)
+    options = LoopOptions(serial_number=f'{serial_number}_{axis}', max_effects=max_effects, seed=seed,
+                          exclude=tuple(exclude), bin_s=LOOP_BIN_S, from_power_on=from_power_on)
+    loop = close_loop(train, rows, COLUMNS, options)
     # As calibrate fit: the terms the training days' own warm restarts are better without are dropped.
     loop, check, _ = startup_check(loop, train, BIAS_SAMPLES)
     restart_dropped = () if check is None else tuple(d.term for d in check.dropped)
-    floor = loop.bias_instability_dph / HOUR
+    floor = loop.bias_instability_dph / DEG_PER_H_PER_DPS
     agreements = tuple(time_term_agreement(loop, term, days[~held], floor)
                        for term in loop.extended.model.terms if term.signal in TIME_SIGNALS)
     models = {'uncalibrated': ErrorModel(ArtPolynomial(np.zeros((1, 1)))),
@@ -255,7 +257,7 @@ def run_fold(log: GyroLog, days: NDArray[np.int_], day: int, held_name: str, axi
         errors[stage, 'mean_removed'] = predicted[span] - np.mean(predicted[span])
         for way in WAYS:
             field[stage, way] = field_errors(t_span, errors[stage, way], segments, 0)
-            heading_rms[stage, way] = rolling_heading_rms(t_span, errors[stage, way], HOUR)
+            heading_rms[stage, way] = rolling_heading_rms(t_span, errors[stage, way], SECONDS_PER_HOUR)
         allan[stage] = allan_deviation(errors[stage, 'mean_removed'], sample_rate_hz(log),
                                        segment_labels(t_span, RUN_GAP_S))
     return Fold(axis, day, held_name, log, held, loop, agreements, models, signals, windows, span, errors, field,

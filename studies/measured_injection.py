@@ -19,9 +19,10 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import SignalFilters, compute_signals
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
 from measured_folds import Fold, run_fold
-from measured_record import ACCELERATION_CHANNELS, AXES, DAY, HOUR
+from measured_record import ACCELERATION_CHANNELS, AXES, DAY
 
 EFFECTS = ('shupe', 'warmup', 'drift', 'step')
 EFFECT_TITLES = {'shupe': 'Shupe-like k dT/dt', 'warmup': 'warm-up exp(-t/3 h)', 'drift': 'linear drift',
@@ -33,7 +34,7 @@ EXPECTED_SIGNALS = {'shupe': ('temperature_rate',), 'warmup': ('time_since_power
                     'step': ORIENTATION_SIGNALS}
 # Sizes: rms over the still record, in units of the axis's bias instability.
 SIZES = (10.0, 3.0, 1.0)
-WARMUP_TAU_S = 3.0 * HOUR
+WARMUP_TAU_S = 3.0 * SECONDS_PER_HOUR
 
 
 def effect_shape(effect: str, log: GyroLog, days: NDArray[np.int_]) -> NDArray[np.float64]:
@@ -141,7 +142,7 @@ class Cell:
 
     def held_out(self, stage: str, way: str) -> NDArray[np.float64]:
         """Held-out 10-minute rms (deg/h) of ``stage`` measured ``way``, one per trial."""
-        return np.array([t.fold.field[stage, way].systematic_rms_dps * HOUR for t in self.trials])
+        return np.array([t.fold.field[stage, way].systematic_rms_dps * DEG_PER_H_PER_DPS for t in self.trials])
 
 
 def cells(trials: Sequence[Trial]) -> list[Cell]:

@@ -24,6 +24,7 @@ from art_gyro_calibration.analysis.importers import (StaticRecord, read_cats_net
                                                      segment_labels, still_mask)
 from art_gyro_calibration.analysis.metrics import Segments
 from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.units import SECONDS_PER_HOUR
 
 PACKAGE_SPEC = 'scikit-diveMove==0.4.0'
 # Members of the wheel and their sha256, as the wheel's RECORD lists them.
@@ -38,7 +39,6 @@ MOTION_CHANNELS = tuple(f'{p}_{a}' for p in ('gyro', 'acc') for a in AXES)
 ACCELERATION_CHANNELS = tuple(f'acc_{a}' for a in AXES)
 RUN_GAP_S = 60.0
 BLOCK_S = 600.0  # the systematic error: 10-minute means
-HOUR = 3600.0
 DAY = 86400.0
 
 
@@ -175,7 +175,7 @@ def settled_start(t: NDArray[np.float64], temp_c: NDArray[np.float64], window: i
     if len(t) <= window:
         raise ValueError(f'{len(t)} samples are too few for a window of {window}')
     span = t[window:] - t[:-window]
-    rate = np.abs(temp_c[window:] - temp_c[:-window]) / span * HOUR
+    rate = np.abs(temp_c[window:] - temp_c[:-window]) / span * SECONDS_PER_HOUR
     dt = float(np.median(np.diff(t)))
     ok = np.flatnonzero((rate <= max_c_per_h) & (span <= 1.5 * window * dt))
     if not ok.size:

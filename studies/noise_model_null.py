@@ -46,6 +46,7 @@ from art_gyro_calibration.analysis import trace  # noqa: E402
 from art_gyro_calibration.analysis.allan import allan_deviation  # noqa: E402
 from art_gyro_calibration.analysis.simulate import simulate_run  # noqa: E402
 from art_gyro_calibration.calibration import load_packaged_calibration  # noqa: E402
+from art_gyro_calibration.units import SECONDS_PER_HOUR  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 # Correlation times of the Gauss-Markov grid (s): from the bias instability's minutes to the wander of hours.
@@ -94,7 +95,7 @@ def still_record(case: lv.Case, still_hours: float) -> NDArray[np.float64]:
                        hold_s=1e12, initial_rest_s=1e12)
     log = simulate_run(truth, settings).log(truth)
     per_bin = int(round(lv.RATE_HZ * BIN_S))
-    first = int(3600.0 * lv.RATE_HZ)
+    first = int(SECONDS_PER_HOUR * lv.RATE_HZ)
     m = (len(log) - first) // per_bin
     means = log.rate_dps[first:first + m * per_bin].reshape(m, per_bin).mean(axis=1)
     supply = log.extras['supply_v'][first:first + m * per_bin].reshape(m, per_bin).mean(axis=1)

@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from loop_validation import HOURS, REPO, SERIAL, Case, _commit, cases_for, detected  # noqa: E402
 
 from art_gyro_calibration.analysis.fit import TermSpec  # noqa: E402
-from art_gyro_calibration.analysis.loop import close_loop  # noqa: E402
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop  # noqa: E402
 from art_gyro_calibration.analysis.metrics import correlation_time_s  # noqa: E402
 from art_gyro_calibration.analysis.simulate import ALL_EFFECTS, COIL_LAG_TAU_S, EFFECTS, simulate_run  # noqa: E402
 from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, DEFAULT_BLOCK_S,  # noqa: E402
@@ -83,7 +83,7 @@ def run_case(case: Case) -> dict[str, Any]:
     rows, columns = truth.polynomial.rows, truth.polynomial.columns
     log = simulate_run(truth, case.settings()).log(truth)
     # The loop's first screen: its ART fit and signals, bins, and held-out blocks of the residual's correlation time.
-    art = close_loop(log, rows, columns, max_effects=0, seed=case.seed)
+    art = close_loop(log, rows, columns, LoopOptions(max_effects=0, seed=case.seed))
     binned = Binned(art.signals, art.error, art.segments, rows, columns, DEFAULT_FOLDS, DEFAULT_BIN_S,
                     DEFAULT_BLOCK_S)
     residual = art.error - art.art.polynomial.error(log.rate_dps, log.temp_c)

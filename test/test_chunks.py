@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.analysis import chunks, metrics
+from art_gyro_calibration.analysis import report as report_module
 from art_gyro_calibration.analysis import fit as fit_module
-from art_gyro_calibration.analysis.loop import close_loop
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.report import build_report
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run
 from art_gyro_calibration.calibration import load_packaged_calibration
@@ -23,7 +24,7 @@ def simulated(hours, rate_hz, effects=(), seed=3):
 
 
 def fit(log):
-    result = close_loop(log, 3, 4, serial_number=SERIAL)
+    result = close_loop(log, 3, 4, LoopOptions(serial_number=SERIAL))
     return result, build_report(log, result, 100)
 
 
@@ -57,9 +58,10 @@ def test_small_chunks_give_the_one_chunk_calibration(effects, monkeypatch):
     rate) continue across the chunks' edges, and the bins cut by them add their parts.
     """
     log = simulated(6.0, 2.0, effects)
-    assert len(log) < chunks.CHUNK_ROWS
+    assert len(log) < min(chunks.DESIGN_CHUNK_ROWS, report_module.STAGE_CHUNK_ROWS)
     whole, whole_report = fit(log)
-    monkeypatch.setattr(chunks, 'CHUNK_ROWS', 1000)
+    monkeypatch.setattr(chunks, 'DESIGN_CHUNK_ROWS', 1000)
+    monkeypatch.setattr(report_module, 'STAGE_CHUNK_ROWS', 1000)   # the stage errors compensated in chunks too
     monkeypatch.setattr(metrics, 'PIECE_ROWS', 777)   # noise floor, correlation time, segments in pieces
     monkeypatch.setattr(fit_module, 'PIECE_ROWS', 777)
     parts, parts_report = fit(log)
@@ -131,12 +133,12 @@ def test_no_matrix_with_a_row_per_log_row(monkeypatch):
     small on a 100 Hz log (100 rows per 1 s bin).
     """
     log = simulated(1.0, 100.0, seed=5)
-    monkeypatch.setattr(chunks, 'CHUNK_ROWS', 2048)
+    monkeypatch.setattr(chunks, 'DESIGN_CHUNK_ROWS', 2048)
     column = len(log) * 8
     tracemalloc.start()
     try:
         before = tracemalloc.get_traced_memory()[0]
-        close_loop(log, 3, 4, serial_number=SERIAL)
+        close_loop(log, 3, 4, LoopOptions(serial_number=SERIAL))
         peak = tracemalloc.get_traced_memory()[1] - before
     finally:
         tracemalloc.stop()

@@ -251,11 +251,11 @@ def test_a_failing_apply_leaves_no_partial_output(fitted, tmp_path, capsys):
 
 
 def test_fit_checks_its_outputs_before_fitting(fitted, tmp_path, monkeypatch, capsys):
-    import art_gyro_calibration.analysis.cli as cli
+    import art_gyro_calibration.analysis.pipeline as pipeline
 
     def no_fit(*args, **kwargs):
         raise AssertionError('the fit ran before its outputs were checked')
-    monkeypatch.setattr(cli, 'close_loop', no_fit)
+    monkeypatch.setattr(pipeline, 'close_loop', no_fit)
     log = str(fitted / 'LOG.csv')
     (tmp_path / 'CAL.yaml').write_text('keep me\n')
     (tmp_path / 'REPORT.md').write_text('keep me\n')

@@ -9,7 +9,7 @@ import pytest
 
 from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.analysis.metrics import field_errors, heading_error_deg, steady_segments
-from art_gyro_calibration.analysis.loop import close_loop
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.replay import (field_score_dps, own_restarts, replay, replay_field, restart,
                                                   startup_check, validate, without_terms)
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
@@ -194,8 +194,8 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     truth = load_packaged_calibration('NAVC3545')
     run = _wandering(truth, 6.0, 1397)
     log = run.log(truth)
-    result = close_loop(log, truth.polynomial.rows, truth.polynomial.columns, serial_number='NAVC3545',
-                        rate_scale_factor=truth.rate_scale_factor, seed=1397)
+    result = close_loop(log, truth.polynomial.rows, truth.polynomial.columns,
+                        LoopOptions(serial_number='NAVC3545', rate_scale_factor=truth.rate_scale_factor, seed=1397))
     assert [e.signal for e in result.effects] == ['temperature_lag']
     checked, check, names = startup_check(result, log)
     assert names == ['restarted at 90 min', 'restarted at 182 min']
@@ -248,8 +248,8 @@ def test_a_start_up_check_keeps_what_the_restarts_are_better_with(calibration, t
 
 def test_a_warm_up_is_never_judged_by_restarts(calibration):
     log = _wandering(calibration, 2.0, 3, ('warmup',)).log(calibration)
-    result = close_loop(log, calibration.polynomial.rows, calibration.polynomial.columns, serial_number='NAVC4058',
-                        rate_scale_factor=calibration.rate_scale_factor, seed=3)
+    result = close_loop(log, calibration.polynomial.rows, calibration.polynomial.columns,
+                        LoopOptions(serial_number='NAVC4058', rate_scale_factor=calibration.rate_scale_factor, seed=3))
     assert POWER_ON_SIGNAL in [e.signal for e in result.effects]
     # Restarted, power-on unknown, the warm-up is not applied: with or without it the runs read the same.
     runs = [run for _, run in own_restarts(log, 100)]
@@ -307,8 +307,8 @@ def test_a_gyro_too_noisy_for_the_nodes_motion_check_is_measured_not_refused(cal
     run = simulate_run(calibration, SimulationSettings(hours=2.0, rate_hz=10.0, seed=2, arw_deg_rthr=3.0,
                                                        effects=('shupe',)))
     log = run.log(calibration)
-    result = close_loop(log, calibration.polynomial.rows, calibration.polynomial.columns, serial_number='NAVC4058',
-                        rate_scale_factor=calibration.rate_scale_factor, seed=2)
+    result = close_loop(log, calibration.polynomial.rows, calibration.polynomial.columns,
+                        LoopOptions(serial_number='NAVC4058', rate_scale_factor=calibration.rate_scale_factor, seed=2))
     assert result.effects
     runs = [r for _, r in own_restarts(log, 100)]
     # --validate refuses such a run, naming it; the start-up check measures it with the checks off.

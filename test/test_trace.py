@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.calibration import load_packaged_calibration
-from art_gyro_calibration.analysis.loop import close_loop
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run
 from art_gyro_calibration.analysis.trace import mirrored_spectrum, phase_surrogates
 
@@ -21,7 +21,8 @@ HOURS, RATE_HZ = 6.0, 2.0
 def run_loop(serial, effects=(), seed=7):
     cal = load_packaged_calibration(serial)
     sim = simulate_run(cal, SimulationSettings(hours=HOURS, rate_hz=RATE_HZ, seed=seed, effects=effects))
-    return sim.truth, close_loop(sim.log(cal), cal.polynomial.rows, cal.polynomial.columns, serial_number=serial)
+    return sim.truth, close_loop(sim.log(cal), cal.polynomial.rows, cal.polynomial.columns,
+                                 LoopOptions(serial_number=serial))
 
 
 @pytest.mark.parametrize('seed', [100, 101, 102])
@@ -65,7 +66,7 @@ def test_all_effects_together():
     cal = load_packaged_calibration('NAVC3545')
     sim = simulate_run(cal, SimulationSettings(hours=12.0, rate_hz=RATE_HZ, seed=8,
                                                effects=('shupe', 'warmup', 'supply_voltage')))
-    result = close_loop(sim.log(cal), 3, 4, serial_number='NAVC3545')
+    result = close_loop(sim.log(cal), 3, 4, LoopOptions(serial_number='NAVC3545'))
     truth = sim.truth['effects']
     assert sorted(e.signal for e in result.effects) == sorted(v['signal'] for v in truth.values())
     for e in result.effects:
@@ -83,7 +84,7 @@ def _loop_with_columns(effects, columns, seed=7, hours=HOURS, effect_sizes=None,
                                                effect_sizes=effect_sizes or {}))
     log = sim.log(cal)
     log = dataclasses.replace(log, extras={**log.extras, **{name: f(log) for name, f in columns.items()}})
-    return sim.truth, close_loop(log, 3, 4, serial_number='NAVC3545', **loop_options)
+    return sim.truth, close_loop(log, 3, 4, LoopOptions(serial_number='NAVC3545', **loop_options))
 
 
 def test_a_column_carrying_the_temperature_does_not_mask_the_shupe_effect():
@@ -159,7 +160,7 @@ def test_a_shupe_effect_over_one_chamber_cycle_is_not_its_own_chance(seed):
     """
     cal = load_packaged_calibration('NAVC3545')
     sim = simulate_run(cal, SimulationSettings(seed=seed, effects=('shupe',), **WANDERING))
-    result = close_loop(sim.log(cal), cal.polynomial.rows, cal.polynomial.columns, seed=seed)
+    result = close_loop(sim.log(cal), cal.polynomial.rows, cal.polynomial.columns, LoopOptions(seed=seed))
     assert 'temperature_rate' in [e.signal for e in result.effects]
 
 
@@ -173,7 +174,7 @@ def test_the_null_without_the_strongest_candidate_stays_honest_under_wander(seed
     """
     cal = load_packaged_calibration('NAVC3545')
     sim = simulate_run(cal, SimulationSettings(seed=seed, **{**WANDERING, 'hours': 6.0}))
-    result = close_loop(sim.log(cal), cal.polynomial.rows, cal.polynomial.columns, seed=seed)
+    result = close_loop(sim.log(cal), cal.polynomial.rows, cal.polynomial.columns, LoopOptions(seed=seed))
     assert result.effects == (), [e.term.describe() for e in result.effects]
 
 
@@ -213,7 +214,8 @@ def test_a_warm_up_over_one_chamber_cycle_is_no_drift(seed):
     from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
     cal = load_packaged_calibration('NAVC3545')
     settings = SimulationSettings(seed=seed, effects=('warmup',), **WANDERING)
-    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns, seed=seed)
+    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns,
+                        LoopOptions(seed=seed))
     assert [e.signal for e in result.effects] == ['time_since_power_on'], \
         [e.term.describe() for e in result.effects]
     assert result.effects[0].term.time_constant_s == pytest.approx(EFFECTS['warmup'][3], rel=0.2)
@@ -235,7 +237,8 @@ def test_a_quarter_size_scale_factor_in_t_cubed_is_found(seed):
     cal = load_packaged_calibration('NAVC3545')
     settings = SimulationSettings(seed=seed, effects=('rate_t3',), effect_sizes={'rate_t3': 5e-5},
                                   **{**WANDERING, 'hours': 6.0})
-    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns, seed=seed)
+    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns,
+                        LoopOptions(seed=seed))
     assert [(e.term.signal, e.term.powers, e.term.rate_powers) for e in result.effects] == [('temperature', (3,), (1,))]
 
 
@@ -255,7 +258,8 @@ def test_a_quarter_size_warm_up_in_a_six_hour_log_is_found_and_mends_a_cold_star
     cal = load_packaged_calibration('NAVC3545')
     settings = SimulationSettings(seed=seed, effects=('warmup',), effect_sizes={'warmup': 0.005},
                                   **{**WANDERING, 'hours': 6.0})
-    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns, seed=seed)
+    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns,
+                        LoopOptions(seed=seed))
     assert [e.signal for e in result.effects] == ['time_since_power_on'], \
         [e.term.describe() for e in result.effects]
     assert result.effects[0].term.time_constant_s == pytest.approx(EFFECTS['warmup'][3], rel=0.3)
@@ -278,7 +282,8 @@ def test_a_supply_voltage_is_not_taken_by_a_wide_temperature_form(seed, size):
     cal = load_packaged_calibration('NAVC3545')
     settings = SimulationSettings(seed=seed, effects=('supply_voltage',), effect_sizes={'supply_voltage': size},
                                   **WANDERING)
-    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns, seed=seed)
+    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns,
+                        LoopOptions(seed=seed))
     assert [e.signal for e in result.effects] == ['supply_v'], [e.term.describe() for e in result.effects]
 
 
@@ -314,6 +319,7 @@ def test_a_scale_factor_in_t_cubed_far_beyond_chance_survives_the_final_held_out
     """
     cal = load_packaged_calibration('NAVC3545')
     settings = SimulationSettings(seed=seed, effects=('rate_t3',), effect_sizes={'rate_t3': size}, **WANDERING)
-    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns, seed=seed)
+    result = close_loop(simulate_run(cal, settings).log(cal), cal.polynomial.rows, cal.polynomial.columns,
+                        LoopOptions(seed=seed))
     assert [(e.term.signal, e.term.powers, 1 in e.term.rate_powers) for e in result.effects] == \
         [('temperature', (3,), True)], [e.term.describe() for e in result.effects]

@@ -24,17 +24,14 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
 
-from art_gyro_calibration.calibration import (TEMP_SCALE_FACTOR, Calibration, CalibrationError,
-                                              find_calibration_file, load_calibration, write_calibration)
+from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, CalibrationError, find_calibration_file,
+                                              load_calibration, write_calibration)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, RunStart
 from art_gyro_calibration.log import LogError, RawLogWriter, read_log
-from art_gyro_calibration.analysis.loop import (DEFAULT_MAX_EFFECTS, DEFAULT_RATE_SCALE_FACTOR, DEFAULT_SERIAL,
-                                                LoopResult, close_loop)
+from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopOptions
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
-from art_gyro_calibration.analysis.replay import RESTARTS_NAME, Validation, startup_check, unjudged_warm_up
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_BLOCK_S, DEFAULT_DRAWS
 
 
@@ -54,93 +51,33 @@ def _apply(args: argparse.Namespace) -> int:
     return 0
 
 
-def _scale_factors(args: argparse.Namespace) -> tuple[float, float]:
-    """Rate and temperature scale factors: given, else the packaged calibration of --serial, else the usual.
-
-    They turn a raw log's counts into deg/s and go into the calibration file, where the node needs them.
-    """
-    if args.rate_scale_factor is not None:
-        return args.rate_scale_factor, TEMP_SCALE_FACTOR
-    if args.serial:
-        try:
-            path = find_calibration_file(args.serial)
-        except CalibrationError:
-            path = None  # a gyro not calibrated before; a packaged file that is bad is refused below
-        if path is not None:
-            packaged = load_calibration(path, expected_serial=args.serial)
-            return packaged.rate_scale_factor, packaged.temp_scale_factor
-    # Said whether the log is raw or not: the factor goes into the calibration file, and the node scales by it.
-    print(f'calibrate fit: no --rate-scale-factor and no packaged calibration of {args.serial or "the gyro"}: '
-          f'using the usual {DEFAULT_RATE_SCALE_FACTOR} deg/s per count', file=sys.stderr)
-    return DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR
-
-
 def _fit(args: argparse.Namespace) -> int:
-    from art_gyro_calibration.analysis.report import build_report, validation_section, write_report
+    from art_gyro_calibration.analysis.pipeline import FitSettings, fit_log, scale_factors
+    from art_gyro_calibration.analysis.report import write_report
     with Outputs([args.log, *args.validate], args.force) as outputs:
         out = outputs.claim(args.out)
         report_path = outputs.claim(args.report, beside=[Path(args.report).with_suffix('.md')])
         plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
-        rate_scale, temp_scale = _scale_factors(args)
-        log = read_log(args.log, rate_scale, temp_scale)
-        loop = close_loop(log, args.rows, args.columns, serial_number=args.serial or DEFAULT_SERIAL,
-                          rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
-                          settle_s=args.settle_s, max_effects=args.max_effects, seed=args.seed,
-                          exclude=args.exclude, block_s=args.block_s, materiality_dph=args.materiality,
-                          draws=args.draws, alpha=args.alpha, from_power_on=not args.not_from_power_on)
-        # The report and plots are the loop's; what the check drops is in its section, as --validate's drops are.
-        report = build_report(log, loop, args.bias_samples, source=str(args.log))
-        result, check, restarts = startup_check(loop, log, args.bias_samples, args.settle_s)
-        found = ', '.join(e.signal for e in result.effects) or 'nothing'
-        if check is not None:
-            report['startup_check'] = validation_section(check, restarts)
-            found += _dropped(check, RESTARTS_NAME)
-        if not report['model_adequate']:
-            adequacy = report['adequacy']
-            print(f'calibrate fit: warning: the model does not fit: {adequacy["excess_dph"]:.2f} deg/h beyond the '
-                  'noise budget, held out, over 10-minute means; see REPORT.md and the residual against each '
-                  'signal (--plots)', file=sys.stderr)
-        calibration = result.extended
-        if args.validate:
-            calibration, found = _validate(args, result, report, found)
-        judged = args.validate and args.validate_powered_on_at_start
-        warning = '' if judged else unjudged_warm_up(calibration, result.bias_instability_dph)
-        if warning:
-            report['warnings'] = [warning]
-            print(f'calibrate fit: warning: {warning}', file=sys.stderr)
-        write_calibration(out, calibration,
-                          f'Fitted by calibrate fit from {args.log}: ART polynomial {args.rows} x {args.columns}, '
-                          f'effects beyond it: {found}.')
-        # The effects above are the loop's; the checks may have dropped some: say what the file holds.
-        report['written'] = {'calibration': str(args.out), 'terms': [t.signal for t in calibration.terms]}
-        summary = write_report(report_path, report).read_text(encoding='utf-8')
+        scale = scale_factors(args.serial, args.rate_scale_factor)
+        if scale.assumed:   # said whether the log is raw or not: the node scales by the factor written
+            print(f'calibrate fit: no --rate-scale-factor and no packaged calibration of {args.serial or "the gyro"}: '
+                  f'using the usual {scale.rate} deg/s per count', file=sys.stderr)
+        loop = LoopOptions(serial_number=args.serial or DEFAULT_SERIAL, rate_scale_factor=scale.rate,
+                           temp_scale_factor=scale.temp, settle_s=args.settle_s, max_effects=args.max_effects,
+                           seed=args.seed, exclude=tuple(args.exclude), block_s=args.block_s,
+                           materiality_dph=args.materiality, draws=args.draws, alpha=args.alpha,
+                           from_power_on=not args.not_from_power_on)
+        settings = FitSettings(args.rows, args.columns, loop, args.bias_samples, tuple(args.validate),
+                               args.validate_powered_on_at_start)
+        fitted = fit_log(args.log, settings, str(args.out),
+                         lambda warning: print(f'calibrate fit: warning: {warning}', file=sys.stderr))
+        write_calibration(out, fitted.calibration, fitted.comment)
+        summary = write_report(report_path, fitted.report).read_text(encoding='utf-8')
         if plots is not None:
             from art_gyro_calibration.analysis.plots import plot_all
-            plot_all(log, loop, args.bias_samples, plots, args.plot_prefix)
+            plot_all(fitted.log, fitted.loop, args.bias_samples, plots, args.plot_prefix)
     print(summary, end='')
     return 0
-
-
-def _validate(args: argparse.Namespace, result: LoopResult, report: dict[str, Any],
-              found: str) -> tuple[Calibration, str]:
-    """Replay the calibrations on the ``--validate`` runs into ``report``; the calibration to write and its effects."""
-    from art_gyro_calibration.analysis.replay import validate
-    from art_gyro_calibration.analysis.report import validation_section
-    logs = [read_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor) for path in args.validate]
-    validation = validate(result, logs, args.bias_samples, args.settle_s,
-                          RunStart(powered_on_at_start=args.validate_powered_on_at_start))
-    report['validation'] = validation_section(validation, [str(p) for p in args.validate])
-    if not validation.dropped:
-        return validation.calibration, found
-    kept = ', '.join(t.signal for t in validation.calibration.terms) or 'nothing'
-    return validation.calibration, kept + _dropped(validation, 'the validation runs')
-
-
-def _dropped(validation: Validation, runs: str) -> str:
-    """What a replay dropped, for the calibration file's comment ('' when nothing)."""
-    if not validation.dropped:
-        return ''
-    return f' ({", ".join(d.term.signal for d in validation.dropped)} dropped: {runs} were better without)'
 
 
 def _replay(args: argparse.Namespace) -> int:

@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.calibration import TEMP_SCALE_FACTOR, Calibration
+from art_gyro_calibration.calibration import DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration
 from art_gyro_calibration.compensation import RunStart
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.log import GyroLog, LogError
@@ -25,15 +25,13 @@ from art_gyro_calibration.analysis.metrics import (DEFAULT_SETTLE_S, Segments, c
                                                    steady_segments)
 from art_gyro_calibration.signals import SIGNALS, SignalFilters, Signals, compute_signals
 from art_gyro_calibration.terms import Term
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.allan import allan_deviation
-from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, DEFAULT_BLOCK_S, DEFAULT_DRAWS,
-                                                 DEFAULT_FOLDS, DEG_PER_H_PER_DPS, Binned, CandidateScore, Screen,
+from art_gyro_calibration.analysis.trace import (DEFAULT_BLOCK_S, Binned, CandidateScore, Screen, ScreenOptions,
                                                  TraceResult, duration_s, held_out_residual, joined,
                                                  time_constant_bounds, trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
-# Most RD2100s read 0.00305 deg/s per count (report, section 1).
-DEFAULT_RATE_SCALE_FACTOR = 0.00305
 # Signals computed from the measured rate alone, and the screen's forms on the rate.
 RATE_SIGNALS = (*(name for name, s in SIGNALS.items() if s.from_rate), 'rate_x_temperature', 'rate_x_temperature_rate')
 # Effects of the heading (a signal the node does not track): found and reported, never written into a calibration.
@@ -42,6 +40,33 @@ DEFAULT_SERIAL = 'UNSPECIFIED'
 # Signals whose linear term may grow a square when the held-out error says so; the others
 # would duplicate the polynomial (rate_abs**2 = rate**2) or a constant (rate_sign**2).
 _SQUARABLE = tuple(name for name, s in SIGNALS.items() if s.squarable)
+
+
+@dataclass(frozen=True)
+class LoopOptions(ScreenOptions):
+    """How :func:`close_loop` runs: each round's screen (:class:`trace.ScreenOptions`) and the loop's own settings.
+
+    ``serial_number``, ``rate_scale_factor`` and ``temp_scale_factor`` only go into the
+    calibrations returned (the log is already in deg/s and degC). The fit uses the steady rows of
+    ``settle_s`` after each change of table rate. Signals in ``exclude`` are never
+    candidates (e.g. a log column the node will not have at run time). ``block_s`` is the
+    shortest held-out block of time; each round lengthens it to the correlation time of
+    what the model leaves (a real gyro's bias wanders for hours). An effect must reach
+    ``materiality_dph`` over the logged envelope; None: the bias instability of what
+    the ART polynomial leaves (:func:`noise_levels`). ``from_power_on``: the log
+    starts at the gyro's power-on (a warm-up is a candidate only then).
+    """
+
+    serial_number: str = DEFAULT_SERIAL
+    rate_scale_factor: float = DEFAULT_RATE_SCALE_FACTOR
+    temp_scale_factor: float = TEMP_SCALE_FACTOR
+    filters: SignalFilters = field(default_factory=SignalFilters)
+    settle_s: float = DEFAULT_SETTLE_S
+    max_effects: int = DEFAULT_MAX_EFFECTS
+    materiality_dph: float | None = None
+    exclude: tuple[str, ...] = ()
+    block_s: float = DEFAULT_BLOCK_S
+    from_power_on: bool = True
 
 
 @dataclass(frozen=True)
@@ -114,35 +139,22 @@ def _one_blas_thread(function: Callable[..., LoopResult]) -> Callable[..., LoopR
 
 
 @_one_blas_thread
-def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DEFAULT_SERIAL,
-               rate_scale_factor: float = DEFAULT_RATE_SCALE_FACTOR, temp_scale_factor: float = TEMP_SCALE_FACTOR,
-               filters: SignalFilters = SignalFilters(), settle_s: float = DEFAULT_SETTLE_S,
-               max_effects: int = DEFAULT_MAX_EFFECTS, folds: int = DEFAULT_FOLDS,
-               draws: int = DEFAULT_DRAWS, alpha: float = DEFAULT_ALPHA, bin_s: float = DEFAULT_BIN_S,
-               materiality_dph: float | None = None, seed: int = 0,
-               exclude: Sequence[str] = (), block_s: float = DEFAULT_BLOCK_S,
-               from_power_on: bool = True) -> LoopResult:
-    """Fit -> trace -> extend -> repeat on a rate-table ``log`` (it needs ``ref_rate``).
+def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = LoopOptions()) -> LoopResult:
+    """Fit -> trace -> extend -> repeat on a rate-table ``log`` (it needs ``ref_rate``), as ``options`` say.
 
-    ``rate_scale_factor`` and ``temp_scale_factor`` only go into the calibrations
-    returned (the log is already in deg/s and degC). The fit uses the steady rows of
-    ``settle_s`` after each change of table rate. Signals in ``exclude`` are never
-    candidates (e.g. a log column the node will not have at run time). ``block_s`` is the
-    shortest held-out block of time; each round lengthens it to the correlation time of
-    what the model leaves (a real gyro's bias wanders for hours). An effect must reach
-    ``materiality_dph`` over the logged envelope; by default the bias instability of what
-    the ART polynomial leaves (:func:`noise_levels`). ``from_power_on``: the log
-    starts at the gyro's power-on (a warm-up is a candidate only then). A heading effect
-    is fitted against the angle of the rate the ART polynomial corrects, and reported in
+    ``rows`` x ``columns``: the ART polynomial's powers of temperature and rate. A heading
+    effect is fitted against the angle of the rate the ART polynomial corrects, and reported in
     ``findings``, never written: the node has no absolute heading.
     """
+    filters, settle_s, bin_s, block_s = options.filters, options.settle_s, options.bin_s, options.block_s
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: fitting needs the rate table\'s true rate')
     for name, values in log.extras.items():
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
             raise LogError(f'column {name} is not a finite number at row {bad[0] + 1}')
-    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters, powered_on_at_start=from_power_on)
+    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters,
+                              powered_on_at_start=options.from_power_on)
     error = log.rate_dps - log.ref_rate
     segments = steady_segments(log.t, log.ref_rate, settle_s)
     index = segments.rows()
@@ -160,26 +172,25 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     # A still gyro (one reference rate throughout) reads nothing but its error: a signal derived
     # from its rate would explain the error with itself, so none is a candidate.
     still = bool(np.ptp(log.ref_rate) == 0.0)
-    binned = Binned(signals, error, segments, rows, columns, folds, bin_s, block_s)
+    binned = Binned(signals, error, segments, rows, columns, options.folds, bin_s, block_s)
     noise = noise_levels(binned, Screen(binned).residual() / binned.sqrt_counts, bin_s)
     signals.forget()   # the rest of the loop takes its signals chunk by chunk
     instability_dph = noise.instability_dps * DEG_PER_H_PER_DPS
-    materiality = noise.materiality_dph if materiality_dph is None else materiality_dph
-    options = dict(draws=draws, alpha=alpha, bin_s=bin_s, materiality_dph=materiality, seed=seed,
-                   noise_floor_dps=floor, binned=binned, still=still)
-    excluded = [*exclude, *(RATE_SIGNALS if still else ())]
+    materiality = noise.materiality_dph if options.materiality_dph is None else options.materiality_dph
+    excluded = [*options.exclude, *(RATE_SIGNALS if still else ())]
     specs: list[TermSpec] = []
     rounds: list[TraceResult] = []
     scores: list[CandidateScore] = []
     strong: list[bool] = []   # per spec: its round's score beat the threshold by STRONG_FACTOR
-    while len(rounds) < max_effects:
+    while len(rounds) < options.max_effects:
         # Held-out blocks at least as long as what the current model leaves stays correlated:
         # shorter ones share a slow residual with their neighbours, and any slow signal seems to predict it.
         if specs:
             residual[index] = fit_model(signals, error, rows, columns, specs, index, ranges=binned.ranges).residual
         binned.refold(max(block_s, correlation_time_s(signals.t, residual, segments)))
-        found = trace_residual(signals, error, segments, rows, columns, specs,
-                               exclude=excluded + [s.signal for s in scores], **options)
+        found = trace_residual(signals, error, segments, rows, columns, specs, options,
+                               materiality_dph=materiality, noise_floor_dps=floor,
+                               exclude=excluded + [s.signal for s in scores], binned=binned, still=still)
         rounds.append(found)
         best = found.best
         if best is None:
@@ -219,8 +230,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
     if heading:
         final = fit_model(signals, error, rows, columns, written, index, ranges=binned.ranges)
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
-    art = Calibration(serial_number, rate_scale_factor, art_model.polynomial,
-                      (low, high if high > low else low + 1.0), temp_scale_factor, (), filters)
+    art = Calibration(options.serial_number, options.rate_scale_factor, art_model.polynomial,
+                      (low, high if high > low else low + 1.0), options.temp_scale_factor, (), filters)
     return LoopResult(
         art=art, extended=replace(art, polynomial=final.model.polynomial, terms=final.model.terms),
         effects=tuple(e for e in effects if e not in heading), rounds=tuple(rounds), noise_floor_dps=floor,
@@ -228,7 +239,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, *, serial_number: str = DE
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
         adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading),
-        start=RunStart(powered_on_at_start=from_power_on))
+        start=RunStart(powered_on_at_start=options.from_power_on))
 
 
 # A term whose round score is this many times the round's threshold (standardised chance scores: an

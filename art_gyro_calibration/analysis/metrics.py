@@ -19,10 +19,11 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
+
 DEFAULT_SETTLE_S = 1.0
-SECONDS_PER_HOUR = 3600.0
 # Heading horizons of the field errors: a short mission and a long one (s).
-HEADING_HORIZONS_S = (600.0, 3600.0)
+HEADING_HORIZONS_S = (600.0, SECONDS_PER_HOUR)
 
 # Rows per piece where a long log's per-row temporaries are taken a piece at a time.
 PIECE_ROWS = 1 << 20
@@ -202,8 +203,8 @@ class FieldErrors:
     def to_dict(self) -> dict[str, float | None]:
         """Plain dict for JSON: deg/s values also in deg/h; a heading the log is too short for is None."""
         d: dict[str, float | None] = asdict(self)
-        d['mean_bias_dph'] = self.mean_bias_dps * SECONDS_PER_HOUR
-        d['systematic_rms_dph'] = self.systematic_rms_dps * SECONDS_PER_HOUR
+        d['mean_bias_dph'] = self.mean_bias_dps * DEG_PER_H_PER_DPS
+        d['systematic_rms_dph'] = self.systematic_rms_dps * DEG_PER_H_PER_DPS
         return {k: (None if v is not None and not np.isfinite(v) else v) for k, v in d.items()}
 
 

@@ -26,6 +26,7 @@ from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.analysis.loop import LoopResult  # noqa: E402
 from art_gyro_calibration.analysis.metrics import heading_errors_360  # noqa: E402
 from art_gyro_calibration.analysis.report import STAGES, stage_errors  # noqa: E402
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS  # noqa: E402
 
 BAND_C = 10.0
 TITLES = {'uncalibrated': 'uncalibrated (scale factor, static bias)', 'art': 'ART polynomial',
@@ -59,7 +60,7 @@ LOOK_AT = ('temperature', 'temperature_rate', 'time', 'rate', 'rate_change', 'an
 def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
     """What the final model leaves against each signal, binned: where the lack-of-fit alarm sends a person."""
     rows = result.segments.rows()
-    residual = (result.error - result.extended.model.error(result.signals))[rows] * 3600.0
+    residual = (result.error - result.extended.model.error(result.signals))[rows] * DEG_PER_H_PER_DPS
     names = [*LOOK_AT, *result.signals.extras]
     fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7), squeeze=False)
     for ax, name in zip(axes.ravel(), names):

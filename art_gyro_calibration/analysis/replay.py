@@ -27,14 +27,14 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.analysis.loop import LoopResult
-from art_gyro_calibration.analysis.metrics import (DEFAULT_SETTLE_S, SECONDS_PER_HOUR, FieldErrors, field_errors,
-                                                   steady_segments)
+from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, field_errors, steady_segments
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import Applied, RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.signals import POWER_ON_SIGNAL
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.terms import Term
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 
 
 @dataclass(frozen=True)
@@ -129,7 +129,7 @@ def unjudged_warm_up(calibration: Calibration, bias_instability_dph: float) -> s
     warm_up = next((t for t in calibration.terms if t.signal == POWER_ON_SIGNAL), None)
     if warm_up is None:
         return ''
-    amplitude_dph = abs(warm_up.evaluate_one(0.0)) * SECONDS_PER_HOUR
+    amplitude_dph = abs(warm_up.evaluate_one(0.0)) * DEG_PER_H_PER_DPS
     return (f'the warm-up term ({amplitude_dph:.1f} deg/h at power-on; the log\'s bias instability is '
             f'{bias_instability_dph:.2f} deg/h) was judged on this log alone: if it is the bias wandering at the '
             'start of this run, a node told powered_on_at_start is off by about that much on every cold start; '
@@ -217,10 +217,10 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
             break
         term = current.terms[judged[best]]
         with_it = ('the node refuses a static bias with it (the still gyro reads as turning)' if math.isinf(score)
-                   else f'systematic rms with the bias {score * SECONDS_PER_HOUR:.2f} deg/h with it')
-        needed = f' (a drop needs more than {margin_dps * SECONDS_PER_HOUR:.2f} deg/h)' if margin_dps else ''
+                   else f'systematic rms with the bias {score * DEG_PER_H_PER_DPS:.2f} deg/h with it')
+        needed = f' (a drop needs more than {margin_dps * DEG_PER_H_PER_DPS:.2f} deg/h)' if margin_dps else ''
         dropped.append(Dropped(term, f'{runs_name} are better without it: {with_it}, '
-                                     f'{scores[best] * SECONDS_PER_HOUR:.2f} deg/h without{needed}'))
+                                     f'{scores[best] * DEG_PER_H_PER_DPS:.2f} deg/h without{needed}'))
         current = options[best]
         current_errors = field(current)
     runs: list[dict[str, FieldErrors]] = []
@@ -250,7 +250,7 @@ def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_
     # where a term fitted to noise that shifts the static bias scores worse by several deg/h. A warm-up is
     # kept: it is applied only from a declared power-on, and a restart, power-on unknown, cannot judge it.
     check = validate(result, [run for _, run in restarts], bias_samples, settle_s, RunStart(),
-                     kept_signals=(POWER_ON_SIGNAL,), margin_dps=result.materiality_dph / SECONDS_PER_HOUR,
+                     kept_signals=(POWER_ON_SIGNAL,), margin_dps=result.materiality_dph / DEG_PER_H_PER_DPS,
                      strict=False, runs_name=RESTARTS_NAME)
     if not check.dropped:
         return result, check, names

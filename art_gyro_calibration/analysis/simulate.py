@@ -44,6 +44,7 @@ from art_gyro_calibration.gyro_physics import (ANN_ARBOR_LATITUDE_DEG, earth_rat
                                                white_noise_dps)
 from art_gyro_calibration.log import GyroLog, write_columns
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals, first_order_smooth
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
 FULL_SCALE_DPS = 100.0
 # Table rates of one cycle (both signs of each); a cycle lasts about 27 minutes.
@@ -174,7 +175,7 @@ def chamber_profile(t: NDArray[np.float64], settings: SimulationSettings,
 def simulate_run(calibration: Calibration, settings: SimulationSettings) -> SimulatedRun:
     """Simulate one run of the gyro ``calibration`` describes (its polynomial is the true error)."""
     rng = np.random.default_rng(settings.seed)
-    n = int(round(settings.hours * 3600.0 * settings.rate_hz))
+    n = int(round(settings.hours * SECONDS_PER_HOUR * settings.rate_hz))
     t = np.arange(n) / settings.rate_hz
     table = table_profile(t, settings, rng)
     temp = chamber_profile(t, settings, calibration.temperature_range_c)
@@ -295,7 +296,7 @@ def _slow_noise(n: int, settings: SimulationSettings) -> NDArray[np.float64]:
         out += lfilter([1.0], [1.0, -phi], drive)
     if settings.rate_random_walk_dph_rthr > 0.0:
         # K deg/h/sqrt(h) = K / 3600 deg/s per sqrt(3600 s): steps of K / 3600 / 60 * sqrt(dt) deg/s.
-        step = settings.rate_random_walk_dph_rthr / 3600.0 / 60.0 * math.sqrt(dt)
+        step = settings.rate_random_walk_dph_rthr / DEG_PER_H_PER_DPS / math.sqrt(SECONDS_PER_HOUR) * math.sqrt(dt)
         out += np.cumsum(rng.normal(0.0, step, n))
     return out
 
@@ -318,7 +319,7 @@ def warm_restart(calibration: Calibration, settings: SimulationSettings, start_s
     # Room for the step running at start_s (up to a turn at 1 deg/s), the turn and the rest.
     margin_s = 360.0 / min(TABLE_RATES_DPS) + settings.rest_s + abs(heading_deg) / RESTART_TURN_DPS \
         + settings.initial_rest_s
-    long = replace(settings, hours=settings.hours + (start_s + margin_s) / 3600.0,
+    long = replace(settings, hours=settings.hours + (start_s + margin_s) / SECONDS_PER_HOUR,
                    restarts_s=(*settings.restarts_s, start_s), restart_turn_deg=heading_deg)
     run = simulate_run(calibration, long)
     t, ref = run.columns['t'], run.columns['ref_rate']
@@ -329,7 +330,7 @@ def warm_restart(calibration: Calibration, settings: SimulationSettings, start_s
     bounds = np.concatenate([[first], change, [len(t)]])
     begin = next(int(a) for a, b in zip(bounds[:-1], bounds[1:])
                  if still[a] and t[b - 1] - t[a] >= settings.initial_rest_s - 1.5 / settings.rate_hz)
-    stop = begin + int(round(settings.hours * 3600.0 * settings.rate_hz))
+    stop = begin + int(round(settings.hours * SECONDS_PER_HOUR * settings.rate_hz))
     truth = {**run.truth, 'start_s': float(t[begin]), 'powered_on_at_start': False,
              'heading_at_start_deg': heading_deg % 360.0}  # every other step is whole turns; settings: the long run's
     return SimulatedRun({k: v[begin:stop] for k, v in run.columns.items()}, truth)

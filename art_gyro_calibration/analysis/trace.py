@@ -42,6 +42,7 @@ from art_gyro_calibration.analysis.chunks import Chunk, chunks
 from art_gyro_calibration.analysis.fit import Design, Ranges, TermSpec, centring, fit_model, solve_normal
 from art_gyro_calibration.analysis.metrics import Segments, noise_floor
 from art_gyro_calibration.signals import DERIVED_SIGNALS, LAGGED_SIGNAL, POWER_ON_SIGNAL, Signals
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
 DEFAULT_FOLDS = 6
 # Fewer folds than this leave too little to fit on; a short log gets this many, not shorter blocks.
@@ -59,7 +60,6 @@ SURROGATE_BATCH = 20
 DEFAULT_BIN_S = 1.0
 # Held-out blocks of time: several times the bias instability's correlation time.
 DEFAULT_BLOCK_S = 900.0
-DEG_PER_H_PER_DPS = 3600.0
 # A log column stands for a derived signal when each spans the other's columns to this R^2 beyond the base.
 STANDS_FOR_CORRELATION = 0.9
 # A richer form goes after a simpler significant one that explains this share of its effect (R^2).
@@ -100,7 +100,7 @@ FORMS_TRIED = {
              'written (the node has no absolute heading)',
     'extra columns': 'c x for every further numeric column of the log (a supply voltage, ...)',
 }
-LAG_GRID_S = (60.0, 3600.0 * 2)
+LAG_GRID_S = (60.0, 2 * SECONDS_PER_HOUR)
 # A lag is tried up to this share of the log: the lagged temperature must follow the chamber over the log to be
 # told from it. (A 4 h lag fitted on 2 h moved little; its polynomial, extrapolated on a warm restart, read
 # 650 deg/h.)
@@ -650,21 +650,34 @@ TAIL_QUANTILE = 0.9
 JUDGED_PER_VARIANT = ('time_since_power_on',)
 
 
+@dataclass(frozen=True)
+class ScreenOptions:
+    """How a screen judges candidates: held-out folds, bins of ``bin_s``, ``draws`` chance copies, level ``alpha``.
+
+    ``seed`` seeds the chance copies. (The loop's options extend these: :class:`loop.LoopOptions`.)
+    """
+
+    folds: int = DEFAULT_FOLDS
+    draws: int = DEFAULT_DRAWS
+    alpha: float = DEFAULT_ALPHA
+    bin_s: float = DEFAULT_BIN_S
+    seed: int = 0
+
+
 def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows: int, columns: int,
-                   specs: Sequence[TermSpec] = (), *, folds: int = DEFAULT_FOLDS, draws: int = DEFAULT_DRAWS,
-                   alpha: float = DEFAULT_ALPHA, bin_s: float = DEFAULT_BIN_S, materiality_dph: float = 0.0,
-                   seed: int = 0, noise_floor_dps: float | None = None,
+                   specs: Sequence[TermSpec] = (), options: ScreenOptions = ScreenOptions(), *,
+                   materiality_dph: float = 0.0, noise_floor_dps: float | None = None,
                    exclude: Sequence[str] = (), binned: Binned | None = None, still: bool = False) -> TraceResult:
     """Screen every signal not yet modelled (nor in ``exclude``) against what the model (polynomial + ``specs``) leaves.
 
     ``error`` is ``rate_dps - ref_rate`` per log row; only the steady rows of ``segments``
     are used. Each candidate's statistic is how much its best variant (time constant)
     explains of the residual, fitted to all bins (a warm-up's every time constant is judged
-    apart, :data:`JUDGED_PER_VARIANT`). Chance: ``draws`` phase-randomised copies
+    apart, :data:`JUDGED_PER_VARIANT`). Chance: ``options.draws`` phase-randomised copies
     of the residual, each explained by every candidate in the same way (its variant chosen
     again); a candidate's statistic is standardised by its own chance draws (a form of eight
     columns explains more by chance than one of one, a slow signal more than a fast one),
-    and it is significant if it beats the ``1 - alpha`` quantile of the best standardised
+    and it is significant if it beats the ``1 - options.alpha`` quantile of the best standardised
     chance score of any candidate (one test for the whole round, whatever the number and
     kind of candidates: a maximum statistic) and its fitted size reaches
     ``materiality_dph`` over the logged envelope. (Held out, the statistic was dominated on
@@ -677,10 +690,11 @@ def trace_residual(signals: Signals, error: ArrayLike, segments: Segments, rows:
         residual = np.zeros(len(signals))
         residual[base.index] = base.residual
         noise_floor_dps = noise_floor(residual, segments)
+    draws, alpha = options.draws, options.alpha
     if binned is None:
-        binned = Binned(signals, error, segments, rows, columns, folds, bin_s)
+        binned = Binned(signals, error, segments, rows, columns, options.folds, options.bin_s)
     screen = Screen(binned, specs)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(options.seed)
     floor_var = noise_floor_dps ** 2
     families = candidate_specs(signals, rows, columns, exclude, still)
     # One term per signal in a calibration file: a candidate on a signal the model has must join its term.

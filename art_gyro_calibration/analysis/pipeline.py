@@ -1,0 +1,146 @@
+"""``calibrate fit`` as one pipeline: the loop, the start-up check, the validation runs, the report.
+
+:func:`fit_log` reads a rate-table log, closes the loop on it (:func:`loop.close_loop`),
+judges the terms found on warm restarts of the log itself (:func:`replay.startup_check`)
+and, when asked, on other runs of the gyro (:func:`replay.validate`), and returns all of it
+in one :class:`FitResult`: the report, the calibration to write and the comment it is
+written with. The command (:mod:`.cli`) parses its arguments into :class:`FitSettings`,
+calls it, and writes and prints what it returns.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
+                                              CalibrationError, find_calibration_file, load_calibration)
+from art_gyro_calibration.compensation import RunStart
+from art_gyro_calibration.log import GyroLog, read_log
+from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
+from art_gyro_calibration.analysis.loop import LoopOptions, LoopResult, close_loop
+from art_gyro_calibration.analysis.replay import (RESTARTS_NAME, Validation, startup_check, unjudged_warm_up,
+                                                  validate)
+from art_gyro_calibration.analysis.report import build_report, validation_section
+
+
+@dataclass(frozen=True)
+class ScaleFactors:
+    """What turns a raw log's counts into deg/s and degC; the calibration file keeps them for the node.
+
+    ``assumed``: neither given nor packaged for the gyro, the usual rate factor is taken.
+    """
+
+    rate: float
+    temp: float
+    assumed: bool = False
+
+
+def scale_factors(serial: str | None, rate_scale_factor: float | None) -> ScaleFactors:
+    """The scale factors given, else the packaged calibration's of ``serial``, else the usual ones.
+
+    A packaged file that exists but is bad is refused (:class:`CalibrationError`).
+    """
+    if rate_scale_factor is not None:
+        return ScaleFactors(rate_scale_factor, TEMP_SCALE_FACTOR)
+    if serial:
+        try:
+            path = find_calibration_file(serial)
+        except CalibrationError:
+            path = None   # a gyro not calibrated before
+        if path is not None:
+            packaged = load_calibration(path, expected_serial=serial)
+            return ScaleFactors(packaged.rate_scale_factor, packaged.temp_scale_factor)
+    return ScaleFactors(DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, assumed=True)
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """What ``calibrate fit`` is asked: the polynomial's size, the loop's options, the checks' runs.
+
+    The log is read with the scale factors of ``loop``. ``bias_samples``: rows at rest at the
+    start of a run for the node's static bias. ``validate``: other runs of the gyro to judge
+    the terms on; ``validate_powered_on_at_start``: they began at its power-on.
+    """
+
+    rows: int
+    columns: int
+    loop: LoopOptions
+    bias_samples: int = DEFAULT_SAMPLES
+    validate: tuple[str, ...] = ()
+    validate_powered_on_at_start: bool = False
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Everything ``calibrate fit`` found and what it writes.
+
+    ``loop`` is the loop's result as found (the report's effects and the figures are its);
+    ``startup`` the start-up check (None: nothing to check) and ``validation`` the
+    ``--validate`` runs' replay (None: none given), each of which may drop terms from
+    ``calibration``, the one written with ``comment``. ``report`` is REPORT.json.
+    """
+
+    log: GyroLog
+    loop: LoopResult
+    startup: Validation | None
+    validation: Validation | None
+    calibration: Calibration
+    comment: str
+    report: dict[str, Any]
+
+
+def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
+            warn: Callable[[str], None] = lambda message: None) -> FitResult:
+    """``calibrate fit`` on the log at ``log_path``; the calibration is to be written to ``calibration_path``.
+
+    ``warn`` is told, as each is found, what a person must look at: a model that does not
+    fit, a warm-up no cold run judged (that one is in the report too).
+    """
+    loop_options = settings.loop
+    log = read_log(log_path, loop_options.rate_scale_factor, loop_options.temp_scale_factor)
+    loop = close_loop(log, settings.rows, settings.columns, loop_options)
+    # The report and figures are the loop's; what the check drops is in its section, as --validate's drops are.
+    report = build_report(log, loop, settings.bias_samples, source=str(log_path))
+    result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
+    found = ', '.join(e.signal for e in result.effects) or 'nothing'
+    if startup is not None:
+        report['startup_check'] = validation_section(startup, restarts)
+        found += _dropped(startup, RESTARTS_NAME)
+    if not report['model_adequate']:
+        warn(f'the model does not fit: {report["adequacy"]["excess_dph"]:.2f} deg/h beyond the noise budget, '
+             'held out, over 10-minute means; see REPORT.md and the residual against each signal (--plots)')
+    calibration = result.extended
+    validation = None
+    if settings.validate:
+        validation = _validate(result, settings)
+        report['validation'] = validation_section(validation, list(settings.validate))
+        calibration = validation.calibration
+        if validation.dropped:
+            found = (', '.join(t.signal for t in calibration.terms) or 'nothing') \
+                + _dropped(validation, 'the validation runs')
+    judged = settings.validate and settings.validate_powered_on_at_start
+    warning = '' if judged else unjudged_warm_up(calibration, result.bias_instability_dph)
+    if warning:
+        report['warnings'] = [warning]
+        warn(warning)
+    # The effects above are the loop's; the checks may have dropped some: say what the file holds.
+    report['written'] = {'calibration': calibration_path, 'terms': [t.signal for t in calibration.terms]}
+    comment = (f'Fitted by calibrate fit from {log_path}: ART polynomial {settings.rows} x {settings.columns}, '
+               f'effects beyond it: {found}.')
+    return FitResult(log, loop, startup, validation, calibration, comment, report)
+
+
+def _validate(result: LoopResult, settings: FitSettings) -> Validation:
+    """Replay ``result``'s calibrations on the ``validate`` runs, read as the fitted log was."""
+    logs = [read_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor) for path in settings.validate]
+    return validate(result, logs, settings.bias_samples, settings.loop.settle_s,
+                    RunStart(powered_on_at_start=settings.validate_powered_on_at_start))
+
+
+def _dropped(validation: Validation, runs: str) -> str:
+    """What a replay dropped, for the calibration file's comment ('' when nothing)."""
+    if not validation.dropped:
+        return ''
+    return f' ({", ".join(d.term.signal for d in validation.dropped)} dropped: {runs} were better without)'
