@@ -32,7 +32,7 @@ setup(
             'gyro_node = art_gyro_calibration.ros.node:main',
             'fake_rd2100 = art_gyro_calibration.fake_rd2100:main',
             'calibrate = art_gyro_calibration.analysis.cli:main',
-            'imu_echo = art_gyro_calibration.monitor:main',
+            'imu_echo = art_gyro_calibration.ros.monitor:main',
         ],
     },
 )

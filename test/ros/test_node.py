@@ -77,7 +77,7 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
                                        proc, output)
         assert refused['static_bias_drift_dps'] == bias['static_bias_drift_dps']
         # What run_demo.sh waits with: a refused bias is exit 1.
-        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--wait-static-bias',
+        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--wait-static-bias',
                                '--timeout', str(TIMEOUT_S), '--ros-args', '-r', '__ns:=/robot'],
                               env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S * 2)
         assert wait.returncode == 1 and '/robot/gyro_node: static bias: refused' in wait.stderr, wait
@@ -140,7 +140,7 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
         assert bias['state'] == 'none' and bias['level'] == b'\x01'
         assert 'calibration loaded: NAVC4058 from parameters' in output.read_text()
         # The demo's monitor prints the rate in deg/s and exits after --count messages.
-        echo = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--count', '3'],
+        echo = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--count', '3'],
                               env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
         lines = echo.stdout.splitlines()
         assert echo.returncode == 0 and len(lines) == 3, echo.stdout + echo.stderr
@@ -148,12 +148,12 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
         assert all(' imu_link: yaw rate ' in line and 'deg/s' in line and 'nan' not in line for line in lines), lines
         assert all(line.endswith('temperature   5.00 degC') or 'temperature' not in line for line in lines), lines
         # Its --static-bias calls the service: the first static bias of this node.
-        call = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--static-bias'],
+        call = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--static-bias'],
                               env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S)
         assert call.returncode == 0 and call.stdout.startswith('StaticBiasDrift='), call.stdout + call.stderr
         assert 'over 10 samples' in call.stdout
         listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
-        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.monitor', '--wait-static-bias'],
+        wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--wait-static-bias'],
                               env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S * 2)
         assert wait.returncode == 0 and wait.stdout.startswith('/gyro_node: static bias: StaticBiasDrift='), wait
     # Every frame received is in the raw log, in counts, with the stamps in seconds.

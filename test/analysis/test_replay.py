@@ -20,7 +20,7 @@ from art_gyro_calibration.signals import POWER_ON_SIGNAL
 from art_gyro_calibration.static_bias import MotionError
 from art_gyro_calibration.terms import Term
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _table(hours: float = 1.5, rate_hz: float = 10.0) -> tuple[np.ndarray, np.ndarray]:

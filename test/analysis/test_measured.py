@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 # The study is a script beside the package, not part of what a robot installs.
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'studies'))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'studies'))
 import measured_data as measured  # noqa: E402
 import measured_folds as folds  # noqa: E402
 import measured_injection as injection  # noqa: E402
@@ -24,7 +24,7 @@ from art_gyro_calibration.signals import SignalFilters, compute_signals  # noqa:
 from art_gyro_calibration.terms import Term  # noqa: E402
 
 HOUR = 3600.0
-DATA_DIR = Path(__file__).resolve().parent.parent / 'data'  # gitignored download cache
+DATA_DIR = Path(__file__).resolve().parents[2] / 'data'  # gitignored download cache
 
 
 # --- offline, on records built here --------------------------------------------------------

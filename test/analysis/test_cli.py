@@ -16,7 +16,7 @@ from art_gyro_calibration.compensation import Compensator, RunStart, apply_calib
 from art_gyro_calibration.log import RawLogWriter, read_log
 from art_gyro_calibration.terms import Term
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope='module')
