@@ -359,7 +359,7 @@ class _NoAliasLoader(yaml.SafeLoader):
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
+            event = self.peek_event()   # type: ignore[no-untyped-call]
             raise yaml.composer.ComposerError(None, None, f'found alias *{event.anchor}: YAML aliases are not '
                                               'allowed here', event.start_mark)
         return super().compose_node(parent, index)

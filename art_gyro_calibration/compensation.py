@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,7 +25,7 @@ from art_gyro_calibration.frame import NOT_FINITE
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalState, SignalTracker, compute_signals
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS, REFINE_SPAN_TAUS,
-                                              BiasWindow, Rate, Refinement, StaticBias, StaticBiasCollector,
+                                              BiasWindow, Refinement, StaticBias, StaticBiasCollector,
                                               static_bias)
 
 
@@ -36,7 +37,15 @@ PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
 IMPLAUSIBLE_TEMPERATURE = 'implausible_temperature'
 
 
-def plausible(temp_c: Rate) -> Rate:
+@overload
+def plausible(temp_c: float) -> bool: ...
+
+
+@overload
+def plausible(temp_c: NDArray[np.float64]) -> NDArray[np.bool_]: ...
+
+
+def plausible(temp_c: float | NDArray[np.float64]) -> bool | NDArray[np.bool_]:
     """Whether a sample (or each of an array of them) is kept: its temperature is physically possible."""
     low, high = PLAUSIBLE_TEMPERATURE_C
     return (low <= temp_c) & (temp_c <= high)

@@ -109,7 +109,7 @@ class WireStamper:
         # the gyro its own and every later byte's wire time earlier.
         last = monotonic_ns - (chunk_bytes - ends[-1]) * self.byte_ns - self.frame_ns
         previous = self._last_steady
-        spacing = [(ends[i + 1] - ends[i]) * self.byte_ns for i in range(n - 1)]
+        spacing: list[float] = [(ends[i + 1] - ends[i]) * self.byte_ns for i in range(n - 1)]
         step = self.period_ns
         if previous is not None and last > previous:
             per_frame = (last - previous) / n

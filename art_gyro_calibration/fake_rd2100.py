@@ -27,6 +27,7 @@ import time
 import tty
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -87,7 +88,7 @@ class RateProfile:
         rates = np.array([r for _, r in self.segments])
         ends = np.cumsum(durations)
         phase = np.mod(np.asarray(t, dtype=float), ends[-1])
-        return rates[np.minimum(np.searchsorted(ends, phase, side='right'), len(rates) - 1)]
+        return cast(NDArray[np.float64], rates[np.minimum(np.searchsorted(ends, phase, side='right'), len(rates) - 1)])
 
 
 @dataclass(frozen=True)
@@ -227,7 +228,7 @@ class FakeRd2100:
         self._master, self._slave, self._slave_name = master, slave, name
 
     def _close_pty(self) -> None:
-        if self._master is None:
+        if self._master is None or self._slave is None:
             return
         # Only a link to this pty: another fake may have re-pointed it since (a renamed device).
         if self.link is not None and os.path.islink(self.link) and os.readlink(self.link) == self._slave_name:

@@ -228,7 +228,7 @@ def _converter(header: list[str], where: str, rate_scale_factor: float | None,
             raise refuse(k, 't', f'{float(t[k])!r} after {float(t[k - 1] if k else last_t)!r}: '
                                  'time must be finite and non-decreasing')
         rate, temp = data[:, rate_col], data[:, temp_col]
-        if rate_scale is not None:
+        if rate_scale is not None and temp_scale is not None:
             rate, temp = rate * rate_scale, temp * temp_scale
         for column, values in ((header[rate_col], rate), (header[temp_col], temp)):
             bad = np.flatnonzero(~np.isfinite(values))

@@ -13,7 +13,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Protocol
+from typing import Protocol, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,8 +40,11 @@ class RateCorrection(Protocol):
 class TermLike(Protocol):
     """What names a term's signal: a term or a term's spec."""
 
-    signal: str
-    time_constant_s: float
+    @property
+    def signal(self) -> str: ...
+
+    @property
+    def time_constant_s(self) -> float: ...
 
 
 @dataclass(frozen=True)
@@ -211,8 +214,9 @@ class Signals:
             return out
         if not len(x):
             return x.copy()
-        return first_order_smooth(np.concatenate(([level], x)), _log_decay(np.concatenate(([self.previous.t], self.t)),
-                                                                           tau_s))
+        assert self.previous is not None   # a level to continue from comes from the previous chunk
+        return first_order_smooth(np.concatenate((np.array([level]), x)),
+                                  _log_decay(np.concatenate((np.array([self.previous.t]), self.t)), tau_s))
 
     def forget(self) -> None:
         """Drop the derived signals computed so far; they are computed again when asked for.
@@ -291,7 +295,9 @@ class Signals:
     def _level_at_end(self, derivative: str, level: str) -> float:
         """The level after the last sample of the filter of ``derivative`` (computed if not yet)."""
         getattr(self, derivative)
-        return float(self._levels[level])
+        value = self._levels[level]
+        assert value is not None   # computing the derivative set it
+        return float(value)
 
     @property
     def rate_abs(self) -> NDArray[np.float64]:
@@ -478,4 +484,4 @@ class SignalTracker:
             raise KeyError(f'signal {name!r} is not available per sample; the node tracks '
                            f'{", ".join(n for n, s in SIGNALS.items() if s.per_sample and n != LAGGED_SIGNAL)} '
                            f'and {LAGGED_SIGNAL} (with a time constant)')
-        return getattr(self, name)
+        return cast(float, getattr(self, name))

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -72,7 +73,7 @@ class Term:
 
     def evaluate(self, x: NDArray[np.float64], rate: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Correction in deg/s for every sample of signal ``x`` (and measured ``rate``)."""
-        return self.basis(np.asarray(x, dtype=float), rate) @ np.asarray(self.coefficients)
+        return cast(NDArray[np.float64], self.basis(np.asarray(x, dtype=float), rate) @ np.asarray(self.coefficients))
 
     def evaluate_one(self, x: float, rate: float = 0.0) -> float:
         """Correction in deg/s for one sample."""
