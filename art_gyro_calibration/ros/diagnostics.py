@@ -9,21 +9,50 @@ from __future__ import annotations
 
 import math
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.clock import Clock
+from rclpy.publisher import Publisher
+from rclpy.timer import Timer
 
-from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, PLAUSIBLE_TEMPERATURE_C
+from art_gyro_calibration.calibration import Calibration
+from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, PLAUSIBLE_TEMPERATURE_C, FrameCorrector
+from art_gyro_calibration.driver import Rd2100Driver
 from art_gyro_calibration.frame import NOT_FINITE
 from art_gyro_calibration.kvh_fog import AXIS_INVALID
 from art_gyro_calibration.protocols import KVH_FOG
-from art_gyro_calibration.ros.raw_log import LOG_RETRY_S
-
-if TYPE_CHECKING:
-    from art_gyro_calibration.ros.node import GyroNode
+from art_gyro_calibration.ros.bias_service import StaticBiasService
+from art_gyro_calibration.ros.parameters import Settings
+from art_gyro_calibration.ros.raw_log import LOG_RETRY_S, RawLog
 
 DIAGNOSTICS_PERIOD_S = 1.0
+
+
+class DiagnosedNode(Protocol):
+    """What the statuses read of the gyro node: its parts, and the rclpy calls that publish them."""
+
+    settings: Settings
+    calibration: Calibration
+    corrector: FrameCorrector
+    driver: Rd2100Driver
+    bias_service: StaticBiasService
+    raw_log: RawLog
+    published: int
+    last_temp_c: float
+
+    def get_clock(self) -> Clock:
+        """The node's clock: the stamp of each report."""
+
+    def get_fully_qualified_name(self) -> str:
+        """The node's name with its namespace: the prefix of each status."""
+
+    def create_publisher(self, *args: Any, **kwargs: Any) -> Publisher:
+        """``/diagnostics``' publisher."""
+
+    def create_timer(self, *args: Any, **kwargs: Any) -> Timer:
+        """The 1 Hz timer of the reports."""
 
 
 class SinceLastReport:
@@ -43,7 +72,7 @@ class SinceLastReport:
 class Diagnostics:
     """Publishes the statuses of ``node`` on a timer of its own."""
 
-    def __init__(self, node: GyroNode) -> None:
+    def __init__(self, node: DiagnosedNode) -> None:
         """Reads ``node``'s settings, calibration, corrector, driver, static bias service and raw log."""
         self._node = node
         self._window_start = time.monotonic()
