@@ -37,7 +37,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float64
 
 from art_gyro_calibration.calibration import CalibrationError
@@ -57,6 +57,9 @@ UNMEASURED_VARIANCE = 1.0e6
 # gyro's static bias check lets through only under 0.1 deg/s (static_bias_max_mean_dps) and nothing bounds
 # before one: large against the corrected yaw_rate_stddev (0.057 deg/s), so a filter leans on other sources.
 UNCORRECTED_YAW_VARIANCE = math.radians(1.0) ** 2
+# The policies of imu/data_raw a qos_overrides parameter may set (rclpy's default set lacks durability).
+IMU_QOS_OVERRIDES = QoSOverridingOptions(policy_kinds=(QoSPolicyKind.RELIABILITY, QoSPolicyKind.HISTORY,
+                                                       QoSPolicyKind.DEPTH, QoSPolicyKind.DURABILITY))
 # imu/is_calibrated: the last value kept for subscribers that join later.
 LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
 # An out-of-range temperature is said on the console at most this often.
@@ -91,10 +94,9 @@ class GyroNode(Node):
         self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[8] = UNCORRECTED_YAW_VARIANCE   # until a static bias is in force
         self._temperature = Float64()
-        # Reliable, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
+        # Reliable, volatile, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
         try:
-            self._imu_pub = self.create_publisher(Imu, IMU_TOPIC, 10,
-                                                  qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            self._imu_pub = self.create_publisher(Imu, IMU_TOPIC, 10, qos_overriding_options=IMU_QOS_OVERRIDES)
         except Exception as e:   # rclpy raises several types for a bad override; all end here
             raise ParameterError(f'QoS override of {IMU_TOPIC}: {e}') from None
         parameters.check_known_names(self.has_parameter)
