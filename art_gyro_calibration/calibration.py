@@ -8,7 +8,11 @@ A file is ``/**: ros__parameters: {...}`` so that the node takes it with
   ``temp_scale_factor`` (degC per count),
 - ``polynomial.rows``, ``polynomial.columns``, ``polynomial.coefficients``
   (flat, row-major, exactly the report's matrix),
-- ``temperature_range_c`` ([min, max], where the calibration is trusted),
+- optional ``temperature_range_c`` ([min, max], the calibrated range: the model clamps the temperature
+  to it; ``calibrate fit`` writes the logged envelope), or optional ``temperature_warn_range_c`` (the
+  range a calibration is expected to hold, used only to warn and count outside it: the report's
+  calibrations, whose range the report does not print and whose polynomial applies at every
+  temperature exactly as the report's program applies it); not both,
 - optional ``filters.temperature_rate_tau_s`` and ``filters.rate_change_tau_s``,
 - optional extended terms: ``extended.signals`` (list, one term per signal) and
   for each ``extended.<signal>.form``, ``.coefficients``, ``.powers`` and optional
@@ -56,6 +60,11 @@ MAX_MESSAGE_CHARS = 400
 FULL_SCALE_COUNTS = -INT16_MIN
 # How long a node may run: the horizon of the time signal (and of the angle turned) in the envelope check.
 TIME_HORIZON_S = 366 * 86400.0
+# A frame claiming a temperature outside what any electronics survives is corrupt (its 8-bit
+# checksum passed by luck) or the temperature field is not where this package assumes it: at
+# +-1600 degC the polynomial alone would add 70-80 deg/s, so such a frame is dropped and counted
+# (compensation.plausible). A calibration without a clamp is checked over this range.
+PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
 
 
 class CalibrationError(ValueError):
@@ -69,10 +78,21 @@ class Calibration:
     serial_number: str
     rate_scale_factor: float
     polynomial: ArtPolynomial
-    temperature_range_c: tuple[float, float]
+    temperature_range_c: tuple[float, float] | None   # the calibrated range, clamped to; None: no clamp
     temp_scale_factor: float = TEMP_SCALE_FACTOR
     terms: tuple[Term, ...] = ()
     filters: SignalFilters = field(default_factory=SignalFilters)
+    temperature_warn_range_c: tuple[float, float] | None = None   # warned and counted outside, never clamped
+
+    @property
+    def expected_range_c(self) -> tuple[float, float] | None:
+        """Where the calibration is expected to hold: outside it the node warns and counts (None: nowhere known)."""
+        return self.temperature_range_c if self.temperature_range_c is not None else self.temperature_warn_range_c
+
+    @property
+    def envelope_range_c(self) -> tuple[float, float]:
+        """The temperatures the model is evaluated at: the clamp's range, else every plausible temperature."""
+        return self.temperature_range_c if self.temperature_range_c is not None else PLAUSIBLE_TEMPERATURE_C
 
     @property
     def model(self) -> ErrorModel:
@@ -88,10 +108,13 @@ class Calibration:
             'polynomial.rows': self.polynomial.rows,
             'polynomial.columns': self.polynomial.columns,
             'polynomial.coefficients': [float(c) for c in self.polynomial.coefficients.ravel()],
-            'temperature_range_c': [float(v) for v in self.temperature_range_c],
-            'filters.temperature_rate_tau_s': self.filters.temperature_rate_tau_s,
-            'filters.rate_change_tau_s': self.filters.rate_change_tau_s,
         }
+        for key, span in (('temperature_range_c', self.temperature_range_c),
+                          ('temperature_warn_range_c', self.temperature_warn_range_c)):
+            if span is not None:   # absent: no range known (the report prints none)
+                params[key] = [float(v) for v in span]
+        params['filters.temperature_rate_tau_s'] = self.filters.temperature_rate_tau_s
+        params['filters.rate_change_tau_s'] = self.filters.rate_change_tau_s
         if self.terms:
             params['extended.signals'] = [t.signal for t in self.terms]
         for t in self.terms:
@@ -118,7 +141,8 @@ def _key_sets() -> tuple[frozenset[str], frozenset[str]]:
     terms = tuple(Term(signal=LAGGED_SIGNAL if form == 'power' else f'signal_{form}', form=form,
                        coefficients=(0.0,) * Term.width(form, *shapes[form]), powers=shapes[form][0],
                        rate_powers=shapes[form][1], time_constant_s=1.0) for form in FORMS)
-    sample = Calibration('SAMPLE', 1.0, ArtPolynomial([[0.0]]), (0.0, 1.0), terms=terms)
+    sample = Calibration('SAMPLE', 1.0, ArtPolynomial([[0.0]]), (0.0, 1.0), terms=terms,
+                         temperature_warn_range_c=(0.0, 1.0))
     fixed, fields = set(), set()
     for key in sample.to_parameters():
         parts = key.split('.', 2)
@@ -206,10 +230,11 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
     if len(coefficients) != rows * columns:
         raise CalibrationError(f'{where}: polynomial.coefficients has {len(coefficients)} numbers, '
                                f'rows x columns = {rows} x {columns} needs {rows * columns}')
-    temp_range = _numbers(_get(params, 'temperature_range_c', where), 'temperature_range_c', where)
-    if len(temp_range) != 2 or not temp_range[0] < temp_range[1]:
-        raise CalibrationError(f'{where}: temperature_range_c must be [min, max] with min < max, '
-                               f'got {temp_range}')
+    temp_range = _range(params, 'temperature_range_c', where)
+    warn_range = _range(params, 'temperature_warn_range_c', where)
+    if temp_range is not None and warn_range is not None:
+        raise CalibrationError(f'{where}: temperature_range_c (calibrated: clamped to) and temperature_warn_range_c '
+                               '(expected: warned outside, never clamped) are both given: keep one')
     try:
         filters = SignalFilters(
             _number(params.get('filters.temperature_rate_tau_s', SignalFilters.temperature_rate_tau_s),
@@ -221,23 +246,33 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
     calibration = Calibration(
         serial_number=serial, rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
         polynomial=ArtPolynomial(np.reshape(coefficients, (rows, columns))),
-        temperature_range_c=(temp_range[0], temp_range[1]),
+        temperature_range_c=temp_range, temperature_warn_range_c=warn_range,
         terms=_terms(params, where), filters=filters)
     check_envelope(calibration, where)
     return calibration
 
 
+def _range(params: Mapping[str, Any], key: str, where: str) -> tuple[float, float] | None:
+    """An optional [min, max] in degC: absent is None (the report prints no range), anything else is checked."""
+    if key not in params:
+        return None
+    span = _numbers(params[key], key, where)
+    if len(span) != 2 or not span[0] < span[1]:
+        raise CalibrationError(f'{where}: {key} must be [min, max] with min < max, got {span}')
+    return span[0], span[1]
+
+
 def signal_envelope(calibration: Calibration, signal: str) -> tuple[float, float] | None:
     """Range of a derived signal over the calibration's envelope; None for a signal with no known range.
 
-    The envelope: the temperature in ``temperature_range_c``, the rate within +-full scale, a run of
+    The envelope: the temperature in :attr:`Calibration.envelope_range_c`, the rate within +-full scale, a run of
     up to TIME_HORIZON_S; each signal's range over it is the registry's (:data:`signals.SIGNALS`).
     A log column (a supply voltage) has no known range.
     """
     derived = SIGNALS.get(signal)
     if derived is None:
         return None
-    return derived.range(Envelope(calibration.temperature_range_c, FULL_SCALE_COUNTS * calibration.rate_scale_factor,
+    return derived.range(Envelope(calibration.envelope_range_c, FULL_SCALE_COUNTS * calibration.rate_scale_factor,
                                   calibration.filters, TIME_HORIZON_S))
 
 
@@ -247,7 +282,7 @@ def check_envelope(calibration: Calibration, where: str) -> None:
     Each part is bounded by the sum of its monomials' magnitudes at the envelope's extremes,
     so a finite bound means a finite value everywhere inside.
     """
-    low_c, high_c = calibration.temperature_range_c
+    low_c, high_c = calibration.envelope_range_c
     temp_max = max(abs(low_c), abs(high_c))
     rate_max = FULL_SCALE_COUNTS * calibration.rate_scale_factor
     poly = calibration.polynomial

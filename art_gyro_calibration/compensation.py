@@ -4,8 +4,9 @@
 time as the node must (drop, feed a static bias collection, correct); :func:`apply_calibration`
 over a whole log or chunk after chunk of one (``calibrate apply``). Both give
 ``CompRate = GyroRate - StaticBiasDrift - comp + CalcStaticBiasDrift``, and both drop the
-samples :func:`plausible` refuses, clamp the temperature to the calibrated range (and
-count the samples outside it), and refine a static bias the temperature-rate terms need
+samples :func:`plausible` refuses, clamp the temperature to the calibrated range if the
+calibration has one (the report's do not: their polynomial applies at every temperature), count
+the samples outside the range it is expected to hold, and refine a static bias the temperature-rate terms need
 refined (:class:`static_bias.Refinement`). How the run started (:class:`RunStart`) decides
 whether a warm-up term applies.
 """
@@ -20,7 +21,7 @@ from typing import overload
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.calibration import Calibration, check_signals_available
+from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibration, check_signals_available
 from art_gyro_calibration.frame import NOT_FINITE
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalState, SignalTracker, compute_signals
@@ -29,10 +30,6 @@ from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_
                                               static_bias)
 
 
-# A frame claiming a temperature outside what any electronics survives is corrupt (its 8-bit
-# checksum passed by luck) or the temperature field is not where this package assumes it: at
-# +-1600 degC the polynomial alone would add 70-80 deg/s, so such a frame is dropped and counted.
-PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
 # Why a frame was not published (FrameCorrector.step's answer, counted per reason).
 IMPLAUSIBLE_TEMPERATURE = 'implausible_temperature'
 
@@ -66,12 +63,13 @@ class RunStart:
 class Compensator:
     """Per-sample compensation with the signals the extended terms need, kept causally.
 
-    ``clamped`` counts the samples whose temperature was outside the calibrated range; a
+    ``outside_range`` counts the samples whose temperature was outside the calibration's
+    :attr:`~Calibration.expected_range_c` (clamped only if it is a calibrated range); a
     refinement, once it happened, shows in ``bias.refined_dps`` (see ``bias``).
     """
 
     __slots__ = ('calibration', '_bias', '_model', '_tracker', '_rate_scale', '_temp_scale', '_range',
-                 '_refinable', '_refinement', 'clamped')
+                 '_refinable', '_refinement', 'outside_range')
 
     def __init__(self, calibration: Calibration, start: RunStart = RunStart()) -> None:
         check_signals_available(calibration)
@@ -80,11 +78,12 @@ class Compensator:
         self._tracker = SignalTracker(calibration.filters, self._model.lags, start.powered_on_at_start)
         self._rate_scale = calibration.rate_scale_factor
         self._temp_scale = calibration.temp_scale_factor
-        self._range = calibration.temperature_range_c
+        # No range known: nothing is outside it.
+        self._range = calibration.expected_range_c or (-math.inf, math.inf)
         self._refinable = bool(self._model.refinable)
         self._refinement: Refinement | None = None
         self._bias: StaticBias = NO_BIAS
-        self.clamped = 0
+        self.outside_range = 0
 
     @property
     def refinable(self) -> bool:
@@ -112,7 +111,7 @@ class Compensator:
         tracker.update(t, rate_dps, temp_c)
         low, high = self._range
         if not low <= temp_c <= high:
-            self.clamped += 1
+            self.outside_range += 1
         refinement = self._refinement
         if refinement is not None:
             if t >= refinement.ready_at:
@@ -201,7 +200,7 @@ class Applied:
     bias: StaticBias            # the static bias at the chunk's end (refined, once it was)
     kept: NDArray[np.bool_]     # per row of the log: plausible, so compensated (the node drops the rest)
     state: SignalState          # the signals after the last kept sample: where the next chunk continues
-    clamped: int = 0            # kept rows (this chunk and those before) outside the calibrated temperature range
+    outside_range: int = 0      # kept rows (this chunk and those before) outside the expected temperature range
     refinement: Refinement | None = None   # a static bias refinement still gathering temperatures
     start: RunStart = RunStart()
 
@@ -233,8 +232,9 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, calibration.filters,
                               None if after is None else after.state, start.powered_on_at_start)
     comp = model.error(signals)
-    low, high = calibration.temperature_range_c
-    clamped = int(np.count_nonzero((log.temp_c < low) | (log.temp_c > high))) + (0 if after is None else after.clamped)
+    low, high = calibration.expected_range_c or (-math.inf, math.inf)
+    outside_range = int(np.count_nonzero((log.temp_c < low) | (log.temp_c > high))) \
+        + (0 if after is None else after.outside_range)
     if after is None:
         n = bias_samples
         bias = static_bias(log.rate_dps[:n], comp[:n], max_mean_dps, max_std_dps)
@@ -254,4 +254,4 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
         if ready < len(log):
             bias, refinement = refinement.refined(), None
             corrected[ready:] = bias.correct(log.rate_dps[ready:], comp[ready:])
-    return Applied(comp, corrected, bias, kept, signals.end_state(), clamped, refinement, start)
+    return Applied(comp, corrected, bias, kept, signals.end_state(), outside_range, refinement, start)

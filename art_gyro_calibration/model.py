@@ -84,7 +84,9 @@ class ErrorModel:
 
     With ``temperature_range_c`` the temperatures are clamped to it, as PX4 and ArduPilot
     clamp their thermal calibrations: outside the calibrated range a polynomial
-    extrapolates wildly, its value at the edge is the better guess.
+    extrapolates wildly, its value at the edge is the better guess. Without it (the
+    report's calibrations, whose range the report does not give) the model is evaluated at
+    every temperature, exactly as the report's program does.
     """
 
     polynomial: ArtPolynomial

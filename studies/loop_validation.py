@@ -116,7 +116,7 @@ def oracle_log(log: GyroLog, case: Case, calibration: Calibration) -> tuple[Gyro
         size = effect_size(effect, case.settings())
         temp = log.temp_c + size * (lagged(log.t, log.temp_c, COIL_LAG_TAU_S) - log.temp_c)
         return GyroLog(log.t, log.rate_dps, temp, log.ref_rate, log.extras), []
-    low, high = calibration.temperature_range_c
+    low, high = calibration.expected_range_c
     if effect == 'rate_t3':
         u = (log.temp_c - 0.5 * (low + high)) / (0.5 * (high - low))
         column = log.rate_dps * u ** 3

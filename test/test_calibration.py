@@ -103,6 +103,9 @@ def _params(serial: str = 'NAVC3545') -> dict:
      "form 'spline' is not one of"),
     ({'filters.temperature_rate_tau_s': 0.0}, 'temperature_rate_tau_s must be a positive'),
     ({'temperature_range_c': 25.0}, 'temperature_range_c must be a list of numbers, got 25.0'),
+    ({'temperature_warn_range_c': [50.0, 10.0]}, r'temperature_warn_range_c must be \[min, max\] with min < max'),
+    ({'temperature_warn_range_c': ['cold', 50.0]}, r'temperature_warn_range_c\[0\] must be a finite number'),
+    ({'temperature_range_c': [10.0, 50.0]}, 'temperature_range_c .* and temperature_warn_range_c .* both given'),
     ({'extended.signals': 5}, 'extended.signals must be a list of signal names, got 5'),
     ({'extended.signals': None}, 'extended.signals must be a list of signal names, got None'),
     ({'extended.signals': ['time'], 'extended.time.form': 'power', 'extended.time.coefficients': [0.1],
@@ -117,12 +120,37 @@ def test_malformed_parameters_are_refused(change: dict, message: str) -> None:
 
 
 @pytest.mark.parametrize('key', ['serial_number', 'rate_scale_factor', 'temp_scale_factor', 'polynomial.rows',
-                                 'polynomial.columns', 'polynomial.coefficients', 'temperature_range_c'])
+                                 'polynomial.columns', 'polynomial.coefficients'])
 def test_missing_keys_are_refused(key: str) -> None:
     params = _params()
     del params[key]
     with pytest.raises(CalibrationError, match=f"missing parameter '{re.escape(key)}'"):
         from_parameters(params, 'test.yaml')
+
+
+def test_a_report_calibration_has_no_calibrated_range(serial: str) -> None:
+    """The report prints no range: the packaged files carry none to clamp to, only a range to warn outside."""
+    cal = load_packaged_calibration(serial)
+    assert cal.temperature_range_c is None and cal.model.temperature_range_c is None
+    assert cal.expected_range_c == cal.temperature_warn_range_c == (10.0, 50.0)
+    params = cal.to_parameters()
+    assert 'temperature_range_c' not in params
+    again = from_parameters(params, 'again.yaml')
+    assert (again.temperature_range_c, again.temperature_warn_range_c) == (None, (10.0, 50.0))
+
+
+def test_a_calibration_without_any_range_is_still_checked_over_every_plausible_temperature() -> None:
+    """No range: the model is evaluated at any temperature the node keeps, so it is checked over all of them."""
+    params = _params()
+    del params['temperature_warn_range_c']
+    cal = from_parameters(params, 'test.yaml')
+    assert cal.expected_range_c is None and cal.envelope_range_c == (-60.0, 130.0)
+    # Finite up to 50 degC, overflowing by 130 degC: refused without a range, loaded with one that stops short.
+    params['polynomial.coefficients'] = [0.0] * 3 + [3e304] + [0.0] * 8   # temp**2 rate**0: overflows by 130
+    with pytest.raises(CalibrationError, match=r'test.yaml: polynomial.coefficients: .*overflows .*-60..130 degC'):
+        from_parameters(params, 'test.yaml')
+    assert from_parameters({**params, 'temperature_range_c': [10.0, 50.0]}, 'test.yaml').temperature_range_c \
+        == (10.0, 50.0)
 
 
 def test_bad_files_are_refused_with_their_path(tmp_path: Path) -> None:

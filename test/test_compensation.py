@@ -126,21 +126,38 @@ def test_the_static_bias_is_refined_once_the_temperature_rate_is_known() -> None
 
 
 def test_temperatures_outside_the_calibrated_range_are_clamped_and_counted() -> None:
-    """Outside temperature_range_c the polynomial is evaluated at the range's edge, and the samples counted."""
-    cal = _calibration(Term('temperature_lag', 'power', (1e-3,), (1,), 60.0))
-    low, high = cal.temperature_range_c
+    """Outside a fitted file's temperature_range_c the model is evaluated at the range's edge; samples counted."""
+    cal = dataclasses.replace(_calibration(Term('temperature_lag', 'power', (1e-3,), (1,), 60.0)),
+                              temperature_range_c=(10.0, 50.0), temperature_warn_range_c=None)
+    high = 50.0
     t = np.arange(200) / RATE_HZ
     temp = np.where(t < 10, 30.0, high + 15.0)
     rate = np.full(len(t), 5.0)
     comp = Compensator(cal)
     errors = [comp.error(a, b, c) for a, b, c in zip(t, rate, temp)]
-    assert comp.clamped == int(np.sum(temp > high))
+    assert comp.outside_range == int(np.sum(temp > high))
     edge = cal.polynomial.error(np.array([5.0]), np.array([high]))[0]
     lag_edge = 1e-3 * min(compute_signals(t, rate, temp).lagged_temperature(60.0)[-1], high)
     assert errors[-1] == pytest.approx(edge + lag_edge, abs=1e-12)
     applied = apply_calibration(GyroLog(t, rate, temp), cal, 50, max_mean_dps=10.0)   # turning at 5 deg/s
-    assert applied.clamped == comp.clamped
+    assert applied.outside_range == comp.outside_range
     np.testing.assert_allclose(applied.comp_dps, errors, rtol=0, atol=1e-12)
+
+
+def test_a_report_calibration_is_counted_outside_its_warn_range_but_never_clamped() -> None:
+    """The report prints no range: its polynomial applies at every temperature; the warn range only counts."""
+    cal = load_packaged_calibration('NAVC4058')
+    assert cal.temperature_range_c is None and cal.temperature_warn_range_c == (10.0, 50.0)
+    t = np.arange(300) / RATE_HZ
+    temp = np.linspace(-40.0, 85.0, len(t))
+    rate = np.full(len(t), 20.0)
+    comp = Compensator(cal)
+    errors = [comp.error(a, b, c) for a, b, c in zip(t, rate, temp)]
+    np.testing.assert_allclose(errors, cal.polynomial.error(rate, temp), rtol=0, atol=1e-12)
+    assert comp.outside_range == int(np.sum((temp < 10.0) | (temp > 50.0))) > 0
+    applied = apply_calibration(GyroLog(t, rate, temp), cal, 50, max_mean_dps=100.0)
+    np.testing.assert_allclose(applied.comp_dps, errors, rtol=0, atol=1e-12)
+    assert applied.outside_range == comp.outside_range
 
 
 def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops() -> None:
@@ -181,4 +198,4 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
     # The corrector had no static bias for its first n - 1 frames.
     expected = np.concatenate((rate[:n - 1] - applied.comp_dps[:n - 1], applied.corrected_dps[n - 1:]))
     np.testing.assert_allclose(published, expected, rtol=0, atol=2e-9)
-    assert corrector.compensator.clamped == applied.clamped
+    assert corrector.compensator.outside_range == applied.outside_range

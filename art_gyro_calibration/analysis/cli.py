@@ -25,8 +25,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, CalibrationError, find_calibration_file,
-                                              load_calibration, write_calibration)
+from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, Calibration, CalibrationError,
+                                              find_calibration_file, load_calibration, write_calibration)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, RunStart
 from art_gyro_calibration.log import LogError, RawLogWriter, read_log
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopOptions
@@ -45,10 +45,21 @@ def _apply(args: argparse.Namespace) -> int:
                                 start=RunStart(args.powered_on_at_start))
     low, high = PLAUSIBLE_TEMPERATURE_C
     print(f'{args.out}: {done.rows - done.dropped} of {done.rows} rows; {done.dropped} dropped as the node drops '
-          f'them (temperature outside {low:g}..{high:g} degC); {done.clamped} outside the calibrated range '
-          f'{calibration.temperature_range_c[0]:g}..{calibration.temperature_range_c[1]:g} degC, compensated at '
-          f'its edge; {done.bias.describe()}')
+          f'them (temperature outside {low:g}..{high:g} degC); {_outside(calibration, done.outside_range)}'
+          f'{done.bias.describe()}')
     return 0
+
+
+def _outside(calibration: Calibration, rows: int) -> str:
+    """The summary's words on the rows outside the calibration's range, and what was done with them."""
+    if calibration.temperature_range_c is not None:
+        low, high = calibration.temperature_range_c
+        return f'{rows} outside the calibrated range {low:g}..{high:g} degC, compensated at its edge; '
+    if calibration.temperature_warn_range_c is not None:
+        low, high = calibration.temperature_warn_range_c
+        return (f'{rows} outside the calibrated range {low:g}..{high:g} degC (temperature_warn_range_c, assumed: '
+                'the polynomial applied as the report does, not clamped); ')
+    return ''
 
 
 def _fit(args: argparse.Namespace) -> int:

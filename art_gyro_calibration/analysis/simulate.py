@@ -178,7 +178,7 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
     n = int(round(settings.hours * SECONDS_PER_HOUR * settings.rate_hz))
     t = np.arange(n) / settings.rate_hz
     table = table_profile(t, settings, rng)
-    temp = chamber_profile(t, settings, calibration.temperature_range_c)
+    temp = chamber_profile(t, settings, _chamber_range_c(calibration))
     earth = earth_rate_dps(settings.latitude_deg)
     turn_on = float(rng.normal(0.0, settings.turn_on_bias_std_dps))
     # Gauss-Markov bias instability: stationary from the first sample.
@@ -199,7 +199,7 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
         effect_error += size * (np.exp(-x / tau) if form == 'exp_decay' else x)
         effects[name] = {'signal': signal, 'form': form, 'coefficients': [size],
                          **({'powers': [1]} if form == 'power' else {'time_constant_s': tau})}
-    wider, polynomial_temp = _wider_effects(signals, settings, calibration.temperature_range_c)
+    wider, polynomial_temp = _wider_effects(signals, settings, _chamber_range_c(calibration))
     for name, (error, entry) in wider.items():
         effect_error += error
         effects[name] = entry
@@ -230,6 +230,15 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
         'settings': {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()},
     }
     return SimulatedRun(columns, truth)
+
+
+def _chamber_range_c(calibration: Calibration) -> tuple[float, float]:
+    """The chamber's span: the calibration's range (calibrated, or the report's assumed warn range)."""
+    span = calibration.expected_range_c
+    if span is None:
+        raise ValueError(f'calibration {calibration.serial_number} has neither temperature_range_c nor '
+                         'temperature_warn_range_c: the simulated chamber needs one of them')
+    return span
 
 
 def effect_size(name: str, settings: SimulationSettings) -> float:

@@ -29,7 +29,7 @@ class Streamed:
     rows: int       # rows of the log
     dropped: int    # rows dropped as the node drops their frames (implausible temperature)
     bias: StaticBias
-    clamped: int    # kept rows outside the calibrated temperature range
+    outside_range: int    # kept rows outside the calibration's expected temperature range
 
 
 def apply_to_csv(log_path: str | os.PathLike[str], calibration: Calibration, bias_samples: int, out: IO[bytes],
@@ -55,4 +55,4 @@ def apply_to_csv(log_path: str | os.PathLike[str], calibration: Calibration, bia
                       'comp_dps': applied.comp_dps, 'corrected_dps': applied.corrected_dps})
         rows += len(chunk)
         dropped += len(chunk) - len(kept_log)
-    return Streamed(rows, dropped, applied.bias, applied.clamped)
+    return Streamed(rows, dropped, applied.bias, applied.outside_range)

@@ -1,8 +1,11 @@
 """Service ``imu/static_bias`` (std_srvs/Trigger): a static bias collection, its deferred replies, its lifecycle.
 
 A call starts a collection over ``bias_samples`` frames, or joins the one running and gets its
-result; the reply comes when it ends. Motion refuses it and keeps the previous bias;
-publishing goes on meanwhile with the previous bias. The reply is deferred, not waited for:
+result; the reply comes when it ends. Motion refuses it and keeps the previous bias (if there
+is one: else the rate stays uncorrected); publishing goes on meanwhile with the previous bias.
+``on_bias`` hears of every bias put in force (the node's ``imu/is_calibrated``, its covariance).
+A collection the node's stop cuts short is not a refusal: it ends without a word, and only the
+calls waiting for it are told why. The reply is deferred, not waited for:
 the callback returns at once and the executor thread is free. A collection that gets no
 frame for :data:`COLLECTION_STALL_S`, or that the shutdown cuts short, ends with the reason.
 """
@@ -31,12 +34,13 @@ SERVICE_QUEUE_DEPTH = 1000
 class _Collection(StaticBiasCollector):
     """One static bias collection, which the reader thread feeds and callers wait for."""
 
-    __slots__ = ('bias', 'error', 'last_sample', 'waiting')
+    __slots__ = ('bias', 'error', 'kept', 'last_sample', 'waiting')
 
     def __init__(self, samples: int, max_mean_dps: float, max_std_dps: float, keep_window: bool) -> None:
         super().__init__(samples, max_mean_dps, max_std_dps, keep_window)
         self.bias: StaticBias | None = None
         self.error = ''
+        self.kept = ''   # what a refusal left in force, for the reply
         self.last_sample = time.monotonic()
         self.waiting: list[Any] = []   # request headers of the calls to answer when it ends
 
@@ -65,9 +69,14 @@ class StaticBiasService:
     """The service on ``node``: feeds collections to ``corrector`` and sets its bias from them."""
 
     def __init__(self, node: Node, settings: Settings, corrector: FrameCorrector, closing: threading.Event,
-                 link_error: Callable[[], str]) -> None:
-        """``link_error`` says why the gyro sends nothing, for a collection that stalls."""
+                 link_error: Callable[[], str], on_bias: Callable[[], None] = lambda: None) -> None:
+        """``link_error`` says why the gyro sends nothing, for a collection that stalls.
+
+        ``on_bias`` is called (on the reader thread, before the frame that completed the collection
+        is published) each time a bias is put in force.
+        """
         self._node = node
+        self._on_bias = on_bias
         self._settings = settings
         self._corrector = corrector
         self._closing = closing
@@ -112,7 +121,8 @@ class StaticBiasService:
         else:
             self._end(collection, bias, '')
 
-    def _end(self, collection: _Collection, bias: StaticBias | None, error: str) -> None:
+    def _end(self, collection: _Collection, bias: StaticBias | None, error: str, stopping: bool = False) -> None:
+        """End ``collection`` with ``bias`` or refused for ``error``; ``stopping``: cut short by the node's stop."""
         with self._lock:
             if self._collection is not collection:
                 return   # abandoned meanwhile
@@ -122,14 +132,24 @@ class StaticBiasService:
                 self._outcome = 'ok'
                 self._bias_time = time.monotonic()
                 self._node.get_logger().info(f'static bias: {bias.describe()}')
-            else:
+            elif not stopping:   # a stop is not a refusal: the state stays as it was, nothing is logged
                 self._outcome = 'refused'
                 self._refusal = error
-                self._node.get_logger().warning(f'static bias refused, previous bias kept: {error}')
+                self._node.get_logger().warning(f'static bias refused, {self._kept()}: {error}')
             collection.bias = bias
             collection.error = error
+            collection.kept = self._kept()
             self._finished.append(collection)
-        self._replies.trigger()   # the replies go out on the executor
+        if bias is not None:
+            self._on_bias()
+        if not stopping:
+            self._replies.trigger()   # the replies go out on the executor (at a stop, the stopping caller sends them)
+
+    def _kept(self) -> str:
+        """What a refusal leaves in force."""
+        if self._corrector.compensator.bias.samples:
+            return 'previous bias kept'
+        return 'no static bias in force: the rate is published uncorrected (imu/is_calibrated false)'
 
     def _defer_reply(self, response: Trigger.Response, header: Any) -> None:
         """Take the place of the service's send_response: join (or start) the collection; reply when it ends."""
@@ -148,7 +168,7 @@ class StaticBiasService:
     def _reply(collection: _Collection) -> Trigger.Response:
         if collection.bias is not None:
             return Trigger.Response(success=True, message=collection.bias.describe())
-        return Trigger.Response(success=False, message=f'refused, previous bias kept: {collection.error}')
+        return Trigger.Response(success=False, message=f'refused, {collection.kept}: {collection.error}')
 
     def _send_replies(self) -> None:
         with self._lock:
@@ -164,7 +184,8 @@ class StaticBiasService:
         if collection is None:
             return
         if self._closing.is_set():
-            self._end(collection, None, 'the node is shutting down')
+            self._end(collection, None, 'the node is shutting down', stopping=True)
+            self._send_replies()
         elif collection.waiting and time.monotonic() - collection.last_sample > COLLECTION_STALL_S:
             self._end(collection, None, f'no frame from the gyro for {COLLECTION_STALL_S:.0f} s '
                                         f'(link: {self._link_error() or "no data"})')
@@ -181,7 +202,9 @@ class StaticBiasService:
         """End a running collection (the driver is stopped): the calls waiting for it hear why, rather than time out."""
         collection = self._collection
         if collection is not None:
-            self._end(collection, None, 'the node is shutting down')
+            self._end(collection, None, 'the node is shutting down', stopping=True)
+            if not collection.waiting:
+                return   # the start-up bias, say: nobody to tell
             try:
                 self._send_replies()
             except Exception as e:   # the context may be shut down already (SIGINT): nothing more to say

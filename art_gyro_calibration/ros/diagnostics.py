@@ -80,7 +80,7 @@ class Diagnostics:
         self._dropped = {reason: SinceLastReport() for reason in node.corrector.dropped}
         self._lost = SinceLastReport()                # kvh_fog: sequence gaps
         self._invalid = SinceLastReport()             # kvh_fog: frames the gyro flagged invalid
-        self._outside_range = SinceLastReport()       # frames clamped (Compensator.clamped)
+        self._outside_range = SinceLastReport()       # frames outside the expected range (Compensator.outside_range)
         self._implausible = SinceLastReport()
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
         node.create_timer(DIAGNOSTICS_PERIOD_S, self._publish, callback_group=MutuallyExclusiveCallbackGroup())
@@ -178,23 +178,29 @@ class Diagnostics:
     def _temperature_status(self) -> DiagnosticStatus:
         node = self._node
         temp = node.last_temp_c
-        low, high = node.calibration.temperature_range_c
-        outside = node.corrector.compensator.clamped
+        calibration = node.calibration
+        low, high = calibration.expected_range_c or (-math.inf, math.inf)
+        # A calibrated range is clamped to; the report's (temperature_warn_range_c) only warned about.
+        clamped = calibration.temperature_range_c is not None
+        effect = ('compensated at its edge' if clamped else
+                  'temperature_warn_range_c, assumed: the polynomial applied as the report does, not clamped')
+        outside = node.corrector.compensator.outside_range
         recent = self._outside_range.take(outside)
         implausible = node.corrector.dropped[IMPLAUSIBLE_TEMPERATURE]
         dropped = self._implausible.take(implausible)
         values = {'temperature_c': f'{temp:.2f}', 'calibrated_min_c': low, 'calibrated_max_c': high,
-                  'frames_outside_range': outside, 'frames_implausible_temperature': implausible}
+                  'range_clamped': clamped, 'frames_outside_range': outside,
+                  'frames_implausible_temperature': implausible}
         if math.isnan(temp) and not dropped:
             return self._status('temperature', DiagnosticStatus.STALE, 'no frame yet', values)
         level, parts = DiagnosticStatus.OK, [f'{temp:.2f} degC' if not math.isnan(temp) else 'no valid frame yet']
         if not math.isnan(temp) and not low <= temp <= high:
             level = DiagnosticStatus.WARN
-            parts = [f'{temp:.2f} degC is outside the calibrated range {low}..{high} degC']
+            parts = [f'{temp:.2f} degC is outside the calibrated range {low}..{high} degC ({effect})']
         elif recent:
             level = DiagnosticStatus.WARN
             parts.append(f'{recent} frames since the last report were outside the calibrated range {low}..{high} degC '
-                         '(compensated at its edge)')
+                         f'({effect})')
         if dropped:
             level = DiagnosticStatus.ERROR
             parts.append(f'{dropped} frames since the last report claimed a temperature outside '

@@ -10,7 +10,9 @@ Topics (relative names, so they follow the node's namespace and remappings):
   rad/s (REP 103: counter-clockwise seen from above is positive). Orientation and linear
   acceleration are not measured: element 0 of their covariances is -1 (REP 145). The gyro
   measures z only: x and y are reported as 0 with variance :data:`UNMEASURED_VARIANCE`, so a
-  filter that fuses them gives them no weight; element 8 is ``yaw_rate_stddev`` squared.
+  filter that fuses them gives them no weight; element 8 is ``yaw_rate_stddev`` squared while a
+  static bias is in force, :data:`UNCORRECTED_YAW_VARIANCE` before (an uncorrected rate).
+- ``imu/is_calibrated`` (std_msgs/Bool, transient local): true once a static bias is in force.
 - ``imu/temperature`` (std_msgs/Float64): the gyro temperature in degC.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): link, static bias, temperature, raw log
   (:mod:`.diagnostics`).
@@ -35,7 +37,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Imu
-from std_msgs.msg import Float64
+from rclpy.qos import DurabilityPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Bool, Float64
 
 from art_gyro_calibration.calibration import CalibrationError
 from art_gyro_calibration.compensation import FrameCorrector, RunStart
@@ -49,6 +52,16 @@ from art_gyro_calibration.ros.raw_log import RawLog
 # Variance (rad/s)^2 given to the x and y rates, which a single-axis gyro does not measure:
 # large enough that any filter fusing them ignores them, finite so that it stays usable.
 UNMEASURED_VARIANCE = 1.0e6
+# Variance (rad/s)^2 of the yaw rate before a static bias is in force (during the start-up bias, or for good
+# if it is refused): (1 deg/s)^2. The rate is then uncorrected for the gyro's bias of the day, which a still
+# gyro's static bias check lets through only under 0.1 deg/s (static_bias_max_mean_dps) and nothing bounds
+# before one: large against the corrected yaw_rate_stddev (0.057 deg/s), so a filter leans on other sources.
+UNCORRECTED_YAW_VARIANCE = math.radians(1.0) ** 2
+# The policies of imu/data_raw a qos_overrides parameter may set (rclpy's default set lacks durability).
+IMU_QOS_OVERRIDES = QoSOverridingOptions(policy_kinds=(QoSPolicyKind.RELIABILITY, QoSPolicyKind.HISTORY,
+                                                       QoSPolicyKind.DEPTH, QoSPolicyKind.DURABILITY))
+# imu/is_calibrated: the last value kept for subscribers that join later.
+LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
 # An out-of-range temperature is said on the console at most this often.
 TEMPERATURE_WARNING_PERIOD_S = 60.0
 
@@ -65,7 +78,12 @@ class GyroNode(Node):
         self._closing = threading.Event()
         self.published = 0
         self.last_temp_c = math.nan   # of the last frame published
-        self._temp_range = self.calibration.temperature_range_c
+        # Outside it the console warns (at most every minute); no range known: never.
+        self._temp_range = self.calibration.expected_range_c or (-math.inf, math.inf)
+        self._outside_range_effect = ('compensated as at the nearest end of it'
+                                      if self.calibration.temperature_range_c is not None else
+                                      'compensated by the polynomial as the report\'s program does (not clamped: '
+                                      'temperature_warn_range_c is an assumed range)')
         self.raw_log = RawLog(self, self.settings.log_path, self.calibration.serial_number, self._closing)
 
         self._imu = Imu()
@@ -74,18 +92,20 @@ class GyroNode(Node):
         self._imu.linear_acceleration_covariance[0] = -1.0
         self._imu.angular_velocity_covariance[0] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
-        self._imu.angular_velocity_covariance[8] = self.settings.yaw_rate_stddev ** 2
+        self._imu.angular_velocity_covariance[8] = UNCORRECTED_YAW_VARIANCE   # until a static bias is in force
         self._temperature = Float64()
-        # Reliable, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
+        # Reliable, volatile, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
         try:
-            self._imu_pub = self.create_publisher(Imu, IMU_TOPIC, 10,
-                                                  qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            self._imu_pub = self.create_publisher(Imu, IMU_TOPIC, 10, qos_overriding_options=IMU_QOS_OVERRIDES)
         except Exception as e:   # rclpy raises several types for a bad override; all end here
             raise ParameterError(f'QoS override of {IMU_TOPIC}: {e}') from None
         parameters.check_known_names(self.has_parameter)
         self._temp_pub = self.create_publisher(Float64, 'imu/temperature', 10)
+        self._calibrated_pub = self.create_publisher(Bool, 'imu/is_calibrated', LATCHED_QOS)
+        self.is_calibrated = False   # a static bias in force: published on imu/is_calibrated
+        self._calibrated_pub.publish(Bool(data=False))
         self.bias_service = StaticBiasService(self, self.settings, self.corrector, self._closing,
-                                              lambda: self.driver.stats.last_error)
+                                              lambda: self.driver.stats.last_error, self._on_bias)
         self._diagnostics = Diagnostics(self)
 
         if self.settings.static_bias_on_startup:
@@ -128,11 +148,18 @@ class GyroNode(Node):
         self._temp_pub.publish(self._temperature)
         self.last_temp_c = temp_c
         low, high = self._temp_range
-        if not low <= temp_c <= high:   # the Compensator clamped it and counted it
+        if not low <= temp_c <= high:   # the Compensator counted it (and clamped it if the range is calibrated)
             self.get_logger().warning(f'gyro temperature {temp_c:.2f} degC is outside the calibrated range '
-                                      f'{low:g}..{high:g} degC: compensated as at the nearest end of it',
+                                      f'{low:g}..{high:g} degC: {self._outside_range_effect}',
                                       throttle_duration_sec=TEMPERATURE_WARNING_PERIOD_S)
         self.published += 1
+
+    def _on_bias(self) -> None:
+        """A static bias is in force (reader thread, before the frame that completed it is published)."""
+        if not self.is_calibrated:   # a bias replaces a bias: the state changes once
+            self.is_calibrated = True
+            self._imu.angular_velocity_covariance[8] = self.settings.yaw_rate_stddev ** 2
+            self._calibrated_pub.publish(Bool(data=True))
 
     def _on_link(self, connected: bool, message: str) -> None:
         if connected:

@@ -23,7 +23,7 @@ def test_profile_covers_rates_and_temperatures(calibration):
     ref = run.columns['ref_rate']
     assert set(np.unique(ref)) >= {0.0, 100.0, -100.0, 1.0, -1.0}
     temp = run.columns['raw_temp'] * calibration.temp_scale_factor
-    low, high = calibration.temperature_range_c
+    low, high = calibration.expected_range_c
     assert temp.min() == pytest.approx(low, abs=0.1)
     assert temp.max() > high - 2.0
     # The gyro starts at rest long enough for a static bias.
@@ -84,7 +84,7 @@ def test_each_wider_effect_is_recovered_from_its_truth(calibration, effect):
     truth = run.truth['effects'][effect]
     c = run.columns
     signals = compute_signals(c['t'], c['ref_rate'], c['raw_temp'] * calibration.temp_scale_factor)
-    low, high = calibration.temperature_range_c
+    low, high = calibration.expected_range_c
     u = (signals.temperature - 0.5 * (low + high)) / (0.5 * (high - low))
     poly = calibration.polynomial
     basis = {

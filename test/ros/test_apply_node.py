@@ -35,7 +35,8 @@ def test_apply_on_the_node_log_equals_what_the_node_published(tmp_path: Path, lo
         Term('temperature_rate', 'power', (0.02,), (1,)), Term('time', 'power', (1e-4,), (1,)),
         Term('time_since_power_on', 'exp_decay', (0.03,), (), 5.0),
         Term('temperature_lag', 'power', (1e-4, 2e-5), (1,), 3.0, (0, 1)),
-        Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(temperature_rate_tau_s=0.2))
+        Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(temperature_rate_tau_s=0.2),
+        temperature_range_c=(10.0, 50.0), temperature_warn_range_c=None)   # fitted: clamped to its logged range
     cal_path = tmp_path / 'CAL.yaml'
     write_calibration(cal_path, cal)
     log_path = tmp_path / 'node.csv'

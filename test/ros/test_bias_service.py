@@ -16,17 +16,18 @@ from rosproc import REPO, TIMEOUT_S, domain_id, node_env, node_with_listener  # 
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
 
-# A client process: CALLS concurrent calls, then one JSON line per reply. Its response queue is deeper than
-# the default 10: every client's reader receives every reply of the service (and keeps its own), and the
-# node sends the replies of all joined calls at once.
+# A client process: CALLS concurrent calls, then one JSON line per reply; its response queue as the README
+# advises (argv[3]: 'keep_all', or a depth). Every client's reader receives every reply of the service, and
+# the node sends the replies of all joined calls at once.
 CLIENT = '''
 import json, sys, time
 import rclpy
 from std_srvs.srv import Trigger
-from rclpy.qos import QoSProfile
+from rclpy.qos import HistoryPolicy, QoSProfile
 rclpy.init()
 node = rclpy.create_node(f'caller_{sys.argv[1]}')
-client = node.create_client(Trigger, 'imu/static_bias', qos_profile=QoSProfile(depth=100))
+qos = QoSProfile(history=HistoryPolicy.KEEP_ALL) if sys.argv[3] == 'keep_all' else QoSProfile(depth=int(sys.argv[3]))
+client = node.create_client(Trigger, 'imu/static_bias', qos_profile=qos)
 assert client.wait_for_service(timeout_sec=30.0)
 print('ready', flush=True)
 sys.stdin.readline()   # every process calls at once
@@ -40,11 +41,19 @@ for f in futures:
 '''
 
 
-def test_concurrent_calls_from_several_processes_join_one_collection(tmp_path: Path, loopback: None) -> None:
-    """24 calls from 4 processes: all answered with the same reply; /diagnostics keeps its 1 Hz meanwhile.
+# The README's advice for a client making many calls at once.
+ADVISED_QUEUE = 'keep_all'
+
+
+@pytest.mark.parametrize('processes, calls', [(4, 50), (8, 25)])
+def test_concurrent_calls_from_several_processes_join_one_collection(tmp_path: Path, loopback: None,
+                                                                     processes: int, calls: int) -> None:
+    """200 calls from 4 or 8 processes: all answered with the same reply; /diagnostics keeps its 1 Hz meanwhile.
 
     Each call used to hold one of the node's 3 executor threads for the whole collection: with 3
     calls /diagnostics stopped, a 4th call started a second collection, most of 50 calls got no answer.
+    With the response queue the README used to advise (depth 100, deeper than one client's calls) 133 of
+    4 x 50 calls got a reply and 113 of 8 x 25: every client's reader holds every process's replies.
     """
     domain = domain_id()
     output = tmp_path / 'node.log'
@@ -54,9 +63,10 @@ def test_concurrent_calls_from_several_processes_join_one_collection(tmp_path: P
                              '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false',
                              '-p', f'bias_samples:={samples}') as (proc, listener)):
         listener.wait_status('link', lambda s: s['level'] == b'\x00', 'the link OK', proc, output)
-        clients = [subprocess.Popen([sys.executable, '-c', CLIENT, str(i), '6'], env=node_env(domain), cwd=REPO,
-                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                   for i in range(4)]
+        clients = [subprocess.Popen([sys.executable, '-c', CLIENT, str(i), str(calls), ADVISED_QUEUE],
+                                    env=node_env(domain), cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+                   for i in range(processes)]
         for c in clients:
             assert c.stdout.readline() == 'ready\n', c.stderr.read()
         started = time.monotonic()
@@ -70,7 +80,8 @@ def test_concurrent_calls_from_several_processes_join_one_collection(tmp_path: P
             assert c.returncode == 0, err
             replies += [json.loads(line) for line in out.splitlines()]
         elapsed = time.monotonic() - started
-        assert len(replies) == 24 and None not in replies, replies
+        assert len(replies) == processes * calls and replies.count(None) == 0, \
+            f'{replies.count(None)} of {len(replies)} calls got no reply'
         assert all(r == replies[0] for r in replies), replies
         assert replies[0][0] and f'over {samples} samples' in replies[0][1], replies[0]
         bias = listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias', proc, output)

@@ -23,7 +23,7 @@ from sensor_msgs.msg import Imu  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile  # noqa: E402
 from art_gyro_calibration.log import read_log  # noqa: E402
-from art_gyro_calibration.ros.node import UNMEASURED_VARIANCE  # noqa: E402
+from art_gyro_calibration.ros.node import UNCORRECTED_YAW_VARIANCE, UNMEASURED_VARIANCE  # noqa: E402
 from art_gyro_calibration.ros.parameters import PARAMETERS, check_settings, params_files  # noqa: E402
 from rclpy.parameter import parameter_dict_from_yaml_file  # noqa: E402
 
@@ -129,10 +129,13 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
                              signum=signal.SIGTERM) as (proc, listener)):
         messages = listener.wait_imu(10, proc, output)
         assert messages[-1].header.frame_id == 'imu_link'
-        assert messages[-1].angular_velocity_covariance[8] == pytest.approx(0.002 ** 2)
+        # No static bias yet (none at start-up): the rate is uncorrected and its variance says so.
+        assert messages[-1].angular_velocity_covariance[8] == UNCORRECTED_YAW_VARIANCE
         temperature = listener.wait_status('temperature', lambda s: s['level'] == b'\x01',
                                            'the temperature warning', proc, output)
-        assert 'outside the calibrated range' in temperature['message']
+        # The report's calibration: warned outside its assumed range, never clamped (the report has no clamp).
+        assert 'outside the calibrated range 10.0..50.0 degC' in temperature['message']
+        assert 'not clamped' in temperature['message'] and temperature['range_clamped'] == 'False'
         # Said on the console too (a user without ros2cli sees no /diagnostics), once a minute at most.
         warned = [line for line in output.read_text().splitlines() if 'gyro temperature 5.00 degC is outside' in line]
         assert len(warned) == 1, warned
@@ -153,6 +156,7 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
         assert call.returncode == 0 and call.stdout.startswith('StaticBiasDrift='), call.stdout + call.stderr
         assert 'over 10 samples' in call.stdout
         listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the bias applied', proc, output)
+        assert listener.wait_imu(3, proc, output)[-1].angular_velocity_covariance[8] == pytest.approx(0.002 ** 2)
         wait = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--wait-static-bias'],
                               env=node_env(domain), cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S * 2)
         assert wait.returncode == 0 and wait.stdout.startswith('/gyro_node: static bias: StaticBiasDrift='), wait
