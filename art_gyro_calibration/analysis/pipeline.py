@@ -17,8 +17,9 @@ from typing import Any
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
                                               CalibrationError, find_calibration_file, load_calibration)
 from art_gyro_calibration.compensation import RunStart
-from art_gyro_calibration.log import GyroLog, read_log
+from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
+from art_gyro_calibration.analysis.bags import BagTopics, read_any_log
 from art_gyro_calibration.analysis.loop import LoopOptions, LoopResult, close_loop
 from art_gyro_calibration.analysis.replay import (RESTARTS_NAME, Validation, startup_check, unjudged_warm_up,
                                                   validate)
@@ -70,6 +71,7 @@ class FitSettings:
     bias_samples: int = DEFAULT_SAMPLES
     validate: tuple[str, ...] = ()
     validate_powered_on_at_start: bool = False
+    topics: BagTopics = BagTopics()   # which topics of a rosbag2 log (and validation run) make its columns
 
 
 @dataclass(frozen=True)
@@ -99,7 +101,8 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     fit, a warm-up no cold run judged (that one is in the report too).
     """
     loop_options = settings.loop
-    log = read_log(log_path, loop_options.rate_scale_factor, loop_options.temp_scale_factor)
+    log = read_any_log(log_path, loop_options.rate_scale_factor, loop_options.temp_scale_factor, settings.topics,
+                       warn)
     loop = close_loop(log, settings.rows, settings.columns, loop_options)
     # The report and figures are the loop's; what the check drops is in its section, as --validate's drops are.
     report = build_report(log, loop, settings.bias_samples, source=str(log_path))
@@ -134,7 +137,8 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
 
 def _validate(result: LoopResult, settings: FitSettings) -> Validation:
     """Replay ``result``'s calibrations on the ``validate`` runs, read as the fitted log was."""
-    logs = [read_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor) for path in settings.validate]
+    logs = [read_any_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor, settings.topics)
+            for path in settings.validate]
     return validate(result, logs, settings.bias_samples, settings.loop.settle_s,
                     RunStart(powered_on_at_start=settings.validate_powered_on_at_start))
 
