@@ -12,6 +12,9 @@ Topics (relative names, so they follow the node's namespace and remappings):
   measures z only: x and y are reported as 0 with variance :data:`UNMEASURED_VARIANCE`, so a
   filter that fuses them gives them no weight; element 8 is ``yaw_rate_stddev`` squared.
 - ``imu/temperature`` (std_msgs/Float64): the gyro temperature in degC.
+- ``imu/uncalibrated`` (sensor_msgs/Imu), only with ``publish_uncalibrated``: the rate with only the
+  scale factor applied (no polynomial, no static bias), rad/s, at the same stamps: what a
+  recorded bag needs for ``calibrate fit`` and ``calibrate allan``.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): link, static bias, temperature, raw log
   (:mod:`.diagnostics`).
 
@@ -23,6 +26,7 @@ startup with a message naming it.
 
 from __future__ import annotations
 
+import copy
 import math
 import signal
 import sys
@@ -76,6 +80,8 @@ class GyroNode(Node):
         self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[8] = self.settings.yaw_rate_stddev ** 2
         self._temperature = Float64()
+        self._uncalibrated: Imu | None = None   # imu/uncalibrated's message, when publish_uncalibrated
+        self._rate_scale = self.calibration.rate_scale_factor
         # Reliable, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
         try:
             self._imu_pub = self.create_publisher(Imu, IMU_TOPIC, 10,
@@ -84,6 +90,9 @@ class GyroNode(Node):
             raise ParameterError(f'QoS override of {IMU_TOPIC}: {e}') from None
         parameters.check_known_names(self.has_parameter)
         self._temp_pub = self.create_publisher(Float64, 'imu/temperature', 10)
+        if self.settings.publish_uncalibrated:
+            self._uncalibrated = copy.deepcopy(self._imu)   # the same frame and covariances
+            self._uncalibrated_pub = self.create_publisher(Imu, 'imu/uncalibrated', 10)
         self.bias_service = StaticBiasService(self, self.settings, self.corrector, self._closing,
                                               lambda: self.driver.stats.last_error)
         self._diagnostics = Diagnostics(self)
@@ -120,9 +129,15 @@ class GyroNode(Node):
         if corrector.step(raw_rate, raw_temp, t):
             return   # dropped, and counted by the corrector
         imu = self._imu
-        imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
         imu.angular_velocity.z = math.radians(corrector.rate_dps)
         self._imu_pub.publish(imu)
+        uncalibrated = self._uncalibrated
+        if uncalibrated is not None:   # the rate as the compensator scales it, before any correction
+            uncalibrated.header.stamp.sec, uncalibrated.header.stamp.nanosec = sec, nanosec
+            uncalibrated.angular_velocity.z = math.radians(raw_rate * self._rate_scale)
+            self._uncalibrated_pub.publish(uncalibrated)
         temp_c = corrector.temp_c
         self._temperature.data = temp_c
         self._temp_pub.publish(self._temperature)
