@@ -57,10 +57,11 @@ class AllanDeviation:
 
         The simple approximation of Howe, Allan and Barnes (1981), as NIST SP 1065 (5.2.4) gives it for
         the overlapping Allan variance and white FM noise: ``((3(N-1)/(2m) - 2(N-2)/N) 4m^2/(4m^2+5)``
-        with N the record's angle points and m the averaging factor; at least 1.
+        with N the record's angle points and m the averaging factor; at least 1. Over pooled runs, N is
+        the length of one record with as many differences (``terms + 2m``).
         """
-        n = float(self.samples + 1)
         m = np.rint(self.tau_s * sample_rate_hz)
+        n = self.terms + 2.0 * m
         edf = (3.0 * (n - 1.0) / (2.0 * m) - 2.0 * (n - 2.0) / n) * 4.0 * m * m / (4.0 * m * m + 5.0)
         return np.maximum(edf, 1.0)
 

@@ -158,16 +158,27 @@ def rate_chunks(path: str | Path, topic: str = BagTopics.rate,
         with bag:
             t = np.empty(chunk_rows)
             z = np.empty(chunk_rows)
-            n = 0
+            n = done = 0
             for _, _, raw in bag.messages(connections):
-                t[n], z[n] = imu_z(raw)
+                t[n], z[n] = _parsed(imu_z, raw, bag.where, topic, done + n)
                 n += 1
                 if n == chunk_rows:
                     yield _checked(t.copy(), np.degrees(z), bag.where, topic)
+                    done += n
                     n = 0
             if n:
                 yield _checked(t[:n].copy(), np.degrees(z[:n]), bag.where, topic)
     return total, chunks()
+
+
+def _parsed(parse: Callable[[bytes], tuple[float, float]], raw: bytes, where: str, topic: str,
+            k: int) -> tuple[float, float]:
+    """``parse(raw)``, or a :class:`LogError` naming the topic and the message for a message too short for its type."""
+    try:
+        return parse(raw)
+    except (struct.error, IndexError):
+        raise LogError(f'{where}: topic {topic}: message {k + 1} ({len(raw)} bytes) is not a CDR message of its '
+                       'type') from None
 
 
 def _checked(t: NDArray[np.float64], rate: NDArray[np.float64], where: str,
@@ -223,8 +234,8 @@ def read_bag(path: str | Path, topics: BagTopics = BagTopics(),
         extra_conns = {name: bag.topic(topic, tuple(NUMERIC), f'extra column {name}')
                        for name, topic in topics.extras.items()}
         stamps, recorded, rates = [], [], []
-        for _, timestamp, raw in bag.messages(rate_conns):
-            s, z = imu_z(raw)
+        for k, (_, timestamp, raw) in enumerate(bag.messages(rate_conns)):
+            s, z = _parsed(imu_z, raw, where, topics.rate, k)
             stamps.append(s)
             recorded.append(timestamp * 1e-9)
             rates.append(z)
@@ -249,7 +260,7 @@ def read_bag(path: str | Path, topics: BagTopics = BagTopics(),
         ref_rate = None
         keep = np.ones(len(t), dtype=bool)
         if ref_conns is not None and topics.reference is not None:
-            ref_times, ref_values, gyro_times = _reference(bag, ref_conns, t, seen)
+            ref_times, ref_values, gyro_times = _reference(bag, ref_conns, topics.reference, t, seen)
             _overlap(where, topics.reference, ref_times, np.sort(gyro_times), held=True)
             after = np.searchsorted(ref_times, gyro_times, side='right') - 1
             keep = after >= 0
@@ -261,7 +272,7 @@ def read_bag(path: str | Path, topics: BagTopics = BagTopics(),
         return log if keep.all() else log.slice(keep)
 
 
-def _reference(bag: _Bag, connections: list[Any], stamps: NDArray[np.float64],
+def _reference(bag: _Bag, connections: list[Any], topic: str, stamps: NDArray[np.float64],
                recorded: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The reference's times and deg/s, and the gyro's times on the same clock (stamps, or recorded times)."""
     msgtype = connections[0].msgtype
@@ -269,7 +280,7 @@ def _reference(bag: _Bag, connections: list[Any], stamps: NDArray[np.float64],
         times, values = _scalar_series(bag, connections, 'data')
         return times, values, recorded
     parse = imu_z if msgtype == IMU else _twist_z
-    pairs = [parse(raw) for _, _, raw in bag.messages(connections)]
+    pairs = [_parsed(parse, raw, bag.where, topic, k) for k, (_, _, raw) in enumerate(bag.messages(connections))]
     times = np.array([p[0] for p in pairs])
     values = np.degrees(np.array([p[1] for p in pairs]))
     order = np.argsort(times, kind='stable')

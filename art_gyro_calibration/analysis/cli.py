@@ -60,7 +60,7 @@ def _apply(args: argparse.Namespace) -> int:
 def _fit(args: argparse.Namespace) -> int:
     from art_gyro_calibration.analysis.pipeline import FitSettings, fit_log, scale_factors
     from art_gyro_calibration.analysis.report import write_report
-    with Outputs([args.log, *args.validate], args.force) as outputs:
+    with Outputs([args.log, *args.validate, args.still], args.force) as outputs:
         out = outputs.claim(args.out)
         report_path = outputs.claim(args.report, beside=[Path(args.report).with_suffix('.md')])
         plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
@@ -74,7 +74,7 @@ def _fit(args: argparse.Namespace) -> int:
                            materiality_dph=args.materiality, draws=args.draws, alpha=args.alpha,
                            from_power_on=not args.not_from_power_on)
         settings = FitSettings(args.rows, args.columns, loop, args.bias_samples, tuple(args.validate),
-                               args.validate_powered_on_at_start, topics=_topics(args))
+                               args.validate_powered_on_at_start, topics=_topics(args), still=args.still)
         fitted = fit_log(args.log, settings, str(args.out),
                          lambda warning: print(f'calibrate fit: warning: {warning}', file=sys.stderr))
         write_calibration(out, fitted.calibration, fitted.comment)
@@ -309,6 +309,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help='other runs of the same gyro (with ref_rate, at rest over their first --bias-samples rows): '
                         'replay the calibrations on them as the node would, report the field errors, and drop '
                         'a term they are better without')
+    p.add_argument('--still', metavar='LOG_OR_BAG',
+                   help='a record of the gyro at rest (as calibrate allan reads it): its bias instability, not the '
+                        'residual\'s, sets the materiality and the noise budget')
     p.add_argument('--not-from-power-on', action='store_true',
                    help='the log does not start at the gyro\'s power-on: no warm-up is sought')
     p.add_argument('--validate-powered-on-at-start', action='store_true',

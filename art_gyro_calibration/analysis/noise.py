@@ -109,6 +109,26 @@ def fit_noise_terms(allan: AllanDeviation, sample_rate_hz: float) -> NoiseTerms:
                       float(values[3]), float(values[4]) if shown[4] else None)
 
 
+# The Allan deviation of bias instability is this times the bias instability (IEEE Std 952: sqrt(2 ln 2 / pi)).
+FLOOR_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
+
+
+def allan_floor_dps(allan: AllanDeviation, sample_rate_hz: float, min_tau_s: float = 0.0) -> float:
+    """The bias instability read as the floor: the least of the fitted deviation from ``min_tau_s`` on, / 0.664.
+
+    The fitted curve, not the measured points: the least of a few noisy long-tau values is
+    biased low. Where white noise still falls at the longest tau, this is an upper bound of
+    the bias instability (what the record can tell apart from it); where the floor is flat,
+    it is the fitted term. ``calibrate fit``'s materiality and noise budget read it.
+    """
+    taus = allan.tau_s[allan.tau_s >= min(min_tau_s, float(allan.tau_s[-1]))]
+    if len(allan.tau_s) < 3:
+        return float(allan.adev[-len(taus):].min() / FLOOR_FACTOR)
+    terms = fit_noise_terms(allan, sample_rate_hz)
+    grid = np.geomspace(taus[0], taus[-1], 200)
+    return float(terms.adev(grid).min() / FLOOR_FACTOR)
+
+
 @dataclass(frozen=True)
 class NodeParameters:
     """The node's parameters from the measured noise, at its rate ``rate_hz``."""

@@ -236,3 +236,17 @@ def test_rate_chunks_stream_the_bag(run, tmp_path):
     assert total == 1000 and [len(c[0]) for c in got] == [300, 300, 300, 100]
     assert np.array_equal(np.concatenate([c[0] for c in got]), part.t)
     assert np.allclose(np.concatenate([c[1] for c in got]), part.rate_dps, rtol=1e-15, atol=1e-15)
+
+
+def test_a_truncated_message_is_named(tmp_path):
+    with Writer(tmp_path / 'b', version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        rate = w.add_connection('/imu/uncalibrated', 'sensor_msgs/msg/Imu', typestore=TS)
+        temp = w.add_connection('/imu/temperature', 'std_msgs/msg/Float64', typestore=TS)
+        for k in range(3):
+            raw = bytes(TS.serialize_cdr(imu_message(EPOCH_NS + k, 0.0), 'sensor_msgs/msg/Imu'))
+            w.write(rate, EPOCH_NS + k, raw if k < 2 else raw[:60])
+            w.write(temp, EPOCH_NS + k, TS.serialize_cdr(T['std_msgs/msg/Float64'](data=25.0), 'std_msgs/msg/Float64'))
+    with pytest.raises(LogError, match=r'topic imu/uncalibrated: message 3 \(60 bytes\) is not a CDR message'):
+        read_bag(tmp_path / 'b')
+    with pytest.raises(LogError, match=r'topic imu/uncalibrated: message 3 \(60 bytes\)'):
+        list(rate_chunks(tmp_path / 'b', chunk_rows=2)[1])

@@ -146,3 +146,28 @@ def test_progress_is_shown_on_a_terminal_only():
     allan_of_record(iter(chunks), 'still.csv', progress_total=5000, progress_stream=pipe)
     assert '100.0 %' in terminal.getvalue() and '[####' in terminal.getvalue()
     assert pipe.getvalue() == ''
+
+
+def test_fit_takes_materiality_and_noise_budget_from_a_still_record(tmp_path, capsys):
+    """``calibrate fit --still``: the still record's bias instability (as the loop reads a floor) is the materiality."""
+    log = tmp_path / 'LOG.csv'
+    assert main(['simulate', '--serial', 'NAVC4058', '--hours', '2', '--rate-hz', '2', '--seed', '4',
+                 '--effect', 'shupe', '--out', str(log)]) == 0
+    rng = np.random.default_rng(10)
+    fs, n, bias = 10.0, 1 << 19, 1e-3   # 3.6 deg/h, above what the simulated residual holds
+    still = _csv(tmp_path / 'still.csv', np.arange(n) / fs,
+                 rng.normal(0.0, 0.003 * math.sqrt(fs), n) + flicker(n, fs, bias, rng))
+    common = ['--rows', '3', '--columns', '2', '--serial', 'NAVC4058', '--draws', '40']
+    assert main(['fit', str(log), *common, '--out', str(tmp_path / 'a.yaml'),
+                 '--report', str(tmp_path / 'a.json')]) == 0
+    assert main(['fit', str(log), *common, '--still', str(still), '--out', str(tmp_path / 'b.yaml'),
+                 '--report', str(tmp_path / 'b.json')]) == 0
+    capsys.readouterr()
+    alone, with_still = (json.loads((tmp_path / f'{n}.json').read_text()) for n in 'ab')
+    measured = with_still['still']['materiality_bias_instability_dph']
+    assert measured == pytest.approx(3.6, rel=0.2)
+    assert with_still['still']['source'] == str(still) and with_still['still']['samples'] == n
+    assert with_still['materiality_dph'] == pytest.approx(measured, rel=1e-12)
+    assert with_still['bias_instability_dph'] == pytest.approx(measured, rel=1e-12)
+    assert with_still['adequacy']['bias_instability_dph'] == pytest.approx(measured, rel=1e-12)
+    assert alone['materiality_dph'] < 0.6 * measured and 'still' not in alone
