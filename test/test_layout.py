@@ -11,7 +11,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = REPO / 'art_gyro_calibration'
-ANALYSIS_ONLY = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl')
+ANALYSIS_ONLY = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl', 'rosbags')
 RUNTIME_MODULES = ('ros.node', 'ros.parameters', 'ros.bias_service', 'ros.raw_log', 'ros.diagnostics', 'ros.monitor',
                    'driver', 'frame', 'rd2100_binary', 'ascii_lines', 'kvh_fog', 'protocols', 'fake_rd2100',
                    'gyro_physics', 'compensation', 'calibration', 'static_bias', 'signals', 'terms', 'model', 'log')
@@ -84,7 +84,7 @@ def test_install_metadata_keeps_the_runtime_lean() -> None:
     setup = (REPO / 'setup.py').read_text(encoding='utf-8')
     requires = setup.split('install_requires=')[1].split(']')[0]
     assert not [p for p in ANALYSIS_ONLY if p in requires], requires
-    assert "extras_require={'analysis': ['scipy', 'matplotlib', 'h5py', 'threadpoolctl']}" in setup
+    assert "extras_require={'analysis': ['scipy', 'matplotlib', 'h5py', 'threadpoolctl', 'rosbags']}" in setup
     manifest = (REPO / 'package.xml').read_text(encoding='utf-8')
     exec_depends = [line for line in manifest.splitlines() if '<exec_depend>' in line]
     assert not [line for line in exec_depends if any(p in line for p in ANALYSIS_ONLY)], exec_depends

@@ -6,6 +6,11 @@
 - ``calibrate replay OTHER_LOG.csv --calibration CAL.yaml [--start-s S] [--bias-samples N]``
 - ``calibrate simulate --serial SN --hours H --out LOG.csv [--effect NAME ...]``
 - ``calibrate record --port P --out LOG.csv [--protocol binary] [--baud 9600] [--serial SN] [--duration S]``
+- ``calibrate allan LOG_OR_BAG --out ALLAN.json [--plots DIR] [--serial SN] [--node-rate-hz F]``
+
+Wherever a log is read, a rosbag2 (a directory with metadata.yaml, an .mcap or a .db3) is
+read too (:mod:`.bags`); ``--rate-topic``, ``--temperature-topic``, ``--reference-topic``
+and ``--extra-topic NAME=TOPIC`` say which of its topics make the log.
 
 Errors in the input (a bad log, a bad calibration, a gyro that moved during the
 static bias) are reported on stderr with a non-zero exit status. Outputs are checked
@@ -28,7 +33,8 @@ from pathlib import Path
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, Calibration, CalibrationError,
                                               find_calibration_file, load_calibration, write_calibration)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, RunStart
-from art_gyro_calibration.log import LogError, RawLogWriter, read_log
+from art_gyro_calibration.log import LogError, RawLogWriter
+from art_gyro_calibration.analysis.bags import BagTopics
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopOptions
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
@@ -42,7 +48,7 @@ def _apply(args: argparse.Namespace) -> int:
         calibration = load_calibration(args.calibration)
         with open(out, 'wb') as stream:
             done = apply_to_csv(args.log, calibration, args.bias_samples, stream,
-                                start=RunStart(args.powered_on_at_start))
+                                start=RunStart(args.powered_on_at_start), topics=_topics(args))
     low, high = PLAUSIBLE_TEMPERATURE_C
     print(f'{args.out}: {done.rows - done.dropped} of {done.rows} rows; {done.dropped} dropped as the node drops '
           f'them (temperature outside {low:g}..{high:g} degC); {_outside(calibration, done.outside_range)}'
@@ -65,7 +71,7 @@ def _outside(calibration: Calibration, rows: int) -> str:
 def _fit(args: argparse.Namespace) -> int:
     from art_gyro_calibration.analysis.pipeline import FitSettings, fit_log, scale_factors
     from art_gyro_calibration.analysis.report import write_report
-    with Outputs([args.log, *args.validate], args.force) as outputs:
+    with Outputs([args.log, *args.validate, args.still], args.force) as outputs:
         out = outputs.claim(args.out)
         report_path = outputs.claim(args.report, beside=[Path(args.report).with_suffix('.md')])
         plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
@@ -79,7 +85,7 @@ def _fit(args: argparse.Namespace) -> int:
                            materiality_dph=args.materiality, draws=args.draws, alpha=args.alpha,
                            from_power_on=not args.not_from_power_on)
         settings = FitSettings(args.rows, args.columns, loop, args.bias_samples, tuple(args.validate),
-                               args.validate_powered_on_at_start)
+                               args.validate_powered_on_at_start, topics=_topics(args), still=args.still)
         fitted = fit_log(args.log, settings, str(args.out),
                          lambda warning: print(f'calibrate fit: warning: {warning}', file=sys.stderr))
         write_calibration(out, fitted.calibration, fitted.comment)
@@ -94,8 +100,9 @@ def _fit(args: argparse.Namespace) -> int:
 def _replay(args: argparse.Namespace) -> int:
     from art_gyro_calibration.analysis.replay import replay, restart, without_terms
     from art_gyro_calibration.analysis.report import field_table
+    from art_gyro_calibration.analysis.bags import read_any_log
     calibration = load_calibration(args.calibration)
-    log = read_log(args.log, calibration.rate_scale_factor, calibration.temp_scale_factor)
+    log = read_any_log(args.log, calibration.rate_scale_factor, calibration.temp_scale_factor, _topics(args), _warn)
     if args.start_s:
         log = restart(log, args.start_s)
     start = RunStart(powered_on_at_start=args.powered_on_at_start)
@@ -119,6 +126,75 @@ def _simulate(args: argparse.Namespace) -> int:
     print(f'{args.out}: {len(run.columns["t"])} rows of {args.serial} '
           f'(effects: {", ".join(args.effect) or "none"}); truth in {truth_path(args.out)}')
     return 0
+
+
+def _allan(args: argparse.Namespace) -> int:
+    import json
+    from art_gyro_calibration.analysis.bags import csv_rate_chunks, is_bag, rate_chunks
+    from art_gyro_calibration.analysis.noise import allan_of_record, plot_allan
+    from art_gyro_calibration.analysis.pipeline import scale_factors
+    with Outputs([args.log], args.force) as outputs:
+        out = outputs.claim(args.out)
+        plots = outputs.claim_directory(args.plots, 'allan*.png') if args.plots else None
+        if is_bag(args.log):
+            total, chunks = rate_chunks(args.log, args.rate_topic)
+        else:
+            given = args.serial or args.rate_scale_factor is not None
+            scale = scale_factors(args.serial, args.rate_scale_factor) if given else None
+            total, chunks = csv_rate_chunks(args.log, scale.rate if scale else None, scale.temp if scale else None)
+        try:
+            result = allan_of_record(chunks, str(args.log), args.node_rate_hz, total)
+        except LogError as e:
+            if 'raw counts need' in str(e):
+                raise LogError(f'{e}: give --serial or --rate-scale-factor') from None
+            raise
+        out.write_text(json.dumps(result.to_dict(), indent=1) + '\n', encoding='utf-8')
+        if plots is not None:
+            plot_allan(result, plots / 'allan.png')
+    if result.stats.gaps:
+        _warn(f'{result.stats.gaps} gaps in the record (the longest {result.stats.longest_gap_s:.3g} s): the Allan '
+              'deviation takes the samples as equally spaced')
+    named = result.terms.to_dict()
+    print(f'{args.out}: {result.stats.samples} samples at {result.stats.sample_rate_hz:.6g} Hz; '
+          f'ARW {named["arw_deg_per_sqrt_h"]:.4g} deg/sqrt(h), bias instability '
+          f'{named["bias_instability_deg_per_h"]:.4g} deg/h, rate random walk '
+          f'{named["rate_random_walk_deg_per_h_per_sqrt_h"]:.4g} deg/h/sqrt(h)')
+    if result.node.limited_by:
+        _warn(f'bias_samples: {result.node.limited_by}')
+    print(result.node.snippet(), end='')
+    return 0
+
+
+def _warn(message: str) -> None:
+    print(f'calibrate: warning: {message}', file=sys.stderr)
+
+
+def _topics(args: argparse.Namespace) -> BagTopics:
+    """The bag topics the options name (only a bag reads them)."""
+    return BagTopics(args.rate_topic, args.temperature_topic, args.reference_topic, dict(args.extra_topic))
+
+
+def _bag_options(p: argparse.ArgumentParser, reference: bool = True) -> None:
+    """Which topics of a rosbag2 input make the log."""
+    p.add_argument('--rate-topic', default=BagTopics.rate,
+                   help='rosbag2 input: sensor_msgs/Imu topic of the rate (angular_velocity.z, rad/s; '
+                        'default %(default)s, the node\'s rate with only the scale factor applied)')
+    if not reference:
+        return
+    p.add_argument('--temperature-topic', default=BagTopics.temperature,
+                   help='rosbag2 input: std_msgs/Float64 topic of the temperature, degC (default %(default)s)')
+    p.add_argument('--reference-topic',
+                   help='rosbag2 input: the rate table\'s true rate (ref_rate): std_msgs/Float64 in deg/s, or '
+                        'geometry_msgs/TwistStamped or sensor_msgs/Imu angular z in rad/s')
+    p.add_argument('--extra-topic', action='append', default=[], type=_extra_topic, metavar='NAME=TOPIC',
+                   help='rosbag2 input: a numeric topic (std_msgs/Float64, ...) as the log column NAME; repeat')
+
+
+def _extra_topic(text: str) -> tuple[str, str]:
+    name, sep, topic = text.partition('=')
+    if not sep or not name.strip() or not topic.strip():
+        raise argparse.ArgumentTypeError(f'must be NAME=TOPIC, got {text!r}')
+    return name.strip(), topic.strip()
 
 
 # Silence after which ``calibrate record`` says that nothing arrives (and why, as far as the driver knows).
@@ -204,6 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--powered-on-at-start', action='store_true',
                    help='the log starts at the gyro\'s power-on, as the node\'s parameter of that name: a warm-up '
                         'term decays from its first row (otherwise it counts as decayed)')
+    _bag_options(p)
     _force_option(p)
     p.set_defaults(run=_apply)
 
@@ -243,11 +320,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help='other runs of the same gyro (with ref_rate, at rest over their first --bias-samples rows): '
                         'replay the calibrations on them as the node would, report the field errors, and drop '
                         'a term they are better without')
+    p.add_argument('--still', metavar='LOG_OR_BAG',
+                   help='a record of the gyro at rest (as calibrate allan reads it): its bias instability, not the '
+                        'residual\'s, sets the materiality and the noise budget')
     p.add_argument('--not-from-power-on', action='store_true',
                    help='the log does not start at the gyro\'s power-on: no warm-up is sought')
     p.add_argument('--validate-powered-on-at-start', action='store_true',
                    help='the --validate runs began at the gyro\'s power-on (default: unknown, a warm-up term '
                         'is not applied, as the node does by default)')
+    _bag_options(p)
     _force_option(p)
     p.set_defaults(run=_fit)
 
@@ -263,7 +344,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help='rows at rest at the start for the static bias (default %(default)s)')
     p.add_argument('--settle-s', type=float, default=DEFAULT_SETTLE_S,
                    help='seconds skipped after each change of table rate (default %(default)s)')
+    _bag_options(p)
     p.set_defaults(run=_replay)
+
+    p = sub.add_parser('allan', help='noise of a gyro at rest: Allan deviation, IEEE 952 terms, node parameters')
+    p.add_argument('log', help='record at rest: CSV log or rosbag2 (directory, .mcap or .db3)')
+    p.add_argument('--out', required=True, help='ALLAN.json to write')
+    p.add_argument('--plots', help='directory for allan.png')
+    p.add_argument('--serial', help='gyro whose packaged calibration scales a raw log\'s counts')
+    p.add_argument('--rate-scale-factor', type=float, help='deg/s per count of a raw log\'s raw_rate')
+    p.add_argument('--node-rate-hz', type=_positive_float,
+                   help='the node\'s frame rate for yaw_rate_stddev and bias_samples (default: the record\'s)')
+    _bag_options(p, reference=False)
+    _force_option(p)
+    p.set_defaults(run=_allan)
 
     p = sub.add_parser('simulate', help='write a simulated rate-table and thermal-chamber run')
     p.add_argument('--serial', required=True, help='gyro whose packaged calibration is the true error')
@@ -300,6 +394,13 @@ def _level(text: str) -> float:
     return value
 
 
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0.0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f'must be a positive number, got {text}')
+    return value
+
+
 def _positive_int(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -308,7 +409,7 @@ def _positive_int(text: str) -> int:
 
 
 # What the offline tools need beyond the node's runtime: the pip extra "analysis".
-ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl')
+ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl', 'rosbags')
 
 
 # glibc's mallopt parameter, and the size from which a block is mapped on its own (returned when freed).
@@ -341,7 +442,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         # A robot's install has the node's runtime only: say what to add instead of a traceback.
         print(f'calibrate: error: the offline tools need {e.name}, which this installation lacks: '
-              'pip install "art_gyro_calibration[analysis]" (scipy, matplotlib, h5py, threadpoolctl)', file=sys.stderr)
+              'pip install "art_gyro_calibration[analysis]" (scipy, matplotlib, h5py, threadpoolctl, rosbags)',
+              file=sys.stderr)
         return 1
     except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:
         print(f'calibrate {args.command}: error: {e}', file=sys.stderr)

@@ -27,6 +27,7 @@ from art_gyro_calibration.signals import SIGNALS, SignalFilters, Signals, comput
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.allan import allan_deviation
+from art_gyro_calibration.analysis.noise import allan_floor_dps
 from art_gyro_calibration.analysis.trace import (DEFAULT_BLOCK_S, Binned, CandidateScore, Screen, ScreenOptions,
                                                  TraceResult, duration_s, held_out_residual, joined,
                                                  time_constant_bounds, trace_residual)
@@ -55,6 +56,8 @@ class LoopOptions(ScreenOptions):
     ``materiality_dph`` over the logged envelope; None: the bias instability of what
     the ART polynomial leaves (:func:`noise_levels`). ``from_power_on``: the log
     starts at the gyro's power-on (a warm-up is a candidate only then).
+    ``still_instability_dps``: the bias instability measured on a record at rest
+    (``calibrate fit --still``), for the materiality and the noise budget instead of the residual's.
     """
 
     serial_number: str = DEFAULT_SERIAL
@@ -67,6 +70,7 @@ class LoopOptions(ScreenOptions):
     exclude: tuple[str, ...] = ()
     block_s: float = DEFAULT_BLOCK_S
     from_power_on: bool = True
+    still_instability_dps: float | None = None
 
 
 @dataclass(frozen=True)
@@ -174,6 +178,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
     still = bool(np.ptp(log.ref_rate) == 0.0)
     binned = Binned(signals, error, segments, rows, columns, options.folds, bin_s, block_s)
     noise = noise_levels(binned, Screen(binned).residual() / binned.sqrt_counts, bin_s)
+    if options.still_instability_dps is not None:
+        noise = replace(noise, instability_dps=options.still_instability_dps)
     signals.forget()   # the rest of the loop takes its signals chunk by chunk
     instability_dph = noise.instability_dps * DEG_PER_H_PER_DPS
     materiality = noise.materiality_dph if options.materiality_dph is None else options.materiality_dph
@@ -238,7 +244,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
         held_out_rms_art_dps=every_row.held_out_rms(),
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
-        adequacy=adequacy(binned, specs, floor, bin_s, materiality), findings=tuple(heading),
+        adequacy=adequacy(binned, specs, floor, bin_s, materiality, options.still_instability_dps),
+        findings=tuple(heading),
         start=RunStart(powered_on_at_start=options.from_power_on))
 
 
@@ -334,8 +341,9 @@ def noise_levels(binned: Binned, bin_means: NDArray[np.float64], bin_s: float) -
     Over the stretches where the temperature holds, if the log has 10 minutes of them (an
     unmodelled thermal effect would otherwise pass for noise); else over all the bins as
     one series (the rests between steady segments are short). The Allan floor is sought
-    from one minute on, where the white noise has averaged down; the wander is the spread
-    of the stretches' means (a gyro's bias wanders there too; a thermal effect does not).
+    from one minute on, where the white noise has averaged down, as ``calibrate allan``
+    reads it (:func:`.noise.allan_floor_dps`); the wander is the spread of the stretches'
+    means (a gyro's bias wanders there too; a thermal effect does not).
     """
     runs = thermally_still_runs(binned)
     wander = 0.0
@@ -347,9 +355,9 @@ def noise_levels(binned: Binned, bin_means: NDArray[np.float64], bin_s: float) -
         means = np.array([np.average(bin_means[runs == k], weights=weights[runs == k]) for k in labels])
         wander = float(np.std(means)) if len(means) > 1 else 0.0
         values, runs = bin_means[keep], runs[keep]
-    adev = allan_deviation(values, 1.0 / max(bin_s, 1e-9), runs)
-    usable = adev.adev[adev.tau_s >= min(60.0, adev.tau_s[-1])]
-    return NoiseLevels(float(usable.min() / 0.664), wander)
+    rate_hz = 1.0 / max(bin_s, 1e-9)
+    # The floor as ``calibrate allan`` reads it: of the IEEE 952 terms fitted to the deviation.
+    return NoiseLevels(allan_floor_dps(allan_deviation(values, rate_hz, runs), rate_hz, 60.0), wander)
 
 
 # The residual's block means may exceed their noise budget by this factor before the alarm:
@@ -359,12 +367,13 @@ ADEQUACY_BLOCK_S = 600.0
 
 
 def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s: float,
-             materiality_dph: float) -> Adequacy:
+             materiality_dph: float, instability_dps: float | None = None) -> Adequacy:
     """The lack-of-fit alarm: whether the held-out residual's 10-minute means stay within the noise budget.
 
     The budget of a 10-minute mean: the white noise over its rows, the bias instability and
     the slow wander of :func:`noise_levels`. The model is inadequate when the residual is
     beyond :data:`ADEQUACY_RATIO` times its budget by more than the materiality.
+    ``instability_dps``: the bias instability of a still record, if one was measured.
     """
     residual = held_out_residual(binned, specs) / binned.sqrt_counts   # held-out bin means, deg/s
     weights = binned.sqrt_counts ** 2
@@ -376,6 +385,8 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
     means = sums[full] / counts[full]
     rms = float(np.sqrt(np.mean((means - means.mean()) ** 2)))
     noise = noise_levels(binned, residual, bin_s)
+    if instability_dps is not None:
+        noise = replace(noise, instability_dps=instability_dps)
     budget = float(np.sqrt(floor_dps ** 2 / np.mean(counts[full]) + (0.664 * noise.instability_dps) ** 2
                            + noise.wander_dps ** 2))
     excess = float(np.sqrt(max(rms ** 2 - budget ** 2, 0.0)))

@@ -11,14 +11,16 @@ calls it, and writes and prints what it returns.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
                                               CalibrationError, find_calibration_file, load_calibration)
 from art_gyro_calibration.compensation import RunStart
-from art_gyro_calibration.log import GyroLog, read_log
+from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
+from art_gyro_calibration.analysis.bags import BagTopics, read_any_log
 from art_gyro_calibration.analysis.loop import LoopOptions, LoopResult, close_loop
 from art_gyro_calibration.analysis.replay import (RESTARTS_NAME, Validation, startup_check, unjudged_warm_up,
                                                   validate)
@@ -70,6 +72,8 @@ class FitSettings:
     bias_samples: int = DEFAULT_SAMPLES
     validate: tuple[str, ...] = ()
     validate_powered_on_at_start: bool = False
+    topics: BagTopics = BagTopics()   # which topics of a rosbag2 log (and validation run) make its columns
+    still: str | None = None          # a record at rest: its bias instability for the materiality and budget
 
 
 @dataclass(frozen=True)
@@ -99,10 +103,17 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     fit, a warm-up no cold run judged (that one is in the report too).
     """
     loop_options = settings.loop
-    log = read_log(log_path, loop_options.rate_scale_factor, loop_options.temp_scale_factor)
+    still = None
+    if settings.still is not None:
+        still = still_noise(settings.still, loop_options, settings.topics)
+        loop_options = replace(loop_options, still_instability_dps=still['bias_instability_dps'])
+    log = read_any_log(log_path, loop_options.rate_scale_factor, loop_options.temp_scale_factor, settings.topics,
+                       warn)
     loop = close_loop(log, settings.rows, settings.columns, loop_options)
     # The report and figures are the loop's; what the check drops is in its section, as --validate's drops are.
     report = build_report(log, loop, settings.bias_samples, source=str(log_path))
+    if still is not None:
+        report['still'] = still
     result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
     found = ', '.join(e.signal for e in result.effects) or 'nothing'
     if startup is not None:
@@ -132,9 +143,29 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     return FitResult(log, loop, startup, validation, calibration, comment, report)
 
 
+def still_noise(path: str, options: LoopOptions, topics: BagTopics) -> dict[str, Any]:
+    """``calibrate allan`` on a record at rest (read with ``options``' scale factors): its IEEE 952 terms.
+
+    ``bias_instability_dps`` is the floor as the loop reads it on a residual
+    (:func:`.noise.allan_floor_dps` from one minute on), so the two are the same measure.
+    """
+    from art_gyro_calibration.analysis.bags import csv_rate_chunks, is_bag, rate_chunks
+    from art_gyro_calibration.analysis.noise import allan_floor_dps, allan_of_record
+    if is_bag(path):
+        total, chunks = rate_chunks(path, topics.rate)
+    else:
+        total, chunks = csv_rate_chunks(path, options.rate_scale_factor, options.temp_scale_factor)
+    measured = allan_of_record(chunks, path, progress_total=total)
+    floor = allan_floor_dps(measured.allan, measured.stats.sample_rate_hz, 60.0)
+    return {'source': path, 'samples': measured.stats.samples, 'sample_rate_hz': measured.stats.sample_rate_hz,
+            **measured.terms.to_dict(), 'bias_instability_dps': floor,
+            'materiality_bias_instability_dph': floor * DEG_PER_H_PER_DPS}
+
+
 def _validate(result: LoopResult, settings: FitSettings) -> Validation:
     """Replay ``result``'s calibrations on the ``validate`` runs, read as the fitted log was."""
-    logs = [read_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor) for path in settings.validate]
+    logs = [read_any_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor, settings.topics)
+            for path in settings.validate]
     return validate(result, logs, settings.bias_samples, settings.loop.settle_s,
                     RunStart(powered_on_at_start=settings.validate_powered_on_at_start))
 

@@ -16,7 +16,8 @@ import numpy as np
 
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import RunStart, apply_calibration, plausible
-from art_gyro_calibration.log import READ_CHUNK_ROWS, CsvWriter, concatenate, read_log_chunks
+from art_gyro_calibration.log import READ_CHUNK_ROWS, CsvWriter, concatenate
+from art_gyro_calibration.analysis.bags import BagTopics, read_any_chunks
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, StaticBias
 
 OUTPUT_COLUMNS = ('t', 'rate_dps', 'temp_c', 'comp_dps', 'corrected_dps')
@@ -34,9 +35,14 @@ class Streamed:
 
 def apply_to_csv(log_path: str | os.PathLike[str], calibration: Calibration, bias_samples: int, out: IO[bytes],
                  max_mean_dps: float = DEFAULT_MAX_MEAN_DPS, max_std_dps: float = DEFAULT_MAX_STD_DPS,
-                 chunk_rows: int = READ_CHUNK_ROWS, start: RunStart = RunStart()) -> Streamed:
-    """Static bias over the first ``bias_samples`` kept rows of the log, then every kept row written to ``out``."""
-    chunks = read_log_chunks(log_path, calibration.rate_scale_factor, calibration.temp_scale_factor, chunk_rows)
+                 chunk_rows: int = READ_CHUNK_ROWS, start: RunStart = RunStart(),
+                 topics: BagTopics = BagTopics()) -> Streamed:
+    """Static bias over the first ``bias_samples`` kept rows of the log, then every kept row written to ``out``.
+
+    A rosbag2 log (:mod:`.bags`, its ``topics``) is read whole, then compensated as a CSV's chunks are.
+    """
+    chunks = read_any_chunks(log_path, calibration.rate_scale_factor, calibration.temp_scale_factor, topics,
+                             chunk_rows)
     # The static bias needs its rows in one piece: gather chunks until they hold enough kept rows.
     head, kept = [], 0
     for chunk in chunks:

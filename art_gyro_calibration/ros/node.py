@@ -14,6 +14,9 @@ Topics (relative names, so they follow the node's namespace and remappings):
   static bias is in force, :data:`UNCORRECTED_YAW_VARIANCE` before (an uncorrected rate).
 - ``imu/is_calibrated`` (std_msgs/Bool, transient local): true once a static bias is in force.
 - ``imu/temperature`` (std_msgs/Float64): the gyro temperature in degC.
+- ``imu/uncalibrated`` (sensor_msgs/Imu), only with ``publish_uncalibrated``: the rate with only the
+  scale factor applied (no polynomial, no static bias), rad/s, at the same stamps: what a
+  recorded bag needs for ``calibrate fit`` and ``calibrate allan``.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): link, static bias, temperature, raw log
   (:mod:`.diagnostics`).
 
@@ -25,6 +28,7 @@ startup with a message naming it.
 
 from __future__ import annotations
 
+import copy
 import math
 import signal
 import sys
@@ -94,6 +98,8 @@ class GyroNode(Node):
         self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[8] = UNCORRECTED_YAW_VARIANCE   # until a static bias is in force
         self._temperature = Float64()
+        self._uncalibrated: Imu | None = None   # imu/uncalibrated's message, when publish_uncalibrated
+        self._rate_scale = self.calibration.rate_scale_factor
         # Reliable, volatile, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
         try:
             self._imu_pub = self.create_publisher(Imu, IMU_TOPIC, 10, qos_overriding_options=IMU_QOS_OVERRIDES)
@@ -104,6 +110,9 @@ class GyroNode(Node):
         self._calibrated_pub = self.create_publisher(Bool, 'imu/is_calibrated', LATCHED_QOS)
         self.is_calibrated = False   # a static bias in force: published on imu/is_calibrated
         self._calibrated_pub.publish(Bool(data=False))
+        if self.settings.publish_uncalibrated:
+            self._uncalibrated = copy.deepcopy(self._imu)   # the same frame and covariances
+            self._uncalibrated_pub = self.create_publisher(Imu, 'imu/uncalibrated', 10)
         self.bias_service = StaticBiasService(self, self.settings, self.corrector, self._closing,
                                               lambda: self.driver.stats.last_error, self._on_bias)
         self._diagnostics = Diagnostics(self)
@@ -140,9 +149,15 @@ class GyroNode(Node):
         if corrector.step(raw_rate, raw_temp, t):
             return   # dropped, and counted by the corrector
         imu = self._imu
-        imu.header.stamp.sec, imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
         imu.angular_velocity.z = math.radians(corrector.rate_dps)
         self._imu_pub.publish(imu)
+        uncalibrated = self._uncalibrated
+        if uncalibrated is not None:   # the rate as the compensator scales it, before any correction
+            uncalibrated.header.stamp.sec, uncalibrated.header.stamp.nanosec = sec, nanosec
+            uncalibrated.angular_velocity.z = math.radians(raw_rate * self._rate_scale)
+            self._uncalibrated_pub.publish(uncalibrated)
         temp_c = corrector.temp_c
         self._temperature.data = temp_c
         self._temp_pub.publish(self._temperature)

@@ -66,6 +66,9 @@ PARAMETERS: dict[str, tuple[Any, ...]] = {
                                    'safe on a warm restart) a warm-up term counts as decayed.'),
     'log_path': ('', 'If set, every received frame is appended as t,raw_rate,raw_temp: a file to create '
                      '(must not exist) or a directory, where <serial>_<UTC time>.csv is created.'),
+    'publish_uncalibrated': (False, 'Also publish imu/uncalibrated (sensor_msgs/Imu): the rate with only the scale '
+                                    'factor applied, rad/s, at the same stamps: with imu/temperature, a recorded bag '
+                                    'then holds what calibrate fit and calibrate allan need.'),
 }
 
 # --- protocol kvh_fog (KVH DSP-1750/1760, 1725/1750/1775) ------------------------------------------
@@ -115,6 +118,7 @@ class Settings:
     yaw_rate_stddev: float
     powered_on_at_start: bool
     log_path: str
+    publish_uncalibrated: bool = False
 
 
 def _constraint(name: str) -> Any:

@@ -205,9 +205,10 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     assert checked.effects == () and checked.extended.terms == ()
     art, extended = (field_score_dps([run[name] for run in check.runs]) for name in ('art', 'extended'))
     assert extended > 2.0 * art
-    # The check drops a term only when the restarts are better without it by more than the materiality:
+    # The check drops a term only when the restarts are better without it by more than the materiality (the
+    # residual's Allan floor as calibrate allan fits it: 0.83 deg/h as the least measured value):
     # asked for more than the 9.8 deg/h it costs, the same replay keeps it.
-    assert 'a drop needs more than 0.83 deg/h' in dropped.reason
+    assert 'a drop needs more than 0.76 deg/h' in dropped.reason
     runs = [run for _, run in own_restarts(log)]
     assert validate(result, runs, kept_signals=(POWER_ON_SIGNAL,), margin_dps=9.0 / 3600.0).dropped
     assert not validate(result, runs, kept_signals=(POWER_ON_SIGNAL,), margin_dps=10.0 / 3600.0).dropped
@@ -274,7 +275,7 @@ def test_fit_warns_of_a_warm_up_no_cold_run_judged(tmp_path, capsys):
     assert main(args) == 0
     assert [t.signal for t in load_calibration(tmp_path / 'CAL.yaml').terms] == [POWER_ON_SIGNAL]
     [warning] = json.loads((tmp_path / 'REPORT.json').read_text())['warnings']
-    assert warning.startswith("the warm-up term (5.5 deg/h at power-on; the log's bias instability is 0.82 deg/h) "
+    assert warning.startswith("the warm-up term (5.5 deg/h at power-on; the log's bias instability is 0.89 deg/h) "
                               'was judged on this log alone')
     assert f'calibrate fit: warning: {warning}' in capsys.readouterr().err
     assert f'**Warning:** {warning}.' in (tmp_path / 'REPORT.md').read_text()
