@@ -30,6 +30,7 @@ SAMPLES: dict[str, Any] = {
     'calibration_file': str(REPO / 'config' / 'NAVC3545.yaml'), 'frame_id': 'gyro_test', 'bias_samples': 50,
     'static_bias_on_startup': False, 'static_bias_max_mean_dps': 0.2, 'static_bias_max_std_dps': 0.1,
     'yaw_rate_stddev': 0.002, 'powered_on_at_start': True, 'log_path': 'TMP',   # the test's directory
+    'publish_uncalibrated': True,
     'kvh_fog.message_format': 'B', 'kvh_fog.yaw_axis': '-z', 'kvh_fog.rotation': 'rate', 'kvh_fog.angle_units': 'deg',
     'kvh_fog.output_rate_hz': 500.0, 'kvh_fog.temperature_units': 'F',
     QOS + 'reliability': 'best_effort', QOS + 'history': 'keep_last', QOS + 'depth': 5,
