@@ -79,7 +79,7 @@ def build_report(log: GyroLog, result: LoopResult, bias_samples: int, source: st
         'bias_instability_dph': result.bias_instability_dph,
         'materiality_dph': result.materiality_dph,
         'model_adequate': adequacy.model_adequate if adequacy else True,
-        'adequacy': asdict(adequacy) if adequacy else None,
+        'adequacy': {**asdict(adequacy), 'signals': [asdict(x) for x in adequacy.signals]} if adequacy else None,
         'held_out_rms_dps': {'art': result.held_out_rms_art_dps, 'extended': result.held_out_rms_extended_dps},
         'held_out_block_s': result.held_out_block_s,
         'effects': [_effect(e) for e in result.effects],
