@@ -425,6 +425,8 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
 # Groups of a signal's values (equal counts of bins; the heading: sectors of 360 / SHAPE_GROUPS degrees).
 SHAPE_GROUPS = 12
 # The signals the form-free check looks at beside every extra log column; the heading modulo 360 degrees.
+# Chance copies of the residual grouped at a time.
+SHAPE_DRAW_BATCH = 25
 SHAPE_SIGNALS = ('rate', 'temperature', 'temperature_rate', 'time_since_power_on', 'angle', 'rate_change')
 
 
@@ -470,16 +472,26 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], materiality_dph
     if not names or len(residual) < 4 * SHAPE_GROUPS:
         return ()
     rng = np.random.default_rng(options.seed)
-    draws = phase_surrogates(mirrored_spectrum(residual), options.draws, rng)[:len(residual)]
-    values = np.column_stack([residual, draws])
+    spectrum = mirrored_spectrum(residual)
     share = weights / weights.sum()
-    spread = np.empty((len(names), values.shape[1]))
+    shares = [np.bincount(g, weights=share, minlength=SHAPE_GROUPS) for g in groups]
+    spread = np.empty((len(names), options.draws + 1))
     shape_dph = np.empty(len(names))
-    for i, g in enumerate(groups):
-        means = _group_means(g, weights, values)
-        group_share = np.bincount(g, weights=share, minlength=SHAPE_GROUPS)
-        spread[i] = group_share @ means ** 2
-        shape_dph[i] = 0.5 * np.ptp(means[group_share > 0.0, 0]) * DEG_PER_H_PER_DPS
+    # The residual, then its chance copies a batch at a time (the same draws as all at once): a 24 h log's
+    # 200 copies would hold 140 MiB.
+    done = 0
+    while done < options.draws + 1:
+        count = min(SHAPE_DRAW_BATCH, options.draws + 1 - done)
+        if done == 0:
+            values = np.column_stack([residual, phase_surrogates(spectrum, count - 1, rng)[:len(residual)]])
+        else:
+            values = phase_surrogates(spectrum, count, rng)[:len(residual)]
+        for i, g in enumerate(groups):
+            means = _group_means(g, weights, values)
+            spread[i, done:done + count] = shares[i] @ means ** 2
+            if done == 0:
+                shape_dph[i] = 0.5 * np.ptp(means[shares[i] > 0.0, 0]) * DEG_PER_H_PER_DPS
+        done += count
     typical = np.maximum(np.median(spread[:, 1:], axis=1), 1e-300)
     scores = spread / typical[:, None]
     chance = float(np.quantile(scores[:, 1:].max(axis=0), 1.0 - options.alpha))
