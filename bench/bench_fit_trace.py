@@ -2,7 +2,7 @@
 
 Reports wall and CPU time of the loop (the machine's load average beside them, as other
 work on a shared machine slows the wall clock), the CPU time of ``calibrate fit``'s start-up
-check after it, and the process's peak resident memory. Run:
+check and of its comparison with the packaged calibration after it, and the process's peak resident memory. Run:
 ``python bench/bench_fit_trace.py [--hours 24] [--rate-hz 10]``. A benchmark, not a test.
 """
 
@@ -14,6 +14,7 @@ import resource
 import time
 
 from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration.analysis.baseline import compare_with_baseline
 from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.replay import startup_check
 from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run
@@ -35,8 +36,11 @@ def main() -> None:
     result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, LoopOptions(serial_number=args.serial))
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     check_cpu = time.process_time()
-    _, check, _ = startup_check(result, log)
+    checked, check, _ = startup_check(result, log)
     check_cpu = time.process_time() - check_cpu
+    baseline_cpu = time.process_time()
+    versus = compare_with_baseline(log, checked, checked.extended, cal, f'config/{args.serial}.yaml')
+    baseline_cpu = time.process_time() - baseline_cpu
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f'rows {len(log)}, effects simulated: {", ".join(effects) or "none"}')
     print(f'effects found: {", ".join(e.term.describe() for e in result.effects) or "nothing"}')
@@ -44,6 +48,8 @@ def main() -> None:
           f'peak RSS {peak_mib:.0f} MiB (whole process, simulation included)')
     dropped = ', '.join(d.term.signal for d in check.dropped) if check else 'no check'
     print(f'start-up check: {check_cpu:.2f} s CPU; dropped: {dropped or "nothing"}')
+    verdict = f'{versus.verdict} ({versus.refit_dph:.2f} against {versus.baseline_dph:.2f} deg/h)' if versus else 'none'
+    print(f'baseline comparison: {baseline_cpu:.2f} s CPU; verdict: {verdict}')
 
 
 if __name__ == '__main__':

@@ -165,7 +165,8 @@ def run_case(case: Case) -> dict[str, Any]:
     adequacy = getattr(result, 'adequacy', None)
     return {
         'effect': case.effect, 'magnitude': case.magnitude, 'hours': case.hours, 'seed': case.seed,
-        'found': [e.term.signal for e in result.effects],
+        # Found: written, or reported and not written (a supply voltage the node does not have, a heading).
+        'found': [e.term.signal for e in (*result.effects, *result.findings)],
         'found_by_loop': [e.term.signal for e in loop.effects],
         'dropped_by_check': [] if check is None else [d.term.signal for d in check.dropped],
         'descriptions': [e.term.describe() for e in result.effects],

@@ -71,7 +71,8 @@ def _outside(calibration: Calibration, rows: int) -> str:
 def _fit(args: argparse.Namespace) -> int:
     from art_gyro_calibration.analysis.pipeline import FitSettings, fit_log, scale_factors
     from art_gyro_calibration.analysis.report import write_report
-    with Outputs([args.log, *args.validate, args.still], args.force) as outputs:
+    with Outputs([args.log, *args.validate, args.still, *([args.baseline] if args.baseline else [])],
+                 args.force) as outputs:
         out = outputs.claim(args.out)
         report_path = outputs.claim(args.report, beside=[Path(args.report).with_suffix('.md')])
         plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
@@ -85,7 +86,8 @@ def _fit(args: argparse.Namespace) -> int:
                            materiality_dph=args.materiality, draws=args.draws, alpha=args.alpha,
                            from_power_on=not args.not_from_power_on)
         settings = FitSettings(args.rows, args.columns, loop, args.bias_samples, tuple(args.validate),
-                               args.validate_powered_on_at_start, topics=_topics(args), still=args.still)
+                               args.validate_powered_on_at_start, topics=_topics(args), still=args.still,
+                               baseline=args.baseline)
         fitted = fit_log(args.log, settings, str(args.out),
                          lambda warning: print(f'calibrate fit: warning: {warning}', file=sys.stderr))
         write_calibration(out, fitted.calibration, fitted.comment)
@@ -328,6 +330,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--validate-powered-on-at-start', action='store_true',
                    help='the --validate runs began at the gyro\'s power-on (default: unknown, a warm-up term '
                         'is not applied, as the node does by default)')
+    p.add_argument('--baseline', metavar='FILE',
+                   help='the gyro\'s current calibration (default: the packaged file of --serial): the refit is '
+                        'judged against it held out, as the node applies both, and where its polynomial is not '
+                        'better by the materiality the written file keeps the baseline\'s polynomial')
     _bag_options(p)
     _force_option(p)
     p.set_defaults(run=_fit)

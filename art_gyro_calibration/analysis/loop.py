@@ -30,13 +30,28 @@ from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.noise import allan_floor_dps
 from art_gyro_calibration.analysis.trace import (DEFAULT_BLOCK_S, Binned, CandidateScore, Screen, ScreenOptions,
                                                  TraceResult, duration_s, held_out_residual, joined,
-                                                 time_constant_bounds, trace_residual)
+                                                 mirrored_spectrum, phase_surrogates, time_constant_bounds,
+                                                 trace_residual)
 
 DEFAULT_MAX_EFFECTS = 4
 # Signals computed from the measured rate alone, and the screen's forms on the rate.
 RATE_SIGNALS = (*(name for name, s in SIGNALS.items() if s.from_rate), 'rate_x_temperature', 'rate_x_temperature_rate')
 # Effects of the heading (a signal the node does not track): found and reported, never written into a calibration.
 HEADING_SIGNALS = tuple(name for name, s in SIGNALS.items() if not s.per_sample)
+# What the node computes at run time: an effect on any other signal (the heading, an extra log column such as a
+# supply voltage) is a finding, never written, so calibrate fit never writes a file the node refuses.
+NODE_SIGNALS = tuple(name for name, s in SIGNALS.items() if s.per_sample)
+
+
+def not_written_reason(signal: str) -> str:
+    """Why an effect on ``signal`` is reported but not written into the calibration."""
+    if signal in HEADING_SIGNALS:
+        return 'the node has no absolute heading to apply it with'
+    return (f'the node has no {signal} at run time (a column of the log, not a signal the node tracks): a file with '
+            'it would be refused, so the error it explains stays uncorrected on the robot; log the robot\'s '
+            f'{signal} to judge its size there, or fit with --exclude {signal} to say it is known')
+
+
 DEFAULT_SERIAL = 'UNSPECIFIED'
 # Signals whose linear term may grow a square when the held-out error says so; the others
 # would duplicate the polynomial (rate_abs**2 = rate**2) or a constant (rate_sign**2).
@@ -89,6 +104,24 @@ class Effect:
 
 
 @dataclass(frozen=True)
+class SignalShape:
+    """What the held-out residual does against one signal, with no form assumed (binned means).
+
+    ``shape_dph``: half the peak-to-peak of the residual's means in :data:`SHAPE_GROUPS` groups of
+    the signal (heading: 30-degree sectors of the heading modulo 360); ``score`` the spread of
+    those means over its median by chance, ``chance_score`` the level chance reaches for the
+    strongest of all signals (phase-randomised residuals). ``found``: beyond both chance and
+    the materiality.
+    """
+
+    signal: str
+    shape_dph: float
+    score: float
+    chance_score: float
+    found: bool
+
+
+@dataclass(frozen=True)
 class Adequacy:
     """Whether the final model leaves only noise, held out: the lack-of-fit alarm.
 
@@ -103,6 +136,7 @@ class Adequacy:
     budget_dph: float
     excess_dph: float
     bias_instability_dph: float
+    signals: tuple[SignalShape, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -123,7 +157,7 @@ class LoopResult:
     materiality_dph: float = 0.0
     bias_instability_dph: float = 0.0
     adequacy: Adequacy | None = None
-    findings: tuple[Effect, ...] = ()   # effects found but not written (heading: the node has no absolute heading)
+    findings: tuple[Effect, ...] = ()   # effects found, not written: not_written_reason (heading, extra column)
     start: RunStart = RunStart(powered_on_at_start=True)   # how the fitted log began, for replaying it
 
 
@@ -230,9 +264,9 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
     final = fit_model(signals, error, rows, columns, specs, index, ranges=binned.ranges)
     effects = [Effect(term, score, rms_without, held_out_all)
                for term, score, rms_without in zip(final.model.terms, scores, without)]
-    # A heading effect helped fit the rest; the file gets the model refitted without it.
-    heading = [e for e in effects if e.term.signal in HEADING_SIGNALS]
-    written = [spec for spec in specs if spec.signal not in HEADING_SIGNALS]
+    # A heading (or extra column's) effect helped fit the rest; the file gets the model refitted without it.
+    heading = [e for e in effects if e.term.signal not in NODE_SIGNALS]
+    written = [spec for spec in specs if spec.signal in NODE_SIGNALS]
     if heading:
         final = fit_model(signals, error, rows, columns, written, index, ranges=binned.ranges)
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
@@ -244,8 +278,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
         held_out_rms_art_dps=every_row.held_out_rms(),
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
-        adequacy=adequacy(binned, specs, floor, bin_s, materiality, options.still_instability_dps),
-        findings=tuple(heading),
+        adequacy=adequacy(binned, written, floor, bin_s, materiality, options), findings=tuple(heading),
         start=RunStart(powered_on_at_start=options.from_power_on))
 
 
@@ -367,13 +400,15 @@ ADEQUACY_BLOCK_S = 600.0
 
 
 def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s: float,
-             materiality_dph: float, instability_dps: float | None = None) -> Adequacy:
+             materiality_dph: float, options: LoopOptions = LoopOptions()) -> Adequacy:
     """The lack-of-fit alarm: whether the held-out residual's 10-minute means stay within the noise budget.
 
     The budget of a 10-minute mean: the white noise over its rows, the bias instability and
     the slow wander of :func:`noise_levels`. The model is inadequate when the residual is
-    beyond :data:`ADEQUACY_RATIO` times its budget by more than the materiality.
-    ``instability_dps``: the bias instability of a still record, if one was measured.
+    beyond :data:`ADEQUACY_RATIO` times its budget by more than the materiality, or when it
+    has a shape against a signal beyond chance and the materiality (:func:`signal_shapes`):
+    an effect that averages out over a block escapes the budget. The bias instability is the
+    one of a still record where one was measured (``options.still_instability_dps``).
     """
     residual = held_out_residual(binned, specs) / binned.sqrt_counts   # held-out bin means, deg/s
     weights = binned.sqrt_counts ** 2
@@ -385,14 +420,95 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
     means = sums[full] / counts[full]
     rms = float(np.sqrt(np.mean((means - means.mean()) ** 2)))
     noise = noise_levels(binned, residual, bin_s)
-    if instability_dps is not None:
-        noise = replace(noise, instability_dps=instability_dps)
+    if options.still_instability_dps is not None:
+        noise = replace(noise, instability_dps=options.still_instability_dps)
     budget = float(np.sqrt(floor_dps ** 2 / np.mean(counts[full]) + (0.664 * noise.instability_dps) ** 2
                            + noise.wander_dps ** 2))
     excess = float(np.sqrt(max(rms ** 2 - budget ** 2, 0.0)))
     adequate = not (rms > ADEQUACY_RATIO * budget and excess * DEG_PER_H_PER_DPS > materiality_dph)
+    shapes = signal_shapes(binned, residual, materiality_dph, options)
+    adequate = adequate and not any(shape.found for shape in shapes)
     return Adequacy(adequate, ADEQUACY_BLOCK_S, rms * DEG_PER_H_PER_DPS, budget * DEG_PER_H_PER_DPS,
-                    excess * DEG_PER_H_PER_DPS, noise.instability_dps * DEG_PER_H_PER_DPS)
+                    excess * DEG_PER_H_PER_DPS, noise.instability_dps * DEG_PER_H_PER_DPS, shapes)
+
+
+# Groups of a signal's values (equal counts of bins; the heading: sectors of 360 / SHAPE_GROUPS degrees).
+SHAPE_GROUPS = 12
+# The signals the form-free check looks at beside every extra log column; the heading modulo 360 degrees.
+# Chance copies of the residual grouped at a time.
+SHAPE_DRAW_BATCH = 25
+SHAPE_SIGNALS = ('rate', 'temperature', 'temperature_rate', 'time_since_power_on', 'angle', 'rate_change')
+
+
+def _group_means(groups: NDArray[np.int64], weights: NDArray[np.float64],
+                 values: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Weighted means of ``values`` (columns) per group, less the overall mean, shape (groups, columns)."""
+    total = np.bincount(groups, weights=weights, minlength=SHAPE_GROUPS)
+    out = np.stack([np.bincount(groups, weights=weights * v, minlength=SHAPE_GROUPS) for v in values.T], axis=1)
+    out /= np.maximum(total, 1e-300)[:, None]
+    overall = (weights @ values) / weights.sum()
+    out -= overall
+    out[total == 0.0] = 0.0
+    return out
+
+
+def signal_shapes(binned: Binned, residual: NDArray[np.float64], materiality_dph: float,
+                  options: LoopOptions = LoopOptions()) -> tuple[SignalShape, ...]:
+    """The held-out residual (bin means, deg/s) against each signal the loop knows, with no form assumed.
+
+    Per signal, the residual's weighted means in :data:`SHAPE_GROUPS` groups of the signal's
+    value at each bin; the statistic is their weighted spread. Chance: ``options.draws``
+    phase-randomised copies of the residual (its own memory, as the loop's screen draws them),
+    each signal's statistic divided by its median over the draws, and the
+    ``1 - options.alpha`` quantile of the largest over the signals: one level for all.
+    """
+    signals = binned.signals
+    rows = binned.index[binned.starts]
+    # A signal computed from the measured rate holds that row's noise, which is in the bin's residual too:
+    # it is read one row before the bin (the rate change's filter forgets in half a second, a bin is longer).
+    before = np.maximum(rows - 1, 0)
+    names = [n for n in SHAPE_SIGNALS if n != 'time_since_power_on' or options.from_power_on]
+    names += list(signals.extras)
+    weights = binned.sqrt_counts ** 2
+    groups = []
+    for name in names:
+        x = np.asarray(signals.get(name))[before if name in RATE_SIGNALS else rows]
+        if name == 'angle':
+            g = np.floor(np.mod(x, 360.0) / (360.0 / SHAPE_GROUPS)).astype(np.int64) % SHAPE_GROUPS
+        else:
+            edges = np.quantile(x, np.linspace(0.0, 1.0, SHAPE_GROUPS + 1)[1:-1])
+            g = np.searchsorted(edges, x, side='right').astype(np.int64)
+        groups.append(g)
+    if not names or len(residual) < 4 * SHAPE_GROUPS:
+        return ()
+    rng = np.random.default_rng(options.seed)
+    spectrum = mirrored_spectrum(residual)
+    share = weights / weights.sum()
+    shares = [np.bincount(g, weights=share, minlength=SHAPE_GROUPS) for g in groups]
+    spread = np.empty((len(names), options.draws + 1))
+    shape_dph = np.empty(len(names))
+    # The residual, then its chance copies a batch at a time (the same draws as all at once): a 24 h log's
+    # 200 copies would hold 140 MiB.
+    done = 0
+    while done < options.draws + 1:
+        count = min(SHAPE_DRAW_BATCH, options.draws + 1 - done)
+        if done == 0:
+            values = np.column_stack([residual, phase_surrogates(spectrum, count - 1, rng)[:len(residual)]])
+        else:
+            values = phase_surrogates(spectrum, count, rng)[:len(residual)]
+        for i, g in enumerate(groups):
+            means = _group_means(g, weights, values)
+            spread[i, done:done + count] = shares[i] @ means ** 2
+            if done == 0:
+                shape_dph[i] = 0.5 * np.ptp(means[shares[i] > 0.0, 0]) * DEG_PER_H_PER_DPS
+        done += count
+    typical = np.maximum(np.median(spread[:, 1:], axis=1), 1e-300)
+    scores = spread / typical[:, None]
+    chance = float(np.quantile(scores[:, 1:].max(axis=0), 1.0 - options.alpha))
+    signals.forget()   # the derived signals read here are as long as the log
+    return tuple(SignalShape(name, float(shape_dph[i]), float(scores[i, 0]), chance,
+                             bool(scores[i, 0] > chance and shape_dph[i] > materiality_dph))
+                 for i, name in enumerate(names))
 
 
 def _maybe_square(spec: TermSpec, binned: Binned, specs: list[TermSpec], materiality_dph: float) -> TermSpec:

@@ -21,7 +21,9 @@ from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.bags import BagTopics, read_any_log
-from art_gyro_calibration.analysis.loop import LoopOptions, LoopResult, close_loop
+from art_gyro_calibration.analysis.baseline import BASELINE, BaselineCheck, check_baseline, compare_with_baseline
+from art_gyro_calibration.analysis.loop import (DEFAULT_SERIAL, HEADING_SIGNALS, LoopOptions, LoopResult, close_loop,
+                                                not_written_reason)
 from art_gyro_calibration.analysis.replay import (RESTARTS_NAME, Validation, startup_check, unjudged_warm_up,
                                                   validate)
 from art_gyro_calibration.analysis.report import build_report, validation_section
@@ -74,6 +76,7 @@ class FitSettings:
     validate_powered_on_at_start: bool = False
     topics: BagTopics = BagTopics()   # which topics of a rosbag2 log (and validation run) make its columns
     still: str | None = None          # a record at rest: its bias instability for the materiality and budget
+    baseline: str | None = None       # the gyro's current calibration (default: the packaged file of the serial)
 
 
 @dataclass(frozen=True)
@@ -93,6 +96,7 @@ class FitResult:
     calibration: Calibration
     comment: str
     report: dict[str, Any]
+    baseline: BaselineCheck | None = None
 
 
 def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
@@ -119,9 +123,17 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     if startup is not None:
         report['startup_check'] = validation_section(startup, restarts)
         found += _dropped(startup, RESTARTS_NAME)
+    for finding in loop.findings:
+        if finding.signal not in HEADING_SIGNALS:
+            warn(f'an effect on {finding.signal} ({finding.score.effect_dph:.2f} deg/h) was found and not written: '
+                 f'{not_written_reason(finding.signal)}')
     if not report['model_adequate']:
+        shapes = [f'{x["signal"]} ({x["shape_dph"]:.2f} deg/h)' for x in report['adequacy']['signals'] if x['found']]
         warn(f'the model does not fit: {report["adequacy"]["excess_dph"]:.2f} deg/h beyond the noise budget, '
-             'held out, over 10-minute means; see REPORT.md and the residual against each signal (--plots)')
+             'held out, over 10-minute means'
+             + (f'; what it leaves has a shape beyond chance and the materiality against {", ".join(shapes)}'
+                if shapes else '')
+             + '; see REPORT.md and the residual against each signal (--plots)')
     calibration = result.extended
     validation = None
     if settings.validate:
@@ -131,6 +143,18 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
         if validation.dropped:
             found = (', '.join(t.signal for t in calibration.terms) or 'nothing') \
                 + _dropped(validation, 'the validation runs')
+    baseline = _baseline(log, result, calibration, settings)
+    polynomial = f'ART polynomial {settings.rows} x {settings.columns}'
+    if isinstance(baseline, BaselineCheck):
+        report['baseline'] = baseline.to_dict()
+        if baseline.verdict == BASELINE:
+            warn(baseline.message)
+            polynomial = f'the baseline\'s polynomial ({baseline.source}; the refit was not better held out)'
+            if len(baseline.calibration.terms) < len(calibration.terms):
+                found += ' (not written: they made the baseline worse)'
+            calibration = baseline.calibration
+    else:
+        report['baseline'] = {'source': None, 'verdict': 'none', 'message': baseline}
     judged = settings.validate and settings.validate_powered_on_at_start
     warning = '' if judged else unjudged_warm_up(calibration, result.bias_instability_dph)
     if warning:
@@ -138,9 +162,34 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
         warn(warning)
     # The effects above are the loop's; the checks may have dropped some: say what the file holds.
     report['written'] = {'calibration': calibration_path, 'terms': [t.signal for t in calibration.terms]}
-    comment = (f'Fitted by calibrate fit from {log_path}: ART polynomial {settings.rows} x {settings.columns}, '
-               f'effects beyond it: {found}.')
-    return FitResult(log, loop, startup, validation, calibration, comment, report)
+    comment = f'Fitted by calibrate fit from {log_path}: {polynomial}, effects beyond it: {found}.'
+    return FitResult(log, loop, startup, validation, calibration, comment, report,
+                     baseline if isinstance(baseline, BaselineCheck) else None)
+
+
+def _baseline(log: GyroLog, result: LoopResult, calibration: Calibration,
+              settings: FitSettings) -> BaselineCheck | str:
+    """The refit judged against the gyro's current calibration, or why there is none to judge it against.
+
+    The baseline: ``settings.baseline``, else the packaged file of the loop's serial.
+    """
+    serial = settings.loop.serial_number
+    path = settings.baseline
+    if path is None:
+        try:
+            path = str(find_calibration_file(serial)) if serial != DEFAULT_SERIAL else None
+        except CalibrationError:
+            path = None
+        if path is None:
+            return f'no baseline: no calibration of {serial} is packaged and --baseline was not given'
+    baseline = load_calibration(path, expected_serial=None if serial == DEFAULT_SERIAL else serial)
+    check_baseline(baseline, path, settings.loop.rate_scale_factor, settings.loop.temp_scale_factor)
+    check = compare_with_baseline(log, result, calibration, baseline, path, settings.bias_samples,
+                                  settings.loop.settle_s)
+    if check is None:
+        return (f'not judged against the baseline {path}: the log has no run the node could start '
+                f'({settings.bias_samples} rows at rest) or fewer than two held-out blocks')
+    return check
 
 
 def still_noise(path: str, options: LoopOptions, topics: BagTopics) -> dict[str, Any]:

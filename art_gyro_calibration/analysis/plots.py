@@ -26,6 +26,7 @@ from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.analysis.loop import LoopResult  # noqa: E402
 from art_gyro_calibration.analysis.metrics import heading_errors_360  # noqa: E402
 from art_gyro_calibration.analysis.report import STAGES, stage_errors  # noqa: E402
+from art_gyro_calibration.signals import SIGNALS  # noqa: E402
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS  # noqa: E402
 
 BAND_C = 10.0
@@ -58,16 +59,25 @@ LOOK_AT = ('temperature', 'temperature_rate', 'time', 'rate', 'rate_change', 'an
 
 
 def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
-    """What the final model leaves against each signal, binned: where the lack-of-fit alarm sends a person."""
+    """What the written model leaves against each signal, binned: where the lack-of-fit alarm sends a person.
+
+    The heading is shown modulo 360 deg (a heading effect repeats every turn); a panel whose
+    shape the form-free check found beyond chance and the materiality is titled in red.
+    """
     rows = result.segments.rows()
     residual = (result.error - result.extended.model.error(result.signals))[rows] * DEG_PER_H_PER_DPS
     names = [*LOOK_AT, *result.signals.extras]
+    found = {s.signal: s for s in (result.adequacy.signals if result.adequacy else ()) if s.found}
     fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7), squeeze=False)
     for ax, name in zip(axes.ravel(), names):
         x = result.signals.get(name)[rows]
-        # Bins of equal width, not of equal count: sorting by a noisy measured signal (the rate at
-        # rest) would sort the residual's own noise into a slope.
-        edges = np.linspace(x.min(), x.max(), 41)
+        if name == 'angle':
+            x = np.mod(x, 360.0)
+            edges = np.linspace(0.0, 360.0, 41)
+        else:
+            # Bins of equal width, not of equal count: sorting by a noisy measured signal (the rate at
+            # rest) would sort the residual's own noise into a slope.
+            edges = np.linspace(x.min(), x.max(), 41)
         k = np.clip(np.searchsorted(edges, x, side='right') - 1, 0, 39)
         counts = np.bincount(k, minlength=40)
         sums = np.bincount(k, weights=residual - residual.mean(), minlength=40)
@@ -75,7 +85,10 @@ def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
         centres = 0.5 * (edges[:-1] + edges[1:])
         ax.plot(centres[full], sums[full] / counts[full], 'o-', ms=3)
         ax.axhline(0.0, color='grey', lw=0.8)
-        ax.set_xlabel(name)
+        unit = SIGNALS[name].unit if name in SIGNALS else 'log units'
+        ax.set_xlabel('heading modulo 360 (deg)' if name == 'angle' else f'{name} ({unit or "-"})')
+        if name in found:
+            ax.set_title(f'shape beyond chance: {found[name].shape_dph:.1f} deg/h', color='red', fontsize=10)
         ax.grid(True, alpha=0.3)
     for ax in axes.ravel()[len(names):]:
         ax.set_visible(False)
@@ -83,7 +96,7 @@ def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
         ax.set_ylabel('residual, binned (deg/h)')
     adequacy = result.adequacy
     verdict = '' if adequacy is None else (' (adequate)' if adequacy.model_adequate else ' (DOES NOT FIT)')
-    fig.suptitle(f'what the final model leaves, against each signal{verdict}')
+    fig.suptitle(f'what the written model leaves, against each signal{verdict}')
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
-from art_gyro_calibration.analysis.loop import Effect, LoopResult
+from art_gyro_calibration.analysis.loop import Effect, LoopResult, not_written_reason
 from art_gyro_calibration.analysis.metrics import error_metrics
 from art_gyro_calibration.analysis.replay import Validation
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_DRAWS, FORMS_TRIED
@@ -79,11 +79,11 @@ def build_report(log: GyroLog, result: LoopResult, bias_samples: int, source: st
         'bias_instability_dph': result.bias_instability_dph,
         'materiality_dph': result.materiality_dph,
         'model_adequate': adequacy.model_adequate if adequacy else True,
-        'adequacy': asdict(adequacy) if adequacy else None,
+        'adequacy': {**asdict(adequacy), 'signals': [asdict(x) for x in adequacy.signals]} if adequacy else None,
         'held_out_rms_dps': {'art': result.held_out_rms_art_dps, 'extended': result.held_out_rms_extended_dps},
         'held_out_block_s': result.held_out_block_s,
         'effects': [_effect(e) for e in result.effects],
-        'findings_not_written': [_effect(e) for e in result.findings],
+        'findings_not_written': [{**_effect(e), 'reason': not_written_reason(e.signal)} for e in result.findings],
         'forms_tried': FORMS_TRIED,
         # One stage's errors at a time: each is as long as the log.
         'errors': {stage: error_metrics(stage_error(log, result, bias_samples, stage), result.segments).to_dict()
@@ -156,8 +156,8 @@ def markdown_summary(report: dict[str, Any]) -> str:
                          f'{e["held_out_rms_with_dps"]:.5f} deg/s; {e["effect_dph"]:.2f} deg/h, chance '
                          f'p = {e["p_value"]:.3f}')
     for e in report['findings_not_written']:
-        lines.append(f'- found, **not written**: {e["description"]} ({e["effect_dph"]:.2f} deg/h): the node has no '
-                     'absolute heading to apply it with')
+        lines.append(f'- found, **not written**: {e["description"]} ({e["effect_dph"]:.2f} deg/h): '
+                     f'{e.get("reason", not_written_reason(e["signal"]))}')
     adequacy = report['adequacy']
     if adequacy and not adequacy['model_adequate']:
         lines += ['', f'**Warning: the model does not fit.** What it leaves, held out, over 10-minute means is '
@@ -165,6 +165,12 @@ def markdown_summary(report: dict[str, Any]) -> str:
                       f'{adequacy["budget_dph"]:.2f} deg/h ({adequacy["excess_dph"]:.2f} deg/h beyond it): an effect '
                       'none of the forms tried '
                       'describes. Look at the residual against each signal (--plots).']
+        shapes = [x for x in adequacy.get('signals', []) if x['found']]
+        if shapes:
+            lines += ['', 'Held out, what the written model leaves has a shape no form assumed (means in groups of '
+                          'the signal, beyond phase-randomised chance and the materiality) against: '
+                      + ', '.join(f'**{x["signal"]}** ({x["shape_dph"]:.2f} deg/h, score {x["score"]:.1f} against '
+                                  f'chance {x["chance_score"]:.1f})' for x in shapes) + '.']
     lines += [line for warning in report.get('warnings', []) for line in ('', f'**Warning:** {warning}.')]
     lines += ['', 'Forms tried: ' + '; '.join(f'{name} ({what})' for name, what in report['forms_tried'].items()) + '.']
     if 'startup_check' in report:
@@ -173,9 +179,13 @@ def markdown_summary(report: dict[str, Any]) -> str:
                                      'and is kept), each calibration applied as the node applies it')
     if 'validation' in report:
         lines += validation_markdown(report['validation'])
+    if 'baseline' in report:
+        lines += baseline_markdown(report['baseline'])
     if 'written' in report:
         written = report['written']
-        lines += ['', f'Written: {written["calibration"]}, the ART polynomial refitted with '
+        polynomial = ('the baseline\'s polynomial' if report.get('baseline', {}).get('verdict') == 'baseline'
+                      else 'the ART polynomial refitted')
+        lines += ['', f'Written: {written["calibration"]}, {polynomial} with '
                       f'{", ".join(written["terms"]) or "no term"} beyond it.']
     return '\n'.join(lines) + '\n'
 
@@ -217,6 +227,21 @@ def validation_markdown(validation: dict[str, Any], title: str = 'Field replay o
         lines += ['', 'Dropped from the written calibration:', '']
         lines += [f'- **{d["signal"]}** ({d["description"]}): {d["reason"]}' for d in validation['dropped']]
     return lines
+
+
+def baseline_markdown(baseline: dict[str, Any]) -> list[str]:
+    """REPORT.md's lines on the comparison with the gyro's current calibration."""
+    lines = ['', '## Against the calibration the gyro has (baseline)', '']
+    if baseline['source'] is None or 'runs' not in baseline:
+        return lines + [baseline['message'][0].upper() + baseline['message'][1:] + '.']
+    lines += [f'Baseline {baseline["source"]}. The refit is fitted again without each fold of held-out blocks; '
+              'the node\'s runs on this log are replayed with it as the node applies it (static bias over the '
+              'run\'s first rows, bias included), each row with the fit that did not see it; the baseline as it is.',
+              '']
+    lines += field_table([(run['run'], name, run[name]) for run in baseline['runs'] for name in ('refit', 'baseline')])
+    verdict = '**Verdict: the refit is written.**' if baseline['verdict'] == 'refit' else \
+        '**Verdict: the baseline polynomial is kept.**'
+    return lines + ['', f'{verdict} {baseline["message"][0].upper() + baseline["message"][1:]}.']
 
 
 def write_report(path: str | os.PathLike[str], report: dict[str, Any]) -> Path:

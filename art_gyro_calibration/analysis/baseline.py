@@ -1,0 +1,247 @@
+"""Never worse than the calibration the gyro has: the refit judged against it, both as the node applies them.
+
+A refit is fitted on the log it is judged on; the gyro's current calibration (the baseline:
+its packaged file, or one given) was not. So both are judged held out: the log's time is
+cut into blocks (the loop's held-out block length), dealt round-robin into
+:data:`FOLDS` folds, and the refit (polynomial and terms, the shapes the loop chose) is
+fitted again without each fold (its terms as fitted). The node's runs on the log (a cold start at its first
+row when the log began at power-on, warm restarts from :data:`replay.RESTART_FRACTIONS`
+of it, each run until the next starts) are replayed with each fold's fit exactly as the
+node applies it (static bias over the run's first rows, bias included); every row's
+error is the one of the fit that did not see it. The baseline is replayed as it is.
+
+A refit whose polynomial is not better than the baseline by the loop's materiality is
+not written: the file keeps the baseline polynomial, with the loop's terms fitted on top
+of it (dropped if, replayed the same way, they make the baseline worse by more than the
+materiality). A slow bias wander of a short log, or a polynomial order too low for
+the gyro, is what makes a refit worse than the baseline. The terms keep their fit on the
+whole log in both (a warm-up lives in the first block alone): the polynomial is judged.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from art_gyro_calibration.analysis.fit import TermSpec, fit_model
+from art_gyro_calibration.analysis.loop import LoopResult
+from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, field_errors, steady_segments
+from art_gyro_calibration.analysis.replay import RESTART_FRACTIONS, field_score_dps, own_restarts, replay
+from art_gyro_calibration.calibration import Calibration, CalibrationError
+from art_gyro_calibration.compensation import RunStart
+from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.model import ArtPolynomial, ErrorModel
+from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
+from art_gyro_calibration.terms import Term
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
+
+# Folds of held-out blocks: each fit sees three quarters of the log.
+FOLDS = 4
+# Verdicts.
+REFIT, BASELINE = 'refit', 'baseline'
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of the node on the fitted log: its name, rows [start, stop) and how it started."""
+
+    name: str
+    start: int
+    stop: int
+    run_start: RunStart
+
+
+@dataclass(frozen=True)
+class BaselineCheck:
+    """The refit against the baseline on the log's held-out blocks and runs, and what is written.
+
+    Scores are :func:`replay.field_score_dps` in deg/h (rms over the runs of the systematic rms
+    with the bias); ``on_top_dph`` is the baseline polynomial with the loop's terms fitted on
+    top (None without terms). ``verdict``: :data:`REFIT` or :data:`BASELINE`.
+    """
+
+    source: str
+    refit_dph: float
+    baseline_dph: float
+    on_top_dph: float | None
+    materiality_dph: float
+    verdict: str
+    runs: tuple[tuple[Run, FieldErrors, FieldErrors], ...]
+    calibration: Calibration
+    message: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """REPORT.json's ``baseline``."""
+        def finite(x: float | None) -> float | None:
+            return None if x is None or not math.isfinite(x) else x
+        return {
+            'source': self.source,
+            'refit_field_dph': finite(self.refit_dph),
+            'baseline_field_dph': finite(self.baseline_dph),
+            'baseline_with_terms_field_dph': finite(self.on_top_dph),
+            'materiality_dph': self.materiality_dph,
+            'verdict': self.verdict,
+            'written_polynomial': self.verdict,
+            'written_terms': [t.signal for t in self.calibration.terms],
+            'message': self.message,
+            'runs': [{'run': run.name, 'refit': refit.to_dict(), 'baseline': base.to_dict()}
+                     for run, refit, base in self.runs],
+        }
+
+
+def check_baseline(baseline: Calibration, source: str, log_rate_scale: float, log_temp_scale: float) -> None:
+    """Refuse a baseline that reads the log's counts with other scale factors than the fit (names the file)."""
+    if (baseline.rate_scale_factor, baseline.temp_scale_factor) != (log_rate_scale, log_temp_scale):
+        raise CalibrationError(
+            f'{source}: baseline rate_scale_factor {baseline.rate_scale_factor:g} and temp_scale_factor '
+            f'{baseline.temp_scale_factor:g} differ from the fit\'s {log_rate_scale:g} and {log_temp_scale:g}: '
+            'a baseline must read the log as the fit does (give --rate-scale-factor or another --baseline)')
+
+
+def node_runs(log: GyroLog, result: LoopResult, bias_samples: int = DEFAULT_SAMPLES,
+              fractions: Sequence[float] = RESTART_FRACTIONS) -> list[Run]:
+    """The node's runs on the fitted log: its start (if the table rests there) and warm restarts, end to end."""
+    assert log.ref_rate is not None
+    starts: list[tuple[str, int, RunStart]] = []
+    if bias_samples <= len(log) and not np.any(log.ref_rate[:bias_samples]):
+        cold = result.start.powered_on_at_start
+        starts.append(('from the log\'s start' + (' (power-on)' if cold else ''), 0, result.start))
+    for start_s, _ in own_restarts(log, bias_samples, fractions):
+        row = int(np.searchsorted(log.t, log.t[0] + start_s))
+        if not starts or row > starts[-1][1] + bias_samples:
+            starts.append((f'restarted at {start_s / 60.0:.0f} min', row, RunStart()))
+    stops = [s[1] for s in starts[1:]] + [len(log)]
+    return [Run(name, a, b, run_start) for (name, a, run_start), b in zip(starts, stops)
+            if b - a > 2 * bias_samples]
+
+
+def folds_of(t: NDArray[np.float64], block_s: float, folds: int = FOLDS) -> NDArray[np.int64]:
+    """Each row's fold: blocks of ``block_s`` dealt round-robin (fewer folds when the log has fewer blocks)."""
+    block = np.floor((t - t[0]) / max(block_s, 1e-9)).astype(np.int64)
+    return block % max(min(folds, int(block[-1]) + 1), 1)
+
+
+def _specs(terms: Sequence[Term]) -> list[TermSpec]:
+    """The shapes of ``terms`` (their fields less the coefficients)."""
+    return [TermSpec(**{f.name: getattr(t, f.name) for f in fields(TermSpec)}) for t in terms]
+
+
+def _refit(result: LoopResult, written: Calibration, terms_error: NDArray[np.float64],
+           train: NDArray[np.int64]) -> Calibration:
+    """``written`` with its polynomial fitted again on the rows ``train``, its terms as they are.
+
+    The terms keep their fit on the whole log: a warm-up lives in the first block alone, and
+    a fit without that block could not know it; the polynomial is what is judged.
+    """
+    p = written.polynomial
+    fit = fit_model(result.signals, result.error - terms_error, p.rows, p.columns, (), train)
+    return replace(written, polynomial=fit.model.polynomial)
+
+
+def _on_top(result: LoopResult, baseline: Calibration, base_error: NDArray[np.float64],
+            specs: Sequence[TermSpec], train: NDArray[np.int64]) -> Calibration:
+    """The baseline polynomial with ``specs`` fitted on top of it on the rows ``train`` (a constant beside them).
+
+    The constant is not written: the static bias takes any constant out.
+    """
+    fit = fit_model(result.signals, result.error - base_error, 1, 1, specs, train)
+    return replace(baseline, terms=fit.model.terms, filters=result.art.filters)
+
+
+def _replay_run(log: GyroLog, calibration: Calibration, bias_samples: int, settle_s: float,
+                start: RunStart) -> tuple[NDArray[np.float64], NDArray[np.bool_], bool]:
+    """Per-row error (NaN where the node drops the row), kept rows and whether the node refused the static bias."""
+    try:
+        r = replay(log, calibration, bias_samples, settle_s, start)
+        refused = False
+    except MotionError:
+        r = replay(log, calibration, bias_samples, settle_s, start, max_mean_dps=math.inf, max_std_dps=math.inf)
+        refused = True
+    error = np.full(len(log), np.nan)
+    error[r.applied.kept] = r.error_dps
+    return error, r.applied.kept, refused
+
+
+def _field(log: GyroLog, error: NDArray[np.float64], kept: NDArray[np.bool_], bias_samples: int,
+           settle_s: float, refused: bool) -> FieldErrors:
+    """Field errors of one run's per-row error (the node's kept rows)."""
+    seen = log if kept.all() else log.slice(kept)
+    assert seen.ref_rate is not None
+    out = field_errors(seen.t, error[kept], steady_segments(seen.t, seen.ref_rate, settle_s), bias_samples)
+    return replace(out, bias_refused=refused)
+
+
+def held_out(log: GyroLog, runs: Sequence[Run], fold: NDArray[np.int64], calibrations: Sequence[Calibration],
+             bias_samples: int, settle_s: float) -> list[FieldErrors]:
+    """Field errors per run where each row's error is that of ``calibrations[fold of the row]``."""
+    out = []
+    for run in runs:
+        part = log.slice(slice(run.start, run.stop))
+        error = np.full(len(part), np.nan)
+        kept = np.ones(len(part), dtype=bool)
+        refused = False
+        for k, calibration in enumerate(calibrations):
+            mine = fold[run.start:run.stop] == k if len(calibrations) > 1 else np.ones(len(part), dtype=bool)
+            if not mine.any():
+                continue
+            e, kept, was_refused = _replay_run(part, calibration, bias_samples, settle_s, run.run_start)
+            error[mine] = e[mine]
+            refused = refused or was_refused
+        out.append(_field(part, error, kept, bias_samples, settle_s, refused))
+    return out
+
+
+def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration, baseline: Calibration,
+                          source: str, bias_samples: int = DEFAULT_SAMPLES,
+                          settle_s: float = DEFAULT_SETTLE_S) -> BaselineCheck | None:
+    """Judge ``written`` (the refit) against ``baseline`` held out on ``log``; decide what to write.
+
+    None when the log has no run the node could start (no rest of ``bias_samples`` rows) or
+    fewer than two held-out blocks.
+    """
+    runs = node_runs(log, result, bias_samples)
+    fold = folds_of(log.t, result.held_out_block_s)
+    folds = int(fold.max()) + 1
+    if not runs or folds < 2:
+        return None
+    index = result.segments.rows()
+    trains = [index[fold[index] != k] for k in range(folds)]
+    specs = _specs(written.terms)
+    no_polynomial = ArtPolynomial(np.zeros((1, 1)))
+    terms_error = ErrorModel(no_polynomial, written.terms, written.temperature_range_c).error(result.signals)
+    refits = [_refit(result, written, terms_error, train) for train in trains]
+    refit_runs = held_out(log, runs, fold, refits, bias_samples, settle_s)
+    base_runs = held_out(log, runs, fold, [baseline], bias_samples, settle_s)
+    refit_dph = field_score_dps(refit_runs) * DEG_PER_H_PER_DPS
+    baseline_dph = field_score_dps(base_runs) * DEG_PER_H_PER_DPS
+    materiality = result.materiality_dph
+    pairs = tuple(zip(runs, refit_runs, base_runs))
+    if refit_dph + materiality < baseline_dph:
+        message = (f'the refit is better than the baseline {source} held out on this log: {refit_dph:.2f} against '
+                   f'{baseline_dph:.2f} deg/h (materiality {materiality:.2f} deg/h); the refit is written')
+        return BaselineCheck(source, refit_dph, baseline_dph, None, materiality, REFIT, pairs, written, message)
+    on_top_dph = None
+    calibration = replace(baseline, terms=(), filters=written.filters)
+    kept_terms = ''
+    if specs:
+        base_error = ErrorModel(baseline.polynomial, (), baseline.temperature_range_c).error(result.signals)
+        on_top = _on_top(result, baseline, base_error, specs, index)
+        on_top_dph = field_score_dps(held_out(log, runs, fold, [on_top], bias_samples, settle_s)) * DEG_PER_H_PER_DPS
+        if on_top_dph <= baseline_dph + materiality:
+            calibration = on_top
+            kept_terms = f'; the terms {", ".join(s.signal for s in specs)} are fitted on top of it ' \
+                         f'({on_top_dph:.2f} deg/h held out)'
+        else:
+            kept_terms = f'; the terms {", ".join(s.signal for s in specs)} fitted on top of it made it worse ' \
+                         f'({on_top_dph:.2f} deg/h held out) and are not written'
+    dropped = f' (its own terms {", ".join(t.signal for t in baseline.terms)} are not kept)' if baseline.terms else ''
+    message = (f'the refit polynomial is not better than the baseline {source} by the materiality held out on '
+               f'this log ({refit_dph:.2f} against {baseline_dph:.2f} deg/h; materiality {materiality:.2f} deg/h): '
+               f'the written file keeps the baseline polynomial{dropped}{kept_terms}')
+    return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, BASELINE, pairs,
+                         calibration, message)

@@ -1,0 +1,93 @@
+"""``calibrate fit`` is never worse than the calibration the gyro has (issue 20 item 2).
+
+Each calibration written is replayed on a second run of the same gyro exactly as the node
+applies it (static bias over the first 100 rows, a cold start, bias included) and compared
+with the gyro's packaged calibration (the baseline, here the simulator's true polynomial).
+"""
+
+import dataclasses
+import json
+
+import numpy as np
+
+from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration, write_calibration
+from art_gyro_calibration.compensation import RunStart
+from art_gyro_calibration.analysis.cli import main
+from art_gyro_calibration.analysis.replay import replay_field
+from art_gyro_calibration.analysis.simulate import SimulationSettings, same_gyro, simulate_run, write_run
+from art_gyro_calibration.model import ArtPolynomial
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
+
+SERIAL = 'NAVC3545'   # a 3 x 4 gyro
+
+
+def _fit(tmp_path, settings, *extra):
+    """Simulate ``settings``, fit it with calibrate fit, and give the written file, the report and a second run."""
+    cal = load_packaged_calibration(SERIAL)
+    log = tmp_path / 'LOG.csv'
+    write_run(log, simulate_run(cal, settings))
+    assert main(['fit', str(log), '--serial', SERIAL, '--out', str(tmp_path / 'CAL.yaml'),
+                 '--report', str(tmp_path / 'REPORT.json'), *extra]) == 0
+    second = simulate_run(cal, same_gyro(settings, settings.seed + 100)).log(cal)
+    report = json.loads((tmp_path / 'REPORT.json').read_text())
+    return load_calibration(tmp_path / 'CAL.yaml', expected_serial=SERIAL), report, second
+
+
+def _field_dph(log, calibration):
+    """Systematic rms with the bias on a cold second run, as the node applies the calibration (deg/h)."""
+    return replay_field(log, calibration, 100, start=RunStart(powered_on_at_start=True)).systematic_rms_dps \
+        * DEG_PER_H_PER_DPS
+
+
+def test_a_refit_worse_than_the_baseline_is_not_written(tmp_path, capsys):
+    # The issue's case: 2 h, no effect, a slow bias wander (Gauss-Markov 3.6 deg/h, 1 h). The refit
+    # polynomial follows the wander; on a second run it was 6.85 deg/h against the packaged file's 3.22.
+    settings = SimulationSettings(hours=2.0, seed=3, wander_dps=3.6 / DEG_PER_H_PER_DPS, wander_tau_s=3600.0)
+    written, report, second = _fit(tmp_path, settings, '--rows', '3', '--columns', '4')
+    baseline = load_packaged_calibration(SERIAL)
+    assert _field_dph(second, written) <= _field_dph(second, baseline) + 0.5
+    section = report['baseline']
+    assert section['verdict'] == 'baseline' and section['source'].endswith(f'{SERIAL}.yaml')
+    assert section['refit_field_dph'] > section['baseline_field_dph']
+    np.testing.assert_array_equal(written.polynomial.coefficients, baseline.polynomial.coefficients)
+    err = capsys.readouterr()
+    assert 'keeps the baseline polynomial' in err.err
+    assert 'Verdict: the baseline polynomial is kept.' in err.out   # REPORT.md, printed
+
+
+def test_a_polynomial_too_small_for_the_gyro_shows_up_against_the_baseline(tmp_path, capsys):
+    # 3 x 2 on a gyro that needs 3 x 4: the refit was 576 deg/h on a second run, the baseline 2.8.
+    settings = SimulationSettings(hours=2.0, seed=0)
+    written, report, second = _fit(tmp_path, settings, '--rows', '3', '--columns', '2')
+    assert _field_dph(second, written) <= _field_dph(second, load_packaged_calibration(SERIAL)) + 1.0
+    assert report['baseline']['verdict'] == 'baseline'
+    assert report['baseline']['refit_field_dph'] > 100.0 > report['baseline']['baseline_field_dph']
+    assert (written.polynomial.rows, written.polynomial.columns) == (3, 4)
+    assert 'keeps the baseline polynomial' in capsys.readouterr().err
+
+
+def test_a_refit_better_than_a_stale_baseline_is_written(tmp_path):
+    # The gyro's file is stale: its rate scale factor is 300 ppm off (0.03 deg/s at 100 deg/s).
+    packaged = load_packaged_calibration(SERIAL)
+    coefficients = packaged.polynomial.coefficients.copy()
+    coefficients[-1, -2] += 3e-4
+    stale = tmp_path / 'stale.yaml'
+    write_calibration(stale, dataclasses.replace(packaged, polynomial=ArtPolynomial(coefficients)))
+    written, report, second = _fit(tmp_path, SimulationSettings(hours=2.0, seed=1), '--rows', '3', '--columns', '4',
+                                   '--baseline', str(stale))
+    assert report['baseline']['verdict'] == 'refit' and report['baseline']['source'] == str(stale)
+    assert report['baseline']['refit_field_dph'] + report['materiality_dph'] < report['baseline']['baseline_field_dph']
+    assert _field_dph(second, written) < _field_dph(second, load_calibration(stale)) - 10.0
+
+
+def test_a_baseline_with_other_scale_factors_is_refused(tmp_path, capsys):
+    packaged = load_packaged_calibration(SERIAL)
+    other = tmp_path / 'other.yaml'
+    write_calibration(other, dataclasses.replace(packaged, rate_scale_factor=2 * packaged.rate_scale_factor))
+    log = tmp_path / 'LOG.csv'
+    write_run(log, simulate_run(packaged, SimulationSettings(hours=0.5, seed=0)))
+    assert main(['fit', str(log), '--serial', SERIAL, '--rows', '3', '--columns', '4', '--baseline', str(other),
+                 '--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'R.json')]) == 1
+    err = capsys.readouterr().err
+    assert str(other) in err and 'rate_scale_factor' in err
+    assert not (tmp_path / 'CAL.yaml').exists()

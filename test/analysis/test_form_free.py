@@ -1,0 +1,42 @@
+"""The lack-of-fit check without a form (issue 20 item 3): a shape of the held-out residual against a signal.
+
+A heading sawtooth is a shape no form of the loop has (its harmonic finding takes only part of
+it, and is not written): the model written must not be called adequate. Null logs stay quiet.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+
+from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
+from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
+
+SERIAL = 'NAVC4058'
+
+
+def _loop(seed, extra_dph=None):
+    cal = load_packaged_calibration(SERIAL)
+    log = simulate_run(cal, SimulationSettings(hours=2.0, seed=seed)).log(cal)
+    if extra_dph is not None:
+        heading = np.cumsum(log.ref_rate) / 10.0   # the table's heading, deg (10 Hz)
+        log = replace(log, rate_dps=log.rate_dps + extra_dph(heading) / DEG_PER_H_PER_DPS)
+    return close_loop(log, 3, 2, LoopOptions(serial_number=SERIAL, rate_scale_factor=cal.rate_scale_factor))
+
+
+def test_a_heading_sawtooth_makes_the_model_inadequate():
+    # +-3 deg/h, a sawtooth over each turn (about 2x the materiality of these runs).
+    result = _loop(1000, lambda heading: 3.0 * (np.mod(heading, 360.0) / 180.0 - 1.0))
+    shapes = {s.signal: s for s in result.adequacy.signals}
+    assert result.adequacy.model_adequate is False
+    assert shapes['angle'].found and shapes['angle'].shape_dph > result.materiality_dph
+    assert [s.signal for s in result.adequacy.signals if s.found] == ['angle']
+
+
+def test_null_logs_stay_quiet():
+    for seed in (1001, 1002):
+        shapes = _loop(seed).adequacy.signals
+        assert {s.signal for s in shapes} >= {'rate', 'temperature', 'temperature_rate', 'time_since_power_on',
+                                              'angle', 'rate_change', 'supply_v'}
+        assert not any(s.found for s in shapes)
