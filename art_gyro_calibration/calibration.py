@@ -27,6 +27,7 @@ import difflib
 import math
 import os
 import re
+import stat
 import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -355,7 +356,12 @@ def shorten(text: str, limit: int = MAX_MESSAGE_CHARS) -> str:
 
 
 class _NoAliasLoader(yaml.SafeLoader):
-    """A safe loader that refuses aliases: a few hundred bytes of nested aliases expand to gigabytes."""
+    """A safe loader as rcl reads a params file: no aliases, no key given twice, numbers as ``strtod`` spells them.
+
+    Aliases: a few hundred bytes of nested ones expand to gigabytes. A key given twice would
+    silently keep the last (an all-zero polynomial over the fitted one). YAML 1.1 reads ``1e-300``
+    (no dot, no exponent sign) as a string where rcl reads a double: such numbers are floats here too.
+    """
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
@@ -364,16 +370,58 @@ class _NoAliasLoader(yaml.SafeLoader):
                                               'allowed here', event.start_mark)
         return super().compose_node(parent, index)
 
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        if isinstance(node, yaml.MappingNode):
+            lines: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node)
+                try:
+                    first = lines.setdefault(key, key_node.start_mark.line + 1)
+                except TypeError:
+                    continue   # an unhashable key: refused by the base class
+                if first != key_node.start_mark.line + 1:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f'key {shorten(repr(key), 80)} given twice, on lines {first} and '
+                        f'{key_node.start_mark.line + 1}', key_node.start_mark)
+        return super().construct_mapping(node, deep)
+
+
+# A decimal number with an exponent but no dot or no exponent sign (1e-300, 2.5e3, .5E2), which rcl's strtod reads
+# as a double and YAML 1.1 as a string; the numbers YAML 1.1 already reads keep its resolvers.
+_NoAliasLoader.add_implicit_resolver(
+    'tag:yaml.org,2002:float', re.compile(r'^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$'),
+    list('-+0123456789.'))
+
+
+def _read_regular(path: str | os.PathLike[str], limit: int) -> bytes:
+    """At most ``limit`` + 1 bytes of a regular file; anything else (a FIFO, a device) is refused unread.
+
+    Opened without blocking and checked on the open descriptor, so a FIFO cannot hang the reader
+    (a node at start-up ignoring SIGINT), nor a path swapped between the check and the read.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, 'O_NOCTTY', 0))
+    with open(fd, 'rb') as stream:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise CalibrationError(f'{path}: is {special_file_kind(mode)}, not a regular file')
+        return stream.read(limit + 1)
+
+
+def special_file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, for a message ('a FIFO', 'a character device', ...)."""
+    kinds = ((stat.S_ISDIR, 'a directory'), (stat.S_ISFIFO, 'a FIFO'), (stat.S_ISCHR, 'a character device'),
+             (stat.S_ISBLK, 'a block device'), (stat.S_ISSOCK, 'a socket'))
+    return next((name for test, name in kinds if test(mode)), 'a special file')
+
 
 def read_yaml(path: str | os.PathLike[str], what: str = 'file') -> Any:
-    """Parse a small YAML file safely: at most MAX_YAML_BYTES, no aliases.
+    """Parse a small YAML file safely: a regular file, at most MAX_YAML_BYTES, no aliases, no key twice.
 
     Anything else is a :class:`CalibrationError` naming the file and a readable part of the problem.
     """
     where = str(path)
     try:
-        with open(path, 'rb') as stream:
-            data = stream.read(MAX_YAML_BYTES + 1)
+        data = _read_regular(path, MAX_YAML_BYTES)
     except OSError as e:
         raise CalibrationError(f'{where}: cannot read: {e.strerror}') from None
     if len(data) > MAX_YAML_BYTES:

@@ -118,7 +118,7 @@ def _record(args: argparse.Namespace) -> int:
     from art_gyro_calibration.driver import Rd2100Driver
     if args.serial:
         load_calibration(find_calibration_file(args.serial), expected_serial=args.serial)
-    with Outputs([args.port], args.force) as outputs:
+    with Outputs([args.port], args.force, keep_if_killed=True) as outputs:   # rows nothing can make again
         out = outputs.claim(args.out)
         frames: queue.SimpleQueue[tuple[int, int, int]] = queue.SimpleQueue()
         driver = Rd2100Driver(args.port, args.baud, args.protocol,
@@ -322,9 +322,17 @@ def _return_freed_arrays() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``calibrate``; returns the exit status."""
     _return_freed_arrays()
+    args = None
+    # SIGTERM stops as Ctrl-C does: the outputs' staging is removed on the way out (SIGKILL's by the next run).
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         args = build_parser().parse_args(argv)
         return args.run(args)
+    except KeyboardInterrupt:
+        # Ctrl-C is a stop as asked, not a failure to show a traceback for; what was staged is gone.
+        print(f'calibrate{"" if args is None else " " + args.command}: interrupted: no output written',
+              file=sys.stderr)
+        return 130
     except ModuleNotFoundError as e:
         if e.name not in ANALYSIS_EXTRA:
             raise
@@ -335,6 +343,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:
         print(f'calibrate {args.command}: error: {e}', file=sys.stderr)
         return 1
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == '__main__':

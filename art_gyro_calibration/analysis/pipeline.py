@@ -17,9 +17,11 @@ from typing import Any
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
                                               CalibrationError, find_calibration_file, load_calibration)
 from art_gyro_calibration.compensation import RunStart
-from art_gyro_calibration.log import GyroLog, read_log
+from art_gyro_calibration.log import GyroLog, LogError, read_log
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
+from art_gyro_calibration.analysis.fit import check_coverage
 from art_gyro_calibration.analysis.loop import LoopOptions, LoopResult, close_loop
+from art_gyro_calibration.analysis.metrics import steady_segments
 from art_gyro_calibration.analysis.replay import (RESTARTS_NAME, Validation, startup_check, unjudged_warm_up,
                                                   validate)
 from art_gyro_calibration.analysis.report import build_report, validation_section
@@ -100,6 +102,12 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     """
     loop_options = settings.loop
     log = read_log(log_path, loop_options.rate_scale_factor, loop_options.temp_scale_factor)
+    if log.ref_rate is not None:   # without it the loop says what is missing
+        try:
+            check_coverage(log.temp_c, steady_segments(log.t, log.ref_rate, loop_options.settle_s).rate,
+                           settings.rows, settings.columns)
+        except ValueError as e:
+            raise LogError(f'{log_path}: {e}') from None
     loop = close_loop(log, settings.rows, settings.columns, loop_options)
     # The report and figures are the loop's; what the check drops is in its section, as --validate's drops are.
     report = build_report(log, loop, settings.bias_samples, source=str(log_path))

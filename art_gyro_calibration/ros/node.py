@@ -43,7 +43,8 @@ from art_gyro_calibration.driver import Rd2100Driver
 from art_gyro_calibration.frame import Frame
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
-from art_gyro_calibration.ros.parameters import IMU_TOPIC, NODE_NAME, NodeParameters, ParameterError, usage
+from art_gyro_calibration.ros.parameters import (IMU_TOPIC, NODE_NAME, NodeParameters, ParameterError,
+                                                 check_params_files, usage)
 from art_gyro_calibration.ros.raw_log import RawLog
 
 # Variance (rad/s)^2 given to the x and y rates, which a single-axis gyro does not measure:
@@ -176,6 +177,7 @@ def main(args: list[str] | None = None) -> int:
     _INTERRUPTED.clear()
     signal.signal(signal.SIGINT, _stop_through_rclpy)
     try:
+        check_params_files(argv)   # before rcl's parser, which hangs on a huge file or a FIFO
         rclpy.init(args=argv)
         if _INTERRUPTED.is_set():   # before rclpy's handler was there to shut the context down
             return 0

@@ -10,6 +10,7 @@ recovery arrive without loss.
 
 from __future__ import annotations
 
+import os
 import random
 import signal
 import subprocess
@@ -22,7 +23,8 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from rosproc import REPO, Listener, domain_id, node_env, node_with_listener, stop_node, wait_until  # noqa: E402
+from rosproc import (REPO, TIMEOUT_S, Listener, domain_id, node_env, node_with_listener, start_node,  # noqa: E402
+                     stop_node, wait_until)
 from std_srvs.srv import Trigger  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
@@ -421,3 +423,50 @@ def test_log_failures_stop_logging_not_publishing(tmp_path: Path, loopback: None
             stop_node(proc, signal.SIGINT, output)
         finally:
             listener.close()
+
+
+def _huge_params_file(tmp_path: Path) -> list[str]:
+    """3 MB of valid YAML: rcl's parser takes minutes over it, ignoring SIGINT (issue 25)."""
+    body = ''.join(f'    p{i}: {i}\n' for i in range(200_000))
+    (tmp_path / 'huge.yaml').write_text('/**:\n  ros__parameters:\n' + body)
+    return ['-p', 'serial_number:=NAVC3545', '--params-file', str(tmp_path / 'huge.yaml')]
+
+
+def _fifo_calibration(tmp_path: Path) -> list[str]:
+    """A FIFO nobody writes: opening it to read blocks for ever (issue 25)."""
+    os.mkfifo(tmp_path / 'cal.yaml')
+    return ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={tmp_path}/cal.yaml']
+
+
+def _fifo_params_file(tmp_path: Path) -> list[str]:
+    os.mkfifo(tmp_path / 'params.yaml')
+    return ['-p', 'serial_number:=NAVC3545', '--params-file', str(tmp_path / 'params.yaml')]
+
+
+def _duplicate_key(tmp_path: Path) -> list[str]:
+    """The polynomial given twice: the last (all zero, the rate uncompensated) won silently (issue 25)."""
+    text = (REPO / 'config' / 'NAVC3545.yaml').read_text()
+    (tmp_path / 'cal.yaml').write_text(text + '    polynomial:\n      rows: 1\n      columns: 1\n'
+                                       '      coefficients: [0.0]\n')
+    return ['--params-file', str(tmp_path / 'cal.yaml'), '-p', 'port:=/nonexistent']
+
+
+@pytest.mark.parametrize('args, message', [
+    (_huge_params_file, '{tmp}/huge.yaml: larger than 1048576 bytes: not a params file'),
+    (_fifo_calibration, '{tmp}/cal.yaml: is a FIFO, not a regular file'),
+    (_fifo_params_file, '{tmp}/params.yaml: is a FIFO, not a regular file'),
+    (_duplicate_key, "key 'polynomial' given twice, on lines"),
+], ids=['huge_params_file', 'fifo_calibration', 'fifo_params_file', 'duplicate_key'])
+def test_bad_files_refused_at_once(tmp_path: Path, args, message: str) -> None:
+    """Files that hung start-up or loaded silently wrong: refused with one line naming the file."""
+    output = tmp_path / 'node.log'
+    proc = start_node(domain_id(), output, *args(tmp_path))
+    try:
+        code = proc.wait(TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f'the node hung or ran instead of refusing:\n{output.read_text()}') from None
+    text = output.read_text()
+    assert code == 1 and text.startswith('gyro_node: error: ') and message.format(tmp=tmp_path) in text, text
+    assert 'Traceback' not in text
