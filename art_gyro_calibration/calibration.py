@@ -57,6 +57,20 @@ MAX_MESSAGE_CHARS = 400
 FULL_SCALE_COUNTS = -INT16_MIN
 # How long a node may run: the horizon of the time signal (and of the angle turned) in the envelope check.
 TIME_HORIZON_S = 366 * 86400.0
+# The widest range of the units this package reads (deg/s): KVH DSP-1750/1760, 1725/1750/1775 measure +-490;
+# an RD2100's range is its counts' full scale (about +-100). A rate beyond a unit's range is no measurement.
+MAX_UNIT_RANGE_DPS = 490.0
+# Scale factors a calibration may hold: an RD2100's full scale between 1 deg/s and 1 count per deg/s (kvh_fog
+# units send deg/s, factor 1.0); temperatures to between 0.001 and 1 degC per count (RD2100 0.05, kvh_fog 1.0).
+RATE_SCALE_FACTOR_RANGE = (1.0 / FULL_SCALE_COUNTS, 1.0)
+TEMP_SCALE_FACTOR_RANGE = (0.001, 1.0)
+# Temperatures x rates at which the polynomial's correction is checked against the unit's range at load.
+ENVELOPE_GRID = (41, 201)
+
+
+def unit_range_dps(rate_scale_factor: float) -> float:
+    """The range (deg/s) of a unit read at ``rate_scale_factor``: its counts' full scale, at most MAX_UNIT_RANGE_DPS."""
+    return min(FULL_SCALE_COUNTS * rate_scale_factor, MAX_UNIT_RANGE_DPS)
 
 
 class CalibrationError(ValueError):
@@ -74,6 +88,11 @@ class Calibration:
     temp_scale_factor: float = TEMP_SCALE_FACTOR
     terms: tuple[Term, ...] = ()
     filters: SignalFilters = field(default_factory=SignalFilters)
+
+    @property
+    def rate_range_dps(self) -> float:
+        """The unit's range (deg/s): its counts' full scale, at most MAX_UNIT_RANGE_DPS; beyond it no rate is real."""
+        return unit_range_dps(self.rate_scale_factor)
 
     @property
     def model(self) -> ErrorModel:
@@ -201,6 +220,13 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
     if rate_scale <= 0 or temp_scale <= 0:
         raise CalibrationError(f'{where}: scale factors must be positive, got rate {rate_scale}, '
                                f'temperature {temp_scale}')
+    for key, value, (low, high), what in (
+            ('rate_scale_factor', rate_scale, RATE_SCALE_FACTOR_RANGE,
+             f'deg/s per count: a full scale of {FULL_SCALE_COUNTS * rate_scale:g} deg/s'),
+            ('temp_scale_factor', temp_scale, TEMP_SCALE_FACTOR_RANGE, 'degC per count')):
+        if not low <= value <= high:
+            raise CalibrationError(f'{where}: {key} must be in {low:.6g}..{high:g}, got {value:g} ({what}): '
+                                   'no gyro this package reads')
     rows = _integer(_get(params, 'polynomial.rows', where), 'polynomial.rows', where)
     columns = _integer(_get(params, 'polynomial.columns', where), 'polynomial.columns', where)
     coefficients = _numbers(_get(params, 'polynomial.coefficients', where), 'polynomial.coefficients', where)
@@ -259,6 +285,7 @@ def check_envelope(calibration: Calibration, where: str) -> None:
     if not math.isfinite(bound):
         raise CalibrationError(f'{where}: polynomial.coefficients: the polynomial overflows within the envelope '
                                f'({low_c:g}..{high_c:g} degC, +-{rate_max:g} deg/s full scale)')
+    _check_correction(calibration, where)
     for term in calibration.terms:
         envelope = signal_envelope(calibration, term.signal)
         if envelope is None:
@@ -278,6 +305,26 @@ def check_envelope(calibration: Calibration, where: str) -> None:
             raise CalibrationError(f'{where}: extended.{term.signal}: the {term.form} term overflows for '
                                    f'{term.signal} in {low:g}..{high:g} (the envelope: {low_c:g}..{high_c:g} '
                                    f'degC, +-{rate_max:g} deg/s, {TIME_HORIZON_S / 86400:g} days)')
+
+
+def _check_correction(calibration: Calibration, where: str) -> None:
+    """Refuse a polynomial whose correction exceeds the unit's range somewhere in the calibrated envelope.
+
+    Over a grid of temperatures (``temperature_range_c``) and rates (the unit's range): a
+    correction larger than every rate the unit can read (a 1e300 coefficient) turns any reading
+    into nonsense, published as a plausible value.
+    """
+    low_c, high_c = calibration.temperature_range_c
+    span = calibration.rate_range_dps
+    temps = np.linspace(low_c, high_c, ENVELOPE_GRID[0])
+    rates = np.linspace(-span, span, ENVELOPE_GRID[1])
+    # Finite: check_envelope bounded every monomial first.
+    size = np.abs(calibration.polynomial.error(rates[np.newaxis, :], temps[:, np.newaxis]))
+    t, r = np.unravel_index(int(np.argmax(size)), size.shape)
+    if not size[t, r] <= span:
+        raise CalibrationError(f'{where}: polynomial.coefficients: a correction of {size[t, r]:.4g} deg/s (at '
+                               f'{temps[t]:g} degC, {rates[r]:g} deg/s) exceeds the unit\'s range of +-{span:g} '
+                               'deg/s within the calibrated envelope: not a calibration of this gyro')
 
 
 def _terms(params: Mapping[str, Any], where: str) -> tuple[Term, ...]:

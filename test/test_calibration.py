@@ -324,3 +324,29 @@ def test_special_files_are_refused_unread(tmp_path: Path) -> None:
         load_calibration('/dev/null')
     with pytest.raises(CalibrationError, match=f'^{re.escape(str(tmp_path))}: .*(?i:is a directory)'):
         load_calibration(tmp_path)
+
+
+@pytest.mark.parametrize('change, message', [
+    # 3 x 4, row-major, temperature powers 2..0 by rate powers 3..0: index 8 multiplies rate^3 alone.
+    ({'polynomial.coefficients': [0.0] * 8 + [1e300, 0.0, 0.0, 0.0]},
+     r'polynomial.coefficients: a correction of 9.983e\+305 deg/s \(at 10 degC, -99.9424 deg/s\) exceeds the unit\'s '
+     r'range of \+-99.9424 deg/s'),
+    ({'polynomial.coefficients': [0.0] * 8 + [1e-3, 0.0, 0.0, 0.0]},
+     'polynomial.coefficients: a correction of 998.3 deg/s'),
+    ({'rate_scale_factor': 1e300}, r'rate_scale_factor must be in 3.05176e-05..1, got 1e\+300 \(deg/s per count: '
+                                   r'a full scale of 3.2768e\+304 deg/s\): no gyro this package reads'),
+    ({'rate_scale_factor': 5e-324}, r'rate_scale_factor must be in 3.05176e-05..1, got 4.94066e-324'),
+    ({'temp_scale_factor': 1e-9}, 'temp_scale_factor must be in 0.001..1, got 1e-09'),
+], ids=['coefficient_1e300', 'coefficient_1e-3', 'rate_scale_huge', 'rate_scale_denormal', 'temp_scale_tiny'])
+def test_a_calibration_beyond_the_units_range_is_refused(change: dict, message: str) -> None:
+    """Loaded and published 1e303 deg/s, or 0.0017 deg/s for a gyro turning at 10 deg/s (issue 25)."""
+    params = _params()
+    params.update(change)
+    with pytest.raises(CalibrationError, match='^x.yaml: ' + message):
+        from_parameters(params, 'x.yaml')
+
+
+def test_every_packaged_calibration_is_within_its_units_range(serial: str) -> None:
+    cal = load_packaged_calibration(serial)
+    assert cal.rate_range_dps == pytest.approx(32768 * cal.rate_scale_factor)
+    assert load_calibration(REPO / 'config' / 'KVH_DSP1760_EXAMPLE.yaml').rate_range_dps == 490.0

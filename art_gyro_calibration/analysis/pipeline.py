@@ -15,8 +15,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
-                                              CalibrationError, find_calibration_file, load_calibration)
-from art_gyro_calibration.compensation import RunStart
+                                              CalibrationError, find_calibration_file, load_calibration,
+                                              unit_range_dps)
+from art_gyro_calibration.compensation import RunStart, usable_rates
 from art_gyro_calibration.log import GyroLog, LogError, read_log
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
 from art_gyro_calibration.analysis.fit import check_coverage
@@ -102,6 +103,12 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     """
     loop_options = settings.loop
     log = read_log(log_path, loop_options.rate_scale_factor, loop_options.temp_scale_factor)
+    usable = usable_rates(log.rate_dps, loop_options.rate_scale_factor)
+    if not usable.all():   # the node drops these frames: no value to fit (a turn beyond the range reads as slower)
+        warn(f'{log.t.size - int(usable.sum())} of {log.t.size} rows excluded: the rate clipped (at '
+             f'+-{unit_range_dps(loop_options.rate_scale_factor):g} deg/s) or beyond any unit\'s range (the node '
+             'drops such frames)')
+        log = log.slice(usable)
     if log.ref_rate is not None:   # without it the loop says what is missing
         try:
             check_coverage(log.temp_c, steady_segments(log.t, log.ref_rate, loop_options.settle_s).rate,

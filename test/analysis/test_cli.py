@@ -408,3 +408,25 @@ def test_fit_refuses_a_log_that_cannot_determine_the_polynomial(tmp_path, capsys
     err = capsys.readouterr().err
     assert f'calibrate fit: error: {log}: not enough ' in err and message in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ['table.csv']
+
+
+def test_fit_excludes_clipped_rows_and_says_how_many(tmp_path, capsys):
+    """Rows at +-32767 counts were fitted as values: here four spurious effects (rate_sign, ...) (issue 25)."""
+    sim = tmp_path / 'sim.csv'
+    assert main(['simulate', '--serial', 'NAVC3545', '--hours', '2', '--rate-hz', '2', '--seed', '3',
+                 '--out', str(sim)]) == 0
+    with open(sim, encoding='utf-8') as stream:
+        header = stream.readline().strip()
+    data = np.loadtxt(sim, delimiter=',', skiprows=1)
+    assert header.split(',')[1] == 'raw_rate'
+    data[:, 1] = np.clip(data[:, 1], -32768, 32767)   # the table's +-100 deg/s beyond NAVC3545's 99.94: clipped
+    clipped = int(np.count_nonzero(np.abs(data[:, 1]) >= 32767))
+    assert clipped > 500
+    log = tmp_path / 'clipped.csv'
+    np.savetxt(log, data, delimiter=',', header=header, comments='', fmt=['%.6f', '%d', '%d', '%.9g', '%.9g'])
+    capsys.readouterr()
+    assert main(['fit', str(log), '--rows', '3', '--columns', '4', '--serial', 'NAVC3545',
+                 '--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'REPORT.json')]) == 0
+    err = capsys.readouterr().err
+    assert f'warning: {clipped} of {len(data)} rows excluded: the rate clipped (at +-99.9424 deg/s)' in err, err
+    assert load_calibration(tmp_path / 'CAL.yaml').terms == ()

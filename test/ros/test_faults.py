@@ -470,3 +470,25 @@ def test_bad_files_refused_at_once(tmp_path: Path, args, message: str) -> None:
     text = output.read_text()
     assert code == 1 and text.startswith('gyro_node: error: ') and message.format(tmp=tmp_path) in text, text
     assert 'Traceback' not in text
+
+
+def test_clipped_rates_are_counted_not_published(tmp_path: Path, loopback: None) -> None:
+    """+-32767 counts went out as +-98.8 deg/s with every status OK: a faster turn passed off as a slower one."""
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    clipped = [32767, -32767, -32768]
+    with (sequence_gyro(tmp_path / 'rd2100') as fake,
+          node_with_listener(domain, output, *node_args(fake.path, 'static_bias_on_startup:=false'))
+          as (proc, listener)):
+        wait_frames(listener, 10, proc, output)
+        for raw_rate in clipped:   # temperatures outside the sequence code: any of them published would show
+            inject_alone(fake, encode_binary(raw_rate, TEMP_BASE + PERIOD + 5))
+        inject_alone(fake, encode_binary(32766, TEMP_BASE + PERIOD + 6))   # one count inside: a measurement
+        link = listener.wait_status('link', lambda s: counter(s, 'dropped_clipped') == len(clipped),
+                                    'the clipped frames counted', proc, output)
+        assert link['level'] == ERROR and f'{len(clipped)} clipped' in link['message'], link
+        assert counter(link, 'dropped') == len(clipped)
+        wait_tail(listener, fake, proc, output)
+        extra = [c for c in counts(listener.temperatures()) if c >= TEMP_BASE + PERIOD]
+        assert extra == [TEMP_BASE + PERIOD + 6], extra
+        assert gaps(residues(listener.temperatures())) == 0
