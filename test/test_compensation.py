@@ -158,7 +158,8 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
         Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(temperature_rate_tau_s=0.2))
     n, rate_hz = 20, 50.0
     t = np.arange(1500) / rate_hz
-    raw_rate = np.where(t < 2.0, 0, np.round(30.0 * np.sin(t) / cal.rate_scale_factor)).astype(int)
+    raw_rate = np.where(t < 2.0, np.arange(t.size) % 3 - 1, np.round(30.0 * np.sin(t) / cal.rate_scale_factor))
+    raw_rate = raw_rate.astype(int)   # still: +-1 count of noise (a rate without any is refused as no gyro's)
     raw_temp = np.round((20.0 + 0.5 * t) / cal.temp_scale_factor).astype(int)
     raw_temp[[700, 900]] = 4000, -1400   # 200, -70 degC
     raw_rate[[1000, 1100, 1200]] = 32767, -32768, -32767   # clipped: the turn is beyond the range (issue 25)

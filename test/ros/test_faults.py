@@ -51,7 +51,8 @@ class SequenceCounts:
         """Raw (rate, temperature) counts of the frames sent at times ``t``."""
         index = np.rint(np.asarray(t) * self.rate_hz).astype(np.int64)
         temp = TEMP_BASE + index % PERIOD if self.raw_temp is None else np.full(index.shape, self.raw_temp)
-        return np.full(index.shape, self.raw_rate), temp
+        # +-1 count of "noise": a rate without any spread is no gyro's, and its static bias is refused.
+        return self.raw_rate + index % 3 - 1, temp
 
 
 def sequence_gyro(link: Path, protocol: str = 'binary') -> FakeRd2100:
