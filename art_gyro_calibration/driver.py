@@ -137,13 +137,14 @@ class WireStamper:
         # Never after the frame arrived: bytes faster than the baud allows (a pty, USB-CDC, a wrong baud) pushed
         # each frame a wire time after the last, without bound. Then each is stamped at its arrival less its
         # wire time at the byte rate measured (at most the baud's).
-        byte_ns = min(float(self.byte_ns), self._byte_ns(monotonic_ns, chunk_bytes))
+        measured = self._byte_ns(monotonic_ns, chunk_bytes)
+        byte_ns = min(float(self.byte_ns), measured)
         for i in range(n):
             ceiling = monotonic_ns - int((chunk_bytes - ends[i] + self._frame_bytes) * byte_ns)
             if steady[i] > ceiling:
                 steady[i] = ceiling
                 self.ahead += 1
-                if not self.too_fast:
+                if not self.too_fast and measured < self.byte_ns:   # not a late read alone: bytes beyond the baud
                     self.too_fast = (f'frames arrive faster than {self.baud} baud allows ({1e9 / byte_ns:.0f} '
                                      f'bytes/s measured, {self.baud // BITS_PER_BYTE} at most): stamped at arrival '
                                      'less their wire time at the measured rate; check the baud parameter')
