@@ -31,6 +31,10 @@ class LogError(ValueError):
     """A log that cannot be read, with where and why."""
 
 
+class CutRowWarning(UserWarning):
+    """The log's last row does not end its line (cut by a kill or a full disk): it was dropped, not read."""
+
+
 @dataclass(frozen=True)
 class GyroLog:
     """One log, in physical units: deg/s and degC."""
@@ -158,6 +162,15 @@ def read_log_chunks(path: str | os.PathLike[str], rate_scale_factor: float | Non
                                    f'{e.reason} at byte 0x{e.object[e.start]:02x}; is this a CSV log?') from None
                 if not lines:
                     break
+                if not lines[-1].endswith('\n') and lines[-1].split('#', 1)[0].strip():
+                    # Only the file's last line can lack its end: a row cut mid-way ('500' written as '50')
+                    # would read as a value. Dropped, and said.
+                    warnings.warn(CutRowWarning(f'{where}:{lines_read + len(lines)}: the last row does not end its '
+                                                f'line (cut by a kill or a full disk): dropped, '
+                                                f'{_shown(lines[-1].strip())} not read'))
+                    lines.pop()
+                    if not lines:
+                        break
                 data = _parse(lines, header, where, lines_read, rows)
                 if data.shape[0]:
                     chunk = convert(data, last_t, lines, lines_read, rows)

@@ -22,13 +22,14 @@ import queue
 import signal
 import sys
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, CalibrationError, find_calibration_file,
                                               load_calibration, write_calibration)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, RunStart
-from art_gyro_calibration.log import LogError, RawLogWriter, read_log
+from art_gyro_calibration.log import CutRowWarning, LogError, RawLogWriter, read_log
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopOptions
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
@@ -319,6 +320,12 @@ def _return_freed_arrays() -> None:
         pass
 
 
+def _say_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: object = None, line: str | None = None) -> None:
+    """A warning about the input (a cut last row) as one line on stderr, not Python's source location."""
+    print(f'calibrate: warning: {message}', file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``calibrate``; returns the exit status."""
     _return_freed_arrays()
@@ -327,7 +334,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         args = build_parser().parse_args(argv)
-        return args.run(args)
+        with warnings.catch_warnings():
+            warnings.simplefilter('always', CutRowWarning)
+            warnings.showwarning = _say_warning
+            return args.run(args)
     except KeyboardInterrupt:
         # Ctrl-C is a stop as asked, not a failure to show a traceback for; what was staged is gone.
         print(f'calibrate{"" if args is None else " " + args.command}: interrupted: no output written',
