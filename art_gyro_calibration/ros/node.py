@@ -114,7 +114,8 @@ class GyroNode(Node):
         stamp_ns = frame.stamp_ns
         self._publish(sample.raw_rate, sample.raw_temp, stamp_ns, frame.steady_ns * 1e-9)
         # After publishing: a log that fails (full disk) must not delay or stop the messages.
-        self.raw_log.write(stamp_ns * 1e-9, sample.raw_rate, sample.raw_temp)   # the log keeps what the wire said
+        # The log keeps what the wire said, at the steady time: a clock stepped back made the stamps' log unreadable.
+        self.raw_log.write(frame.steady_ns * 1e-9, sample.raw_rate, sample.raw_temp)
 
     def _publish(self, raw_rate: int, raw_temp: int, stamp_ns: int, t: float) -> None:
         corrector = self.corrector
