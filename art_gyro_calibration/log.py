@@ -406,22 +406,53 @@ def _fixed(value: float, decimals: int) -> str:
 class RawLogWriter:
     """Appends ``t,raw_rate,raw_temp`` rows as frames arrive (``calibrate record``, the node)."""
 
-    def __init__(self, stream: IO[str], flush_every: int = 100) -> None:
+    def __init__(self, stream: IO[str], flush_every: int = 100, header: bool = True) -> None:
         self._stream = stream
         self._flush_every = flush_every
         self._pending = 0
-        stream.write(','.join(RAW_HEADER) + '\n')
+        self._flushed_size = 0   # the file's size after the last flush that succeeded
+        self._lengths: list[int] = []   # of the rows written since
+        if header:   # not when a log is continued
+            stream.write(','.join(RAW_HEADER) + '\n')
+
+    def unwritten(self) -> int:
+        """After a write or flush failed (a full disk): how many rows since the last flush are not on disk whole.
+
+        The file's growth since the last flush, in whole rows (a full disk takes part of a flush);
+        without a file (a stream in memory), every row since the last flush.
+        """
+        landed = 0
+        try:
+            grown = os.fstat(self._stream.fileno()).st_size - self._flushed_size
+        except (OSError, ValueError, AttributeError):
+            grown = 0
+        for length in itertools.accumulate(self._lengths):   # the rows since the flush, in bytes (ASCII)
+            if length > grown:
+                break
+            landed += 1
+        return max(self._pending - landed, 0)
+
+    def flush(self) -> None:
+        """Write what is buffered to the file now."""
+        self._stream.flush()
+        self._pending = 0
+        self._lengths.clear()
+        try:
+            self._flushed_size = os.fstat(self._stream.fileno()).st_size
+        except (OSError, ValueError, AttributeError):
+            pass
 
     def write(self, t: float, raw_rate: int, raw_temp: int) -> None:
         """Add one sample; flushed in batches so a crash loses at most ``flush_every`` rows."""
         if not math.isfinite(t):
             raise ValueError(f'log time must be finite, got {t!r}')
         # repr: the shortest text that reads back as this very float, so offline tools see the node's times.
-        self._stream.write(f'{t!r},{raw_rate},{raw_temp}\n')
-        self._pending += 1
+        row = f'{t!r},{raw_rate},{raw_temp}\n'
+        self._pending += 1   # first: a write or flush that fails counts this row among the unflushed
+        self._lengths.append(len(row))
+        self._stream.write(row)
         if self._pending >= self._flush_every:
-            self._stream.flush()
-            self._pending = 0
+            self.flush()
 
     def close(self) -> None:
         """Flush and close the stream."""
