@@ -31,6 +31,7 @@ import difflib
 import math
 import os
 import re
+import stat
 import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -65,6 +66,20 @@ TIME_HORIZON_S = 366 * 86400.0
 # +-1600 degC the polynomial alone would add 70-80 deg/s, so such a frame is dropped and counted
 # (compensation.plausible). A calibration without a clamp is checked over this range.
 PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
+# The widest range of the units this package reads (deg/s): KVH DSP-1750/1760, 1725/1750/1775 measure +-490;
+# an RD2100's range is its counts' full scale (about +-100). A rate beyond a unit's range is no measurement.
+MAX_UNIT_RANGE_DPS = 490.0
+# Scale factors a calibration may hold: an RD2100's full scale between 1 deg/s and 1 count per deg/s (kvh_fog
+# units send deg/s, factor 1.0); temperatures to between 0.001 and 1 degC per count (RD2100 0.05, kvh_fog 1.0).
+RATE_SCALE_FACTOR_RANGE = (1.0 / FULL_SCALE_COUNTS, 1.0)
+TEMP_SCALE_FACTOR_RANGE = (0.001, 1.0)
+# Temperatures x rates at which the polynomial's correction is checked against the unit's range at load.
+ENVELOPE_GRID = (41, 201)
+
+
+def unit_range_dps(rate_scale_factor: float) -> float:
+    """The range (deg/s) of a unit read at ``rate_scale_factor``: its counts' full scale, at most MAX_UNIT_RANGE_DPS."""
+    return min(FULL_SCALE_COUNTS * rate_scale_factor, MAX_UNIT_RANGE_DPS)
 
 
 class CalibrationError(ValueError):
@@ -93,6 +108,11 @@ class Calibration:
     def envelope_range_c(self) -> tuple[float, float]:
         """The temperatures the model is evaluated at: the clamp's range, else every plausible temperature."""
         return self.temperature_range_c if self.temperature_range_c is not None else PLAUSIBLE_TEMPERATURE_C
+
+    @property
+    def rate_range_dps(self) -> float:
+        """The unit's range (deg/s): its counts' full scale, at most MAX_UNIT_RANGE_DPS; beyond it no rate is real."""
+        return unit_range_dps(self.rate_scale_factor)
 
     @property
     def model(self) -> ErrorModel:
@@ -224,6 +244,13 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
     if rate_scale <= 0 or temp_scale <= 0:
         raise CalibrationError(f'{where}: scale factors must be positive, got rate {rate_scale}, '
                                f'temperature {temp_scale}')
+    for key, value, (low, high), what in (
+            ('rate_scale_factor', rate_scale, RATE_SCALE_FACTOR_RANGE,
+             f'deg/s per count: a full scale of {FULL_SCALE_COUNTS * rate_scale:g} deg/s'),
+            ('temp_scale_factor', temp_scale, TEMP_SCALE_FACTOR_RANGE, 'degC per count')):
+        if not low <= value <= high:
+            raise CalibrationError(f'{where}: {key} must be in {low:.6g}..{high:g}, got {value:g} ({what}): '
+                                   'no gyro this package reads')
     rows = _integer(_get(params, 'polynomial.rows', where), 'polynomial.rows', where)
     columns = _integer(_get(params, 'polynomial.columns', where), 'polynomial.columns', where)
     coefficients = _numbers(_get(params, 'polynomial.coefficients', where), 'polynomial.coefficients', where)
@@ -293,6 +320,7 @@ def check_envelope(calibration: Calibration, where: str) -> None:
     if not math.isfinite(bound):
         raise CalibrationError(f'{where}: polynomial.coefficients: the polynomial overflows within the envelope '
                                f'({low_c:g}..{high_c:g} degC, +-{rate_max:g} deg/s full scale)')
+    _check_correction(calibration, where)
     for term in calibration.terms:
         envelope = signal_envelope(calibration, term.signal)
         if envelope is None:
@@ -312,6 +340,26 @@ def check_envelope(calibration: Calibration, where: str) -> None:
             raise CalibrationError(f'{where}: extended.{term.signal}: the {term.form} term overflows for '
                                    f'{term.signal} in {low:g}..{high:g} (the envelope: {low_c:g}..{high_c:g} '
                                    f'degC, +-{rate_max:g} deg/s, {TIME_HORIZON_S / 86400:g} days)')
+
+
+def _check_correction(calibration: Calibration, where: str) -> None:
+    """Refuse a polynomial whose correction exceeds the unit's range somewhere in the calibrated envelope.
+
+    Over a grid of temperatures (``temperature_range_c``) and rates (the unit's range): a
+    correction larger than every rate the unit can read (a 1e300 coefficient) turns any reading
+    into nonsense, published as a plausible value.
+    """
+    low_c, high_c = calibration.temperature_range_c
+    span = calibration.rate_range_dps
+    temps = np.linspace(low_c, high_c, ENVELOPE_GRID[0])
+    rates = np.linspace(-span, span, ENVELOPE_GRID[1])
+    # Finite: check_envelope bounded every monomial first.
+    size = np.abs(calibration.polynomial.error(rates[np.newaxis, :], temps[:, np.newaxis]))
+    t, r = np.unravel_index(int(np.argmax(size)), size.shape)
+    if not size[t, r] <= span:
+        raise CalibrationError(f'{where}: polynomial.coefficients: a correction of {size[t, r]:.4g} deg/s (at '
+                               f'{temps[t]:g} degC, {rates[r]:g} deg/s) exceeds the unit\'s range of +-{span:g} '
+                               'deg/s within the calibrated envelope: not a calibration of this gyro')
 
 
 def _terms(params: Mapping[str, Any], where: str) -> tuple[Term, ...]:
@@ -390,7 +438,12 @@ def shorten(text: str, limit: int = MAX_MESSAGE_CHARS) -> str:
 
 
 class _NoAliasLoader(yaml.SafeLoader):
-    """A safe loader that refuses aliases: a few hundred bytes of nested aliases expand to gigabytes."""
+    """A safe loader as rcl reads a params file: no aliases, no key given twice, numbers as ``strtod`` spells them.
+
+    Aliases: a few hundred bytes of nested ones expand to gigabytes. A key given twice would
+    silently keep the last (an all-zero polynomial over the fitted one). YAML 1.1 reads ``1e-300``
+    (no dot, no exponent sign) as a string where rcl reads a double: such numbers are floats here too.
+    """
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
@@ -399,16 +452,58 @@ class _NoAliasLoader(yaml.SafeLoader):
                                               'allowed here', event.start_mark)
         return super().compose_node(parent, index)
 
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        if isinstance(node, yaml.MappingNode):
+            lines: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node)
+                try:
+                    first = lines.setdefault(key, key_node.start_mark.line + 1)
+                except TypeError:
+                    continue   # an unhashable key: refused by the base class
+                if first != key_node.start_mark.line + 1:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f'key {shorten(repr(key), 80)} given twice, on lines {first} and '
+                        f'{key_node.start_mark.line + 1}', key_node.start_mark)
+        return super().construct_mapping(node, deep)
+
+
+# A decimal number with an exponent but no dot or no exponent sign (1e-300, 2.5e3, .5E2), which rcl's strtod reads
+# as a double and YAML 1.1 as a string; the numbers YAML 1.1 already reads keep its resolvers.
+_NoAliasLoader.add_implicit_resolver(
+    'tag:yaml.org,2002:float', re.compile(r'^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$'),
+    list('-+0123456789.'))
+
+
+def _read_regular(path: str | os.PathLike[str], limit: int) -> bytes:
+    """At most ``limit`` + 1 bytes of a regular file; anything else (a FIFO, a device) is refused unread.
+
+    Opened without blocking and checked on the open descriptor, so a FIFO cannot hang the reader
+    (a node at start-up ignoring SIGINT), nor a path swapped between the check and the read.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, 'O_NOCTTY', 0))
+    with open(fd, 'rb') as stream:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise CalibrationError(f'{path}: is {special_file_kind(mode)}, not a regular file')
+        return stream.read(limit + 1)
+
+
+def special_file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, for a message ('a FIFO', 'a character device', ...)."""
+    kinds = ((stat.S_ISDIR, 'a directory'), (stat.S_ISFIFO, 'a FIFO'), (stat.S_ISCHR, 'a character device'),
+             (stat.S_ISBLK, 'a block device'), (stat.S_ISSOCK, 'a socket'))
+    return next((name for test, name in kinds if test(mode)), 'a special file')
+
 
 def read_yaml(path: str | os.PathLike[str], what: str = 'file') -> Any:
-    """Parse a small YAML file safely: at most MAX_YAML_BYTES, no aliases.
+    """Parse a small YAML file safely: a regular file, at most MAX_YAML_BYTES, no aliases, no key twice.
 
     Anything else is a :class:`CalibrationError` naming the file and a readable part of the problem.
     """
     where = str(path)
     try:
-        with open(path, 'rb') as stream:
-            data = stream.read(MAX_YAML_BYTES + 1)
+        data = _read_regular(path, MAX_YAML_BYTES)
     except OSError as e:
         raise CalibrationError(f'{where}: cannot read: {e.strerror}') from None
     if len(data) > MAX_YAML_BYTES:

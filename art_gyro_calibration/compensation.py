@@ -21,8 +21,9 @@ from typing import overload
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibration, check_signals_available
-from art_gyro_calibration.frame import NOT_FINITE
+from art_gyro_calibration.calibration import (MAX_UNIT_RANGE_DPS, PLAUSIBLE_TEMPERATURE_C, Calibration,
+                                              check_signals_available, unit_range_dps)
+from art_gyro_calibration.frame import INT16_MAX, NOT_FINITE
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalState, SignalTracker, compute_signals
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS, REFINE_SPAN_TAUS,
@@ -32,6 +33,32 @@ from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_
 
 # Why a frame was not published (FrameCorrector.step's answer, counted per reason).
 IMPLAUSIBLE_TEMPERATURE = 'implausible_temperature'
+# The rate count at an end of its range (+-32767 on an RD2100): the true rate is anywhere beyond, so no value.
+CLIPPED = 'clipped'
+# A rate beyond the unit's range (Calibration.rate_range_dps): a corrupt message whose CRC passed, not a rate.
+BEYOND_RANGE = 'beyond_range'
+
+
+def rate_limits(rate_scale_factor: float) -> tuple[float, float]:
+    """(clip, range) in deg/s: a rate of magnitude at least ``clip`` is clipped, one beyond ``range`` impossible.
+
+    Clipped: within half a count of the 16-bit count's end (a log's rounded deg/s too), where the
+    counts' end is the unit's (RD2100); a kvh_fog unit (1.0 deg/s per "count") has its range alone.
+    """
+    clip, span = (INT16_MAX - 0.5) * rate_scale_factor, unit_range_dps(rate_scale_factor)
+    return (clip if clip < span else math.inf), span
+
+
+def usable_rates(rate_dps: NDArray[np.float64], rate_scale_factor: float) -> NDArray[np.bool_]:
+    """Per row of a log, whether ``calibrate fit`` may use its rate: not clipped, not beyond every unit's range.
+
+    Clipped: the 16-bit count at its end, within half a count (what the node drops as CLIPPED). A rate
+    beyond MAX_UNIT_RANGE_DPS is no unit's. Rows beyond the counts' range but within that (a simulated
+    RD2100 log's table at 100 deg/s, beyond its 99.94) cannot come from a wire and are kept.
+    """
+    clip, _ = rate_limits(rate_scale_factor)
+    size = np.abs(rate_dps)
+    return ~((size >= clip) & (size <= (INT16_MAX + 1.5) * rate_scale_factor)) & (size <= MAX_UNIT_RANGE_DPS)
 
 
 @overload
@@ -137,17 +164,20 @@ class FrameCorrector:
 
     :meth:`step` answers '' for a frame to publish, whose values are then in ``rate_dps`` (the
     corrected rate) and ``temp_c``, or the reason it is dropped (:data:`IMPLAUSIBLE_TEMPERATURE`,
-    :data:`NOT_FINITE`), counted in ``dropped``. :meth:`collect` feeds the frames kept to a static
+    :data:`CLIPPED`, :data:`BEYOND_RANGE`, :data:`NOT_FINITE`), counted in ``dropped``.
+    :meth:`collect` feeds the frames kept to a static
     bias collection. Answers and values live on the object, not in new tuples: it runs at 1 kHz.
     """
 
-    __slots__ = ('compensator', 'collector', '_collected', 'dropped', 'last_drop_error', 'rate_dps', 'temp_c')
+    __slots__ = ('compensator', 'collector', '_collected', 'dropped', 'last_drop_error', 'rate_dps', 'temp_c',
+                 '_clip_dps', '_range_dps')
 
     def __init__(self, calibration: Calibration, start: RunStart = RunStart()) -> None:
         self.compensator = Compensator(calibration, start)
         self.collector: StaticBiasCollector | None = None   # the collection fed, if one; None stops it
         self._collected: Callable[[StaticBiasCollector], None] = _nothing
-        self.dropped = {IMPLAUSIBLE_TEMPERATURE: 0, NOT_FINITE: 0}
+        self.dropped = {IMPLAUSIBLE_TEMPERATURE: 0, CLIPPED: 0, BEYOND_RANGE: 0, NOT_FINITE: 0}
+        self._clip_dps, self._range_dps = rate_limits(calibration.rate_scale_factor)
         self.last_drop_error = ''   # the arithmetic error of the last frame dropped as NOT_FINITE, if one
         self.rate_dps = math.nan
         self.temp_c = math.nan
@@ -167,6 +197,13 @@ class FrameCorrector:
         if not plausible(temp_c):
             self.dropped[IMPLAUSIBLE_TEMPERATURE] += 1
             return IMPLAUSIBLE_TEMPERATURE
+        size = abs(rate_dps)
+        if size >= self._clip_dps:   # not a value: the rate may be anything beyond (no signal advanced by it)
+            self.dropped[CLIPPED] += 1
+            return CLIPPED
+        if size > self._range_dps:
+            self.dropped[BEYOND_RANGE] += 1
+            return BEYOND_RANGE
         try:
             error_dps = compensator.error(t, rate_dps, temp_c)   # every sample: it advances the signals
         except ArithmeticError as e:
@@ -213,8 +250,9 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
 
     Vectorised over the log, so not :class:`FrameCorrector` itself, which the node runs; a test
     (test_compensation) holds the two together on the same frames (within 2e-9 deg/s).
-    Rows :func:`plausible` refuses are dropped, as the node drops their frames. A log read in
-    chunks passes each chunk with ``after`` = the previous chunk's result (the first chunk
+    Rows :func:`plausible` refuses are dropped, as the node drops their frames (clipped rates are
+    not: ``calibrate fit`` excludes them before, see :func:`usable_rates`). A log read in chunks
+    passes each chunk with ``after`` = the previous chunk's result (the first chunk
     holding at least ``bias_samples`` kept rows): its signals continue, and its bias is kept.
     ``start`` says how the run began (the first chunk's; later chunks continue it).
     """

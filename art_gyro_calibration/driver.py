@@ -67,7 +67,8 @@ class WireStamper:
     """
 
     __slots__ = ('byte_ns', 'frame_ns', 'period_ns', '_updates', '_last_steady', '_last_stamp', '_offset_ns',
-                 '_pending_ns', 'steps_ns', 'step_ns')
+                 '_pending_ns', 'steps_ns', 'step_ns', '_frame_bytes', '_bytes', '_first_ns', 'baud', 'too_fast',
+                 'ahead')
 
     def __init__(self, baud: int, frame_bytes: int) -> None:
         self.byte_ns = BITS_PER_BYTE * 1_000_000_000 // baud
@@ -80,6 +81,12 @@ class WireStamper:
         self._pending_ns: int | None = None    # an offset one read saw beyond a step, not yet confirmed
         self.steps_ns = 0               # sum of the clock steps re-anchored to
         self.step_ns = 0                # the step found by the latest chunk, 0 if none
+        self.baud = baud
+        self._frame_bytes = frame_bytes
+        self._bytes = 0                 # bytes read, and when the first chunk's read returned: the byte rate
+        self._first_ns: int | None = None
+        self.too_fast = ''              # set once, when frames first came faster than the baud allows: why
+        self.ahead = 0                  # frames that would have been stamped after they arrived (fell back)
 
     def restart(self) -> None:
         """After a reopen: the next chunk does not measure the period (the link was down meanwhile)."""
@@ -127,6 +134,20 @@ class WireStamper:
                 if steady[i] < floor:
                     steady[i] = floor
                 floor = steady[i] + self.frame_ns
+        # Never after the frame arrived: bytes faster than the baud allows (a pty, USB-CDC, a wrong baud) pushed
+        # each frame a wire time after the last, without bound. Then each is stamped at its arrival less its
+        # wire time at the byte rate measured (at most the baud's).
+        measured = self._byte_ns(monotonic_ns, chunk_bytes)
+        byte_ns = min(float(self.byte_ns), measured)
+        for i in range(n):
+            ceiling = monotonic_ns - int((chunk_bytes - ends[i] + self._frame_bytes) * byte_ns)
+            if steady[i] > ceiling:
+                steady[i] = ceiling
+                self.ahead += 1
+                if not self.too_fast and measured < self.byte_ns:   # not a late read alone: bytes beyond the baud
+                    self.too_fast = (f'frames arrive faster than {self.baud} baud allows ({1e9 / byte_ns:.0f} '
+                                     f'bytes/s measured, {self.baud // BITS_PER_BYTE} at most): stamped at arrival '
+                                     'less their wire time at the measured rate; check the baud parameter')
         self._last_steady = steady[-1]
         out = []
         for t in steady:
@@ -136,6 +157,14 @@ class WireStamper:
             self._last_stamp = stamp
             out.append((stamp, stamp - self.steps_ns))
         return out
+
+    def _byte_ns(self, monotonic_ns: int, chunk_bytes: int) -> float:
+        """Mean time per byte received since the first read (idle time included: an upper bound)."""
+        if self._first_ns is None:
+            self._first_ns = monotonic_ns
+            return math.inf
+        self._bytes += chunk_bytes
+        return (monotonic_ns - self._first_ns) / self._bytes
 
     def _update_period(self, per_frame: float) -> None:
         period = self.period_ns
@@ -176,6 +205,7 @@ class Rd2100Driver:
         self._quiet_warned = False
         self._reopen_period_s = float(reopen_period_s)
         self._stamper = WireStamper(baud, self._parser.frame_bytes)
+        self._too_fast_said = False
         self._serial: serial.Serial | None = None
         self._identity: tuple[int, int] | None = None   # (st_dev, st_ino) of the open device
         self._connected = False
@@ -285,6 +315,9 @@ class Rd2100Driver:
             return
         frames = self._parser.feed(data)
         stamps = self._stamper.stamp(now_ns, monotonic_ns, len(data), [end for _, end in frames])
+        if self._stamper.too_fast and not self._too_fast_said:
+            self._too_fast_said = True
+            self._warn(self._stamper.too_fast)
         if self._stamper.step_ns:
             self._warn(f'the clock stepped by {self._stamper.step_ns * 1e-9:+.3f} s against the monotonic clock: '
                        'stamps re-anchored to it')

@@ -31,6 +31,10 @@ class LogError(ValueError):
     """A log that cannot be read, with where and why."""
 
 
+class CutRowWarning(UserWarning):
+    """The log's last row does not end its line (cut by a kill or a full disk): it was dropped, not read."""
+
+
 @dataclass(frozen=True)
 class GyroLog:
     """One log, in physical units: deg/s and degC."""
@@ -158,6 +162,15 @@ def read_log_chunks(path: str | os.PathLike[str], rate_scale_factor: float | Non
                                    f'{e.reason} at byte 0x{e.object[e.start]:02x}; is this a CSV log?') from None
                 if not lines:
                     break
+                if not lines[-1].endswith('\n') and lines[-1].split('#', 1)[0].strip():
+                    # Only the file's last line can lack its end: a row cut mid-way ('500' written as '50')
+                    # would read as a value. Dropped, and said.
+                    warnings.warn(CutRowWarning(f'{where}:{lines_read + len(lines)}: the last row does not end its '
+                                                f'line (cut by a kill or a full disk): dropped, '
+                                                f'{_shown(lines[-1].strip())} not read'))
+                    lines.pop()
+                    if not lines:
+                        break
                 data = _parse(lines, header, where, lines_read, rows)
                 if data.shape[0]:
                     chunk = convert(data, last_t, lines, lines_read, rows)
@@ -393,22 +406,53 @@ def _fixed(value: float, decimals: int) -> str:
 class RawLogWriter:
     """Appends ``t,raw_rate,raw_temp`` rows as frames arrive (``calibrate record``, the node)."""
 
-    def __init__(self, stream: IO[str], flush_every: int = 100) -> None:
+    def __init__(self, stream: IO[str], flush_every: int = 100, header: bool = True) -> None:
         self._stream = stream
         self._flush_every = flush_every
         self._pending = 0
-        stream.write(','.join(RAW_HEADER) + '\n')
+        self._flushed_size = 0   # the file's size after the last flush that succeeded
+        self._lengths: list[int] = []   # of the rows written since
+        if header:   # not when a log is continued
+            stream.write(','.join(RAW_HEADER) + '\n')
+
+    def unwritten(self) -> int:
+        """After a write or flush failed (a full disk): how many rows since the last flush are not on disk whole.
+
+        The file's growth since the last flush, in whole rows (a full disk takes part of a flush);
+        without a file (a stream in memory), every row since the last flush.
+        """
+        landed = 0
+        try:
+            grown = os.fstat(self._stream.fileno()).st_size - self._flushed_size
+        except (OSError, ValueError, AttributeError):
+            grown = 0
+        for length in itertools.accumulate(self._lengths):   # the rows since the flush, in bytes (ASCII)
+            if length > grown:
+                break
+            landed += 1
+        return max(self._pending - landed, 0)
+
+    def flush(self) -> None:
+        """Write what is buffered to the file now."""
+        self._stream.flush()
+        self._pending = 0
+        self._lengths.clear()
+        try:
+            self._flushed_size = os.fstat(self._stream.fileno()).st_size
+        except (OSError, ValueError, AttributeError):
+            pass
 
     def write(self, t: float, raw_rate: int, raw_temp: int) -> None:
         """Add one sample; flushed in batches so a crash loses at most ``flush_every`` rows."""
         if not math.isfinite(t):
             raise ValueError(f'log time must be finite, got {t!r}')
         # repr: the shortest text that reads back as this very float, so offline tools see the node's times.
-        self._stream.write(f'{t!r},{raw_rate},{raw_temp}\n')
-        self._pending += 1
+        row = f'{t!r},{raw_rate},{raw_temp}\n'
+        self._pending += 1   # first: a write or flush that fails counts this row among the unflushed
+        self._lengths.append(len(row))
+        self._stream.write(row)
         if self._pending >= self._flush_every:
-            self._stream.flush()
-            self._pending = 0
+            self.flush()
 
     def close(self) -> None:
         """Flush and close the stream."""

@@ -19,8 +19,11 @@ import re
 
 from art_gyro_calibration.frame import BinaryChunkParser, RawSample, check_int16
 
-# Rejection reason, a key of ParserStats.rejected_by_reason (with GARBAGE, of frame.py).
+# Rejection reasons, keys of ParserStats.rejected_by_reason (with GARBAGE, of frame.py).
 BAD_CHECKSUM = 'bad_checksum'   # well-framed 8 bytes whose checksum is wrong
+# 0x80 and seven 0x00: its checksum passes, but it is what a line held low (a gyro at 9600 baud read at 115200,
+# a break) decodes to, not a gyro: dropped, even from a still gyro at exactly 0.00 degC reading 0 counts.
+ALL_ZERO = 'all_zero'
 
 BINARY_FRAME_BYTES = 8
 
@@ -69,7 +72,7 @@ class BinaryFrameParser(BinaryChunkParser):
     frame_bytes = BINARY_FRAME_BYTES
 
     def __init__(self) -> None:
-        super().__init__((BAD_CHECKSUM,))
+        super().__init__((BAD_CHECKSUM, ALL_ZERO))
 
     def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
         """Parse a chunk; each valid frame with the offset just past its last byte within ``data``."""
@@ -84,6 +87,9 @@ class BinaryFrameParser(BinaryChunkParser):
             bits = _decode_bits(match.group())
             if sum(bits.to_bytes(7, 'big')) & 0xFF:
                 stats.rejected_by_reason[BAD_CHECKSUM] += 1
+                stats.bytes_skipped += BINARY_FRAME_BYTES
+            elif not bits:
+                stats.rejected_by_reason[ALL_ZERO] += 1
                 stats.bytes_skipped += BINARY_FRAME_BYTES
             else:
                 out.append((RawSample(_int16(bits & 0xFFFF), _int16((bits >> 16) & 0xFFFF)), end - held))

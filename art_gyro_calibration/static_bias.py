@@ -43,6 +43,16 @@ class MotionError(ValueError):
     """The samples of a static bias collection show the gyro was turning."""
 
 
+class NoNoiseError(ValueError):
+    """The samples of a static bias collection do not vary at all: a stuck or all-zero stream, not a gyro."""
+
+
+# A spread of the rate below this (deg/s) over at least ZERO_SPREAD_MIN_SAMPLES samples is none at all (rounding of
+# the running sums aside): every gyro's noise moves a sample by counts (an RD2100's is 0.003 deg/s).
+ZERO_SPREAD_DPS = 1e-6
+ZERO_SPREAD_MIN_SAMPLES = 10
+
+
 if TYPE_CHECKING:
     from art_gyro_calibration.terms import Term
 
@@ -140,11 +150,15 @@ class StaticBiasCollector:
         return self._n
 
     def result(self) -> StaticBias:
-        """The static bias of the collected samples; raises :class:`MotionError` on motion."""
+        """The static bias of the collected samples; raises :class:`MotionError` on motion, NoNoiseError on none."""
         n = self._n
         mean = self._sum_rate / n
         std = math.sqrt(max(self._sum_sq / n - mean * mean, 0.0))
         bias = _checked(mean, self._sum_error / n, std, n, self.max_mean_dps, self.max_std_dps)
+        # The node's collections only: a log (calibrate apply, a synthetic test) may be noise-free by design.
+        if std < ZERO_SPREAD_DPS and n >= ZERO_SPREAD_MIN_SAMPLES:
+            raise NoNoiseError(f'rate spread {std:.3g} deg/s over {n} samples: no gyro is that quiet (every '
+                               f'sample {mean:g} deg/s): a stuck or all-zero stream (wrong baud rate?)')
         if self._window is None:
             return bias
         t, rate, temp = self._window[:, :n].copy()

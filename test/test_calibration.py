@@ -1,6 +1,8 @@
 """Calibration files: the report's digits, loading, round trips and refusals."""
 
+import os
 import re
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -299,3 +301,80 @@ def test_calibrate_apply_refuses_what_the_node_refuses(tmp_path: Path, capsys: p
         err = capsys.readouterr().err
         assert f'{path}: {message}' in err, err
         assert not (tmp_path / f'{name}.csv').exists()
+
+
+def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path) -> None:
+    """The last of two polynomials won silently: here an all-zero one, the rate uncompensated (issue 25)."""
+    text = (REPO / 'config' / 'NAVC3545.yaml').read_text(encoding='utf-8')
+    first = next(i for i, line in enumerate(text.splitlines(), 1) if line.strip() == 'polynomial:')
+    path = tmp_path / 'twice.yaml'
+    path.write_text(text + '    polynomial: {rows: 1, columns: 1, coefficients: [0.0]}\n', encoding='utf-8')
+    last = len(text.splitlines()) + 1
+    with pytest.raises(CalibrationError, match=f"^{re.escape(str(path))}: .*key 'polynomial' given twice, "
+                                               f'on lines {first} and {last}'):
+        load_calibration(path)
+
+
+def test_numbers_in_every_spelling_rcl_reads(tmp_path: Path) -> None:
+    """``1e-300`` is a string to YAML 1.1 and a double to rcl: it was refused as "got '1e-300'" (issue 25)."""
+    text = (REPO / 'config' / 'NAVC3545.yaml').read_text(encoding='utf-8')
+    assert 'filters' not in text
+    for spelling, value in (('1e-300', 1e-300), ('2E3', 2e3), ('2.5e3', 2.5e3), ('.5e+1', 5.0), ('30.0', 30.0)):
+        path = tmp_path / 'cal.yaml'
+        path.write_text(text + f'    filters: {{temperature_rate_tau_s: {spelling}}}\n', encoding='utf-8')
+        assert load_calibration(path).filters.temperature_rate_tau_s == value, spelling
+    path.write_text(text + "    filters: {temperature_rate_tau_s: '1e3'}\n", encoding='utf-8')
+    with pytest.raises(CalibrationError, match="must be a finite number, got '1e3'"):   # quoted: a string to both
+        load_calibration(path)
+
+
+def test_special_files_are_refused_unread(tmp_path: Path) -> None:
+    """A FIFO as calibration file blocked the reader for ever (the node's start-up, ignoring SIGINT; issue 25)."""
+    fifo = tmp_path / 'cal.yaml'
+    os.mkfifo(fifo)
+    errors: list[BaseException] = []
+
+    def load() -> None:
+        try:
+            load_calibration(fifo)
+        except BaseException as e:   # noqa: B036 - handed to the test's thread
+            errors.append(e)
+
+    reader = threading.Thread(target=load, daemon=True)
+    reader.start()
+    reader.join(10.0)
+    if reader.is_alive():   # release the blocked reader before failing
+        os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        reader.join(10.0)
+        pytest.fail('reading a FIFO blocked')
+    assert len(errors) == 1 and str(errors[0]) == f'{fifo}: is a FIFO, not a regular file'
+    with pytest.raises(CalibrationError, match='^/dev/null: is a character device, not a regular file$'):
+        load_calibration('/dev/null')
+    with pytest.raises(CalibrationError, match=f'^{re.escape(str(tmp_path))}: .*(?i:is a directory)'):
+        load_calibration(tmp_path)
+
+
+@pytest.mark.parametrize('change, message', [
+    # 3 x 4, row-major, temperature powers 2..0 by rate powers 3..0: index 8 multiplies rate^3 alone.
+    ({'polynomial.coefficients': [0.0] * 8 + [1e300, 0.0, 0.0, 0.0]},
+     r'polynomial.coefficients: a correction of 9.983e\+305 deg/s \(at 10 degC, -99.9424 deg/s\) exceeds the unit\'s '
+     r'range of \+-99.9424 deg/s'),
+    ({'polynomial.coefficients': [0.0] * 8 + [1e-3, 0.0, 0.0, 0.0]},
+     'polynomial.coefficients: a correction of 998.3 deg/s'),
+    ({'rate_scale_factor': 1e300}, r'rate_scale_factor must be in 3.05176e-05..1, got 1e\+300 \(deg/s per count: '
+                                   r'a full scale of 3.2768e\+304 deg/s\): no gyro this package reads'),
+    ({'rate_scale_factor': 5e-324}, r'rate_scale_factor must be in 3.05176e-05..1, got 4.94066e-324'),
+    ({'temp_scale_factor': 1e-9}, 'temp_scale_factor must be in 0.001..1, got 1e-09'),
+], ids=['coefficient_1e300', 'coefficient_1e-3', 'rate_scale_huge', 'rate_scale_denormal', 'temp_scale_tiny'])
+def test_a_calibration_beyond_the_units_range_is_refused(change: dict, message: str) -> None:
+    """Loaded and published 1e303 deg/s, or 0.0017 deg/s for a gyro turning at 10 deg/s (issue 25)."""
+    params = _params()
+    params.update(change)
+    with pytest.raises(CalibrationError, match='^x.yaml: ' + message):
+        from_parameters(params, 'x.yaml')
+
+
+def test_every_packaged_calibration_is_within_its_units_range(serial: str) -> None:
+    cal = load_packaged_calibration(serial)
+    assert cal.rate_range_dps == pytest.approx(32768 * cal.rate_scale_factor)
+    assert load_calibration(REPO / 'config' / 'KVH_DSP1760_EXAMPLE.yaml').rate_range_dps == 490.0

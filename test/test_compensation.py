@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
-from art_gyro_calibration.compensation import (IMPLAUSIBLE_TEMPERATURE, Compensator, FrameCorrector, RunStart,
-                                               apply_calibration)
+from art_gyro_calibration.calibration import load_calibration
+from art_gyro_calibration.compensation import (BEYOND_RANGE, CLIPPED, IMPLAUSIBLE_TEMPERATURE, Compensator,
+                                               FrameCorrector, RunStart, apply_calibration, usable_rates)
 from art_gyro_calibration.gyro_physics import measured_from_true
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import SignalFilters, compute_signals
@@ -164,7 +166,7 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
     """The node's per-frame step (raw counts in) against ``calibrate apply`` on the same frames, ROS aside.
 
     Warming and turning, every signal the node tracks, a refinement within the run, and two frames whose
-    temperature no gyro survives: dropped by both, counted by the corrector.
+    temperature no gyro survives and three clipped rates: dropped by both, counted by the corrector.
     """
     cal = dataclasses.replace(load_packaged_calibration('NAVC3545'), terms=(
         Term('temperature_rate', 'power', (0.02,), (1,)), Term('time', 'power', (1e-4,), (1,)),
@@ -173,9 +175,11 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
         Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(temperature_rate_tau_s=0.2))
     n, rate_hz = 20, 50.0
     t = np.arange(1500) / rate_hz
-    raw_rate = np.where(t < 2.0, 0, np.round(30.0 * np.sin(t) / cal.rate_scale_factor)).astype(int)
+    raw_rate = np.where(t < 2.0, np.arange(t.size) % 3 - 1, np.round(30.0 * np.sin(t) / cal.rate_scale_factor))
+    raw_rate = raw_rate.astype(int)   # still: +-1 count of noise (a rate without any is refused as no gyro's)
     raw_temp = np.round((20.0 + 0.5 * t) / cal.temp_scale_factor).astype(int)
     raw_temp[[700, 900]] = 4000, -1400   # 200, -70 degC
+    raw_rate[[1000, 1100, 1200]] = 32767, -32768, -32767   # clipped: the turn is beyond the range (issue 25)
     start = RunStart(powered_on_at_start=True)
 
     def collected(collector: StaticBiasCollector) -> None:
@@ -189,8 +193,12 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
         reasons.append(reason)
         if not reason:
             published.append(corrector.rate_dps)
-    assert [i for i, r in enumerate(reasons) if r] == [700, 900] and reasons[700] == IMPLAUSIBLE_TEMPERATURE
-    assert corrector.dropped == {IMPLAUSIBLE_TEMPERATURE: 2, 'not_finite': 0}
+    assert [i for i, r in enumerate(reasons) if r] == [700, 900, 1000, 1100, 1200]
+    assert reasons[700] == IMPLAUSIBLE_TEMPERATURE and reasons[1000] == CLIPPED
+    assert corrector.dropped == {IMPLAUSIBLE_TEMPERATURE: 2, CLIPPED: 3, BEYOND_RANGE: 0, 'not_finite': 0}
+    # apply keeps clipped rows (calibrate fit excludes them first, as usable_rates says): here they are left out.
+    rows = usable_rates(raw_rate * cal.rate_scale_factor, cal.rate_scale_factor)
+    t, raw_rate, raw_temp = t[rows], raw_rate[rows], raw_temp[rows]
     applied = apply_calibration(GyroLog(t, raw_rate * cal.rate_scale_factor, raw_temp * cal.temp_scale_factor),
                                 cal, n, max_mean_dps=1.0, start=start)
     assert applied.bias.refined_dps and corrector.compensator.bias.refined_dps
@@ -199,3 +207,18 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
     expected = np.concatenate((rate[:n - 1] - applied.comp_dps[:n - 1], applied.corrected_dps[n - 1:]))
     np.testing.assert_allclose(published, expected, rtol=0, atol=2e-9)
     assert corrector.compensator.outside_range == applied.outside_range
+
+
+def test_rates_beyond_a_kvh_units_range_are_dropped() -> None:
+    """kvh_fog values with good CRCs published as 1000 deg/s .. 1.7e42 deg/s (a DSP-1760 reads +-490; issue 25)."""
+    cal = load_calibration(Path(__file__).resolve().parent.parent / 'config' / 'KVH_DSP1760_EXAMPLE.yaml')
+    corrector = FrameCorrector(cal)
+    rates = [10.0, 489.9, -490.0, 490.5, 1000.0, -5.7e7, 1.7e42, 30.0]
+    reasons = [corrector.step(r, 25.0, 0.001 * i) for i, r in enumerate(rates)]
+    assert reasons == ['', '', '', BEYOND_RANGE, BEYOND_RANGE, BEYOND_RANGE, BEYOND_RANGE, '']
+    assert corrector.dropped[BEYOND_RANGE] == 4 and corrector.rate_dps == 30.0
+    np.testing.assert_array_equal(usable_rates(np.array(rates), cal.rate_scale_factor), [r == '' for r in reasons])
+    # An RD2100 log: the clipped counts are not usable; a simulated table beyond the counts' range is kept.
+    scale = 0.00305
+    counts = np.array([0, 32766, 32767, -32767, -32768, 32787, -33204])
+    np.testing.assert_array_equal(usable_rates(counts * scale, scale), [True, True, False, False, False, True, True])

@@ -356,3 +356,44 @@ def test_constructor_refuses_bad_arguments(kwargs, message):
 def test_standard_bauds_are_accepted():
     for baud in STANDARD_BAUDS:
         Rd2100Driver('/dev/ttyUSB0', baud, 'ascii', lambda f: None)
+
+
+def test_stamps_never_run_ahead_when_bytes_come_faster_than_the_baud():
+    """1 kHz at the default 9600 baud ran 220 s ahead in 30 s; a 100k-frame burst at 115200, 52 s (issue 25)."""
+    period = 1_000_000   # 1 kHz, 8 bytes a frame: 8000 bytes/s where 9600 baud carries 960
+    stamper = WireStamper(9600, 8)
+    ahead = 0
+    for k in range(30_000):   # 30 s, read frame by frame
+        mono = 5_000_000_000 + k * period
+        (stamp, _), = stamper.stamp(mono, mono, 8, [8])
+        ahead = max(ahead, stamp - mono)
+    assert ahead <= 0 and stamper.ahead > 29_000
+    assert stamper.too_fast.startswith('frames arrive faster than 9600 baud allows (8000 bytes/s measured, 960 at '
+                                       'most)'), stamper.too_fast
+    # 50 Hz at 115200 after 100k frames queued and read in bursts of 4096 bytes as fast as the port gives them.
+    stamper = WireStamper(115200, 8)
+    mono = 1_000_000_000
+    for k in range(50):
+        mono += 20_000_000
+        stamper.stamp(mono, mono, 8, [8])
+    for _ in range(100_000 * 8 // 4096):
+        mono += 50_000   # 4096 bytes every 50 us: 82 MB/s, far beyond 11,520 bytes/s
+        stamps = stamper.stamp(mono, mono, 4096, list(range(8, 4097, 8)))
+        assert stamps[-1][0] <= mono
+    later = []
+    for k in range(20):   # then the gyro's own 50 Hz again: stamps at their arrival, 20 ms apart
+        mono += 20_000_000
+        (stamp, _), = stamper.stamp(mono, mono, 8, [8])
+        assert stamp <= mono
+        later.append(stamp)
+    assert np.diff(later)[5:] == pytest.approx(20_000_000, abs=100_000)
+
+
+def test_a_late_read_alone_is_not_warned_as_too_fast():
+    """Reads jittering by 0.5 ms at 1 kHz on 115200 baud bring two frames closer than a wire time: no warning."""
+    stamper = WireStamper(115200, 8)
+    for k in range(5000):
+        mono = 1_000_000_000 + k * 1_000_000 + (500_000 if k % 2 else 0)
+        (stamp, _), = stamper.stamp(mono, mono, 8, [8])
+        assert stamp <= mono
+    assert stamper.too_fast == ''

@@ -2,12 +2,14 @@
 
 import io
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from art_gyro_calibration.log import CsvWriter, LogError, RawLogWriter, read_log, read_log_chunks, write_columns
+from art_gyro_calibration.log import (CsvWriter, CutRowWarning, LogError, RawLogWriter, read_log, read_log_chunks,
+                                      write_columns)
 
 
 def test_raw_counts_and_extras(tmp_path: Path) -> None:
@@ -139,3 +141,29 @@ def test_writer_in_chunks_and_awkward_values(tmp_path: Path) -> None:
     assert buf.getvalue().decode().split('\n') == [
         't,v', '0,0', '1,0', '2,0', '3,0.1', '4,-2.5', '5,0.000000001', '6,123456', '7,1000000000000000', '8,nan',
         '9,inf', '']
+
+
+def test_a_last_row_cut_mid_way_is_dropped_and_said(tmp_path):
+    """A full disk cut '500' to '50' and calibrate read it as a valid row (issue 25)."""
+    path = tmp_path / 'cut.csv'
+    path.write_text('t,raw_rate,raw_temp\n1.0,2,500\n2.0,3,500\n3.0,4,50', encoding='utf-8')
+    with pytest.warns(CutRowWarning, match=r'cut.csv:4: the last row does not end its line \(cut by a kill or a '
+                                           r"full disk\): dropped, '3.0,4,50' not read"):
+        log = read_log(path, 0.00305, 0.05)
+    assert log.t.tolist() == [1.0, 2.0] and log.temp_c.tolist() == [25.0, 25.0]
+    path.write_text('t,raw_rate,raw_temp\n1.0,2,500\n2.0,3,500\n', encoding='utf-8')
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        assert len(read_log(path, 0.00305, 0.05)) == 2
+
+
+def test_calibrate_says_which_row_it_dropped(tmp_path, capsys):
+    from art_gyro_calibration.analysis.cli import main
+    log = tmp_path / 'cut.csv'
+    log.write_text('t,rate_dps,temp_c\n' + ''.join(f'{i * 0.1:.1f},{0.01 * (i % 3)},25\n' for i in range(200))
+                   + '20.0,0.0', encoding='utf-8')
+    cal = Path(__file__).resolve().parents[1] / 'config' / 'NAVC3545.yaml'
+    assert main(['apply', str(log), '--calibration', str(cal), '--out', str(tmp_path / 'o.csv')]) == 0
+    err = capsys.readouterr().err
+    assert f"calibrate: warning: {log}:202: the last row does not end its line" in err, err
+    assert len((tmp_path / 'o.csv').read_text().splitlines()) == 201

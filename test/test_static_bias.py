@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from art_gyro_calibration.static_bias import MotionError, StaticBiasCollector, static_bias
+from art_gyro_calibration.static_bias import MotionError, NoNoiseError, StaticBiasCollector, static_bias
 
 
 def test_values_are_the_means_of_the_report() -> None:
@@ -51,3 +51,19 @@ def test_bad_input() -> None:
         static_bias([float('nan')] * 3, [0.0] * 3)
     with pytest.raises(ValueError, match='at least 2'):
         StaticBiasCollector(1)
+
+
+@pytest.mark.parametrize('value', [0.0, 0.00305, -0.0427])
+def test_a_collection_without_any_spread_is_refused(value: float) -> None:
+    """379 all-zero frames gave the node an "ok" bias of spread exactly 0 (issue 25): no gyro is that quiet."""
+    collector = StaticBiasCollector(100)
+    for _ in range(100):
+        collector.add(value, 0.01, 0.0, 25.0)
+    with pytest.raises(NoNoiseError, match=r'rate spread .* over 100 samples: no gyro is that quiet .*a stuck or '
+                                           'all-zero stream'):
+        collector.result()
+    # A few equal samples can be a quantised gyro at rest: not refused.
+    few = StaticBiasCollector(5)
+    for _ in range(5):
+        few.add(value, 0.01, 0.0, 25.0)
+    assert few.result().rate_std_dps < 1e-9

@@ -27,13 +27,14 @@ import queue
 import signal
 import sys
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, Calibration, CalibrationError,
                                               find_calibration_file, load_calibration, write_calibration)
 from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, RunStart
-from art_gyro_calibration.log import LogError, RawLogWriter
+from art_gyro_calibration.log import CutRowWarning, LogError, RawLogWriter
 from art_gyro_calibration.analysis.bags import BagTopics
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopOptions
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
@@ -207,7 +208,7 @@ def _record(args: argparse.Namespace) -> int:
     from art_gyro_calibration.driver import Rd2100Driver
     if args.serial:
         load_calibration(find_calibration_file(args.serial), expected_serial=args.serial)
-    with Outputs([args.port], args.force) as outputs:
+    with Outputs([args.port], args.force, keep_if_killed=True) as outputs:   # rows nothing can make again
         out = outputs.claim(args.out)
         frames: queue.SimpleQueue[tuple[int, int, int]] = queue.SimpleQueue()
         driver = Rd2100Driver(args.port, args.baud, args.protocol,
@@ -437,12 +438,29 @@ def _return_freed_arrays() -> None:
         pass
 
 
+def _say_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: object = None, line: str | None = None) -> None:
+    """A warning about the input (a cut last row) as one line on stderr, not Python's source location."""
+    print(f'calibrate: warning: {message}', file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``calibrate``; returns the exit status."""
     _return_freed_arrays()
+    args = None
+    # SIGTERM stops as Ctrl-C does: the outputs' staging is removed on the way out (SIGKILL's by the next run).
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         args = build_parser().parse_args(argv)
-        return args.run(args)
+        with warnings.catch_warnings():
+            warnings.simplefilter('always', CutRowWarning)
+            warnings.showwarning = _say_warning
+            return args.run(args)
+    except KeyboardInterrupt:
+        # Ctrl-C is a stop as asked, not a failure to show a traceback for; what was staged is gone.
+        print(f'calibrate{"" if args is None else " " + args.command}: interrupted: no output written',
+              file=sys.stderr)
+        return 130
     except ModuleNotFoundError as e:
         if e.name not in ANALYSIS_EXTRA:
             raise
@@ -454,6 +472,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:
         print(f'calibrate {args.command}: error: {e}', file=sys.stderr)
         return 1
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == '__main__':

@@ -29,6 +29,38 @@ from art_gyro_calibration.signals import Signals
 from art_gyro_calibration.terms import Term, term_basis
 
 
+# A polynomial of R rows (powers of temperature 0..R-1) needs the log's temperature to span (R - 1) times this:
+# over less, its temperature powers fit the noise (0.05 degC per count) and the turn-on bias, not a slope.
+MIN_TEMP_SPAN_PER_POWER_C = 1.0
+# Table rates closer than this (deg/s) are one rate.
+RATE_LEVEL_DPS = 1e-6
+
+
+def check_coverage(temp_c: ArrayLike, table_rates: ArrayLike, rows: int, columns: int) -> None:
+    """Refuse a log that cannot determine a ``rows`` x ``columns`` polynomial, naming what it lacks.
+
+    ``table_rates``: the reference rate of each steady segment. A polynomial of C columns needs
+    C distinct table rates (a log at rest leaves every power of the rate free: a least-squares
+    minimum-norm answer read a true 30 deg/s as 5.9); one of R rows a temperature span of
+    (R - 1) x MIN_TEMP_SPAN_PER_POWER_C.
+    """
+    levels = np.unique(np.round(np.asarray(table_rates, dtype=float) / RATE_LEVEL_DPS)) * RATE_LEVEL_DPS
+    if levels.size < columns:
+        shown = ', '.join(f'{r:g}' for r in levels[:5]) + (' ...' if levels.size > 5 else '')
+        raise ValueError(f'not enough motion for {columns} columns: the table held {levels.size} distinct rate(s) '
+                         f'({shown} deg/s); a polynomial with powers of the rate 0..{columns - 1} needs at least '
+                         f'{columns}: log more table rates, or fit --columns {max(levels.size, 1)}')
+    temp = np.asarray(temp_c, dtype=float)
+    low, high = float(np.min(temp)), float(np.max(temp))
+    need = (rows - 1) * MIN_TEMP_SPAN_PER_POWER_C
+    if high - low < need:
+        fits = int((high - low) // MIN_TEMP_SPAN_PER_POWER_C) + 1
+        raise ValueError(f'not enough temperature range for {rows} rows: the log spans {high - low:.2f} degC '
+                         f'({low:.2f}..{high:.2f}); a polynomial with powers of the temperature 0..{rows - 1} needs '
+                         f'at least {need:g} degC ({MIN_TEMP_SPAN_PER_POWER_C:g} per power): log a wider '
+                         f'temperature range, or fit --rows {fits}')
+
+
 @dataclass(frozen=True)
 class TermSpec:
     """The shape of an extended term before its coefficients are fitted."""

@@ -3,7 +3,12 @@
 Every output is checked before the work starts and written into a hidden staging
 directory beside it (same file system); when the command succeeds each file is renamed
 into place, and when it fails (an error, Ctrl-C) the staging directory is removed and the
-outputs are as they were.
+outputs are as they were. Only a regular file is ever replaced: a FIFO or a device given
+as an output is refused, with ``--force`` too. A staging directory is named after its
+process (``.calibrate-<pid>-...``): one left by a process that no longer runs (SIGKILL, a
+power cut) is removed by the next command that stages in that directory. Outputs that hold
+data nothing can make again (``calibrate record``'s rows) are staged as ``.calibrate-keep-<pid>-...``
+instead, which is never removed.
 """
 
 from __future__ import annotations
@@ -15,19 +20,52 @@ from collections.abc import Iterable
 from pathlib import Path
 from types import TracebackType
 
+from art_gyro_calibration.calibration import special_file_kind
+
 StrPath = str | os.PathLike[str]
+
+
+# Start of a staging directory's name; the process id that owns it follows.
+STAGE_PREFIX = '.calibrate-'
 
 
 class OutputError(ValueError):
     """An output that would destroy data, or that cannot be written."""
 
 
+def _running(pid: int) -> bool:
+    """Whether a process ``pid`` exists (one of another user's counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_stages(directory: Path) -> list[Path]:
+    """Remove the staging directories in ``directory`` whose process no longer runs; returns them.
+
+    A process killed without a chance to clean up (SIGKILL) leaves its staging directory (half an
+    output, hundreds of MB); its name carries its pid, so the next command knows it is nobody's.
+    """
+    removed = []
+    for stage in directory.glob(f'{STAGE_PREFIX}*-*'):
+        pid = stage.name[len(STAGE_PREFIX):].split('-', 1)[0]
+        if pid.isdigit() and stage.is_dir() and not stage.is_symlink() and not _running(int(pid)):
+            shutil.rmtree(stage, ignore_errors=True)
+            removed.append(stage)
+    return removed
+
+
 class Outputs:
     """The outputs of one command; use as a context manager: they are renamed into place when it ends well."""
 
-    def __init__(self, inputs: Iterable[StrPath | None], force: bool = False) -> None:
+    def __init__(self, inputs: Iterable[StrPath | None], force: bool = False, keep_if_killed: bool = False) -> None:
         self._inputs = [Path(p) for p in inputs if p is not None]
         self._force = force
+        self._prefix = f'{STAGE_PREFIX}{"keep-" if keep_if_killed else ""}{os.getpid()}-'
         self._claimed: list[Path] = []
         self._stages: list[tuple[Path, Path]] = []   # (staging directory, directory its files go to)
 
@@ -66,6 +104,9 @@ class Outputs:
             raise OutputError(f'{p}: named as two outputs')
         if p.is_dir():
             raise OutputError(f'{p}: is a directory')
+        if p.exists() and not p.is_file():
+            raise OutputError(f'{p}: is {special_file_kind(p.stat().st_mode)}, not a regular file: '
+                              'never replaced, --force or not')
         if p.exists() and not self._force:
             raise OutputError(f'{p}: exists; pass --force to replace it')
         if not real.parent.is_dir():
@@ -74,8 +115,9 @@ class Outputs:
         return real
 
     def _stage(self, parent: Path, named: StrPath) -> Path:
+        remove_stale_stages(parent)
         try:
-            stage = Path(tempfile.mkdtemp(prefix='.calibrate-', dir=parent))
+            stage = Path(tempfile.mkdtemp(prefix=self._prefix, dir=parent))
         except OSError as e:
             raise OutputError(f'{named}: cannot write in {parent}: {e.strerror}') from None
         self._stages.append((stage, parent))

@@ -15,15 +15,18 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
-                                              CalibrationError, find_calibration_file, load_calibration)
-from art_gyro_calibration.compensation import RunStart
-from art_gyro_calibration.log import GyroLog
+                                              CalibrationError, find_calibration_file, load_calibration,
+                                              unit_range_dps)
+from art_gyro_calibration.compensation import RunStart, usable_rates
+from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.bags import BagTopics, read_any_log
 from art_gyro_calibration.analysis.baseline import BASELINE, BaselineCheck, check_baseline, compare_with_baseline
+from art_gyro_calibration.analysis.fit import check_coverage
 from art_gyro_calibration.analysis.loop import (DEFAULT_SERIAL, HEADING_SIGNALS, LoopOptions, LoopResult, close_loop,
                                                 not_written_reason)
+from art_gyro_calibration.analysis.metrics import steady_segments
 from art_gyro_calibration.analysis.replay import (RESTARTS_NAME, Validation, startup_check, unjudged_warm_up,
                                                   validate)
 from art_gyro_calibration.analysis.report import build_report, validation_section
@@ -113,6 +116,18 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
         loop_options = replace(loop_options, still_instability_dps=still['bias_instability_dps'])
     log = read_any_log(log_path, loop_options.rate_scale_factor, loop_options.temp_scale_factor, settings.topics,
                        warn)
+    usable = usable_rates(log.rate_dps, loop_options.rate_scale_factor)
+    if not usable.all():   # the node drops these frames: no value to fit (a turn beyond the range reads as slower)
+        warn(f'{log.t.size - int(usable.sum())} of {log.t.size} rows excluded: the rate clipped (at '
+             f'+-{unit_range_dps(loop_options.rate_scale_factor):g} deg/s) or beyond any unit\'s range (the node '
+             'drops such frames)')
+        log = log.slice(usable)
+    if log.ref_rate is not None:   # without it the loop says what is missing
+        try:
+            check_coverage(log.temp_c, steady_segments(log.t, log.ref_rate, loop_options.settle_s).rate,
+                           settings.rows, settings.columns)
+        except ValueError as e:
+            raise LogError(f'{log_path}: {e}') from None
     loop = close_loop(log, settings.rows, settings.columns, loop_options)
     # The report and figures are the loop's; what the check drops is in its section, as --validate's drops are.
     report = build_report(log, loop, settings.bias_samples, source=str(log_path))

@@ -50,7 +50,8 @@ from art_gyro_calibration.driver import Rd2100Driver
 from art_gyro_calibration.frame import Frame
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
-from art_gyro_calibration.ros.parameters import IMU_TOPIC, NODE_NAME, NodeParameters, ParameterError, usage
+from art_gyro_calibration.ros.parameters import (IMU_TOPIC, NODE_NAME, NodeParameters, ParameterError,
+                                                 check_params_files, usage)
 from art_gyro_calibration.ros.raw_log import RawLog
 
 # Variance (rad/s)^2 given to the x and y rates, which a single-axis gyro does not measure:
@@ -142,7 +143,8 @@ class GyroNode(Node):
         stamp_ns = frame.stamp_ns
         self._publish(sample.raw_rate, sample.raw_temp, stamp_ns, frame.steady_ns * 1e-9)
         # After publishing: a log that fails (full disk) must not delay or stop the messages.
-        self.raw_log.write(stamp_ns * 1e-9, sample.raw_rate, sample.raw_temp)   # the log keeps what the wire said
+        # The log keeps what the wire said, at the steady time: a clock stepped back made the stamps' log unreadable.
+        self.raw_log.write(frame.steady_ns * 1e-9, sample.raw_rate, sample.raw_temp)
 
     def _publish(self, raw_rate: int, raw_temp: int, stamp_ns: int, t: float) -> None:
         corrector = self.corrector
@@ -218,6 +220,7 @@ def main(args: list[str] | None = None) -> int:
     _INTERRUPTED.clear()
     signal.signal(signal.SIGINT, _stop_through_rclpy)
     try:
+        check_params_files(argv)   # before rcl's parser, which hangs on a huge file or a FIFO
         rclpy.init(args=argv)
         if _INTERRUPTED.is_set():   # before rclpy's handler was there to shut the context down
             return 0

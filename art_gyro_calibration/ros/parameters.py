@@ -213,6 +213,16 @@ def params_files(argv: Sequence[str]) -> list[str]:
     return files
 
 
+def check_params_files(argv: Sequence[str]) -> None:
+    """Read every ``--params-file`` as :func:`params_file_values` will, before rcl parses them.
+
+    rcl's parser hangs on a multi-MB file (and blocks on a FIFO) ignoring SIGINT: a file that is
+    not a regular one, too large, or not the YAML the node accepts is refused here first.
+    """
+    for path in params_files(argv):
+        read_yaml(path, 'params file')
+
+
 def _entry_pattern(key: str) -> re.Pattern[str]:
     """A params file's node entry (``/**``, ``gyro_node``, ``/robot/*``) as a pattern of fully qualified names."""
     key = key if key.startswith('/') else '/' + key

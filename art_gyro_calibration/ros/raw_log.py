@@ -2,7 +2,9 @@
 
 A write that fails (full disk) or a file deleted meanwhile stops logging with one console
 error and an ERROR status; a new file is tried every :data:`LOG_RETRY_S`; the rows meanwhile
-are counted, not logged.
+are counted, not logged, and so are the rows of the failed write not yet flushed. A ``log_path``
+that is a file is continued after its last whole row; one that was a directory is made again
+if deleted; a file that cannot take its header (the disk still full) is removed, not left empty.
 """
 
 from __future__ import annotations
@@ -46,23 +48,49 @@ class RawLog:
         self._file = ''
         self._error = ''
         self._rows_lost = 0
+        self._directory = bool(log_path) and Path(log_path).is_dir()   # at startup: made again if deleted
         if log_path:
             self._open(at_startup=True)
         node.create_timer(LOG_RETRY_S, self._retry)
 
     def _target(self) -> Path:
         path = Path(self._log_path)
-        if path.is_dir():
+        if self._directory:
+            path.mkdir(parents=True, exist_ok=True)   # deleted while running: a directory again, not a file
             stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')
-            path = path / f'{self._serial_number}_{stamp}.csv'
+            name = f'{self._serial_number}_{stamp}'
+            path = path / f'{name}.csv'
+            n = 1
+            while path.exists():   # a second file within the same second (a retry)
+                path, n = path.with_name(f'{name}_{n}.csv'), n + 1
         return path
 
     def _open(self, at_startup: bool = False) -> None:
-        path = self._target()
+        created = False
+        path = Path(self._log_path)
+        stream = None
         try:
-            stream = open(path, 'x', encoding='utf-8')
-            writer = RawLogWriter(stream)
+            path = self._target()
+            if not self._directory and not at_startup and path.is_file() and path.stat().st_size:
+                _cut_to_last_line(path)   # the same file, after its last whole row
+                stream = open(path, 'a', encoding='utf-8')
+                writer = RawLogWriter(stream, header=False)
+            else:
+                stream = open(path, 'x', encoding='utf-8')
+                created = True
+                writer = RawLogWriter(stream)
+            writer.flush()   # the header on disk now: a full disk fails here, not on the first rows
         except OSError as e:
+            if stream is not None:   # the header did not fit
+                try:
+                    stream.close()   # its flush fails again; the file is closed all the same
+                except OSError:
+                    pass
+            if created:   # no empty file every retry while the disk stays full
+                try:
+                    path.unlink()
+                except OSError:
+                    pass
             if at_startup:
                 raise ParameterError(f'parameter log_path: cannot create {path}: {e.strerror}') from None
             self._error = f'cannot create {path}: {e.strerror or e}'
@@ -83,7 +111,8 @@ class RawLog:
             try:
                 log.write(t, raw_rate, raw_temp)
             except (OSError, ValueError) as e:
-                self._rows_lost += 1
+                # This row and those written since the last flush that succeeded: none of them is on disk whole.
+                self._rows_lost += max(1, log.unwritten())
                 self._stop(f'writing {self._file} failed: {e}')
 
     def _stop(self, error: str) -> None:
@@ -127,3 +156,18 @@ class RawLog:
                 log.close()
             except (OSError, ValueError) as e:
                 self._node.get_logger().error(f'closing the raw log {self._file}: {e}')
+
+
+def _cut_to_last_line(path: Path) -> None:
+    """Cut a log after its last line end: a row a full disk left half-written is not continued into a wrong one."""
+    with open(path, 'r+b') as f:
+        keep = f.seek(0, os.SEEK_END)
+        while keep > 0:
+            start = max(0, keep - 4096)
+            f.seek(start)
+            end = f.read(keep - start).rfind(b'\n')
+            if end >= 0:
+                keep = start + end + 1
+                break
+            keep = start
+        f.truncate(keep)

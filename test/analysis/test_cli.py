@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -102,7 +103,8 @@ def test_bad_inputs_are_clear_errors(fitted, monkeypatch, capsys, args, message)
     (fitted / 'noref.csv').write_text('t,rate_dps,temp_c\n' + ''.join(f'{i},0.01,{20 + i / 100}\n' for i in range(200)))
     (fitted / 'bad.csv').write_text('t,rate_dps,temp_c\n0,0.1,20\n1,abc,20\n')
     (fitted / 'nanextra.csv').write_text('t,rate_dps,temp_c,ref_rate,supply_v\n'
-                                         + ''.join(f'{i},0.01,20,0,{"nan" if i == 2 else 24}\n' for i in range(200)))
+                                         + ''.join(f'{i},0.01,{20 + i / 20},{0 if i < 100 else 30},'
+                                                   f'{"nan" if i == 2 else 24}\n' for i in range(200)))
     assert main(args) == 1
     err = capsys.readouterr().err
     assert f'calibrate {args[0]}: error:' in err and message in err
@@ -324,3 +326,107 @@ def test_record_says_when_an_open_port_is_silent(tmp_path, capsys):
         fake.stop()
     assert 'for 1 s (port open, no frames); still waiting' in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_force_never_replaces_a_special_file(fitted, tmp_path, capsys):
+    """``--force`` replaced a FIFO given as ``--out`` with a regular file (issue 25)."""
+    log = tmp_path / 'log.csv'
+    _raw_log(log, 1000)
+    fifo = tmp_path / 'out.csv'
+    os.mkfifo(fifo)
+    assert main(['apply', str(log), '--calibration', str(fitted / 'CAL.yaml'), '--out', str(fifo), '--force']) == 1
+    assert f'{fifo}: is a FIFO, not a regular file: never replaced' in capsys.readouterr().err
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode) and _leftovers(tmp_path) == []
+
+
+def test_ctrl_c_on_apply_is_a_clean_stop(fitted, tmp_path, monkeypatch, capsys):
+    """Ctrl-C printed a traceback (issue 25): now one line, exit 130, nothing written or staged."""
+    import art_gyro_calibration.analysis.streaming as streaming
+
+    def interrupted(log_path, calibration, bias_samples, out, **kwargs):
+        out.write(b'half a result\n')
+        raise KeyboardInterrupt
+    monkeypatch.setattr(streaming, 'apply_to_csv', interrupted)
+    log = tmp_path / 'log.csv'
+    _raw_log(log, 1000)
+    out = tmp_path / 'out.csv'
+    try:
+        code = main(['apply', str(log), '--calibration', str(fitted / 'CAL.yaml'), '--out', str(out)])
+    except KeyboardInterrupt:
+        pytest.fail('Ctrl-C went through calibrate\'s main as a traceback')
+    assert code == 130 and capsys.readouterr().err == 'calibrate apply: interrupted: no output written\n'
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
+def test_staging_of_a_killed_run_is_removed_by_the_next(fitted, tmp_path):
+    """SIGKILL left a hidden staging directory (497 MB of a half-written apply) for ever (issue 25)."""
+    script = ('import sys, time\n'
+              'from art_gyro_calibration.analysis.outputs import Outputs\n'
+              'staged = Outputs([]).claim(sys.argv[1])\n'
+              'staged.write_bytes(bytes(1 << 20))\n'
+              'print(staged, flush=True)\n'
+              'time.sleep(60)\n')
+    proc = subprocess.Popen([sys.executable, '-c', script, str(tmp_path / 'big.csv')], stdout=subprocess.PIPE,
+                            text=True, cwd=REPO)
+    staged = Path(proc.stdout.readline().strip())
+    proc.kill()
+    proc.wait()
+    proc.stdout.close()
+    assert staged.is_file() and _leftovers(tmp_path) == [staged.parent.name]
+    log = tmp_path / 'log.csv'
+    _raw_log(log, 1000)
+    assert main(['apply', str(log), '--calibration', str(fitted / 'CAL.yaml'), '--out', str(tmp_path / 'o.csv')]) == 0
+    assert _leftovers(tmp_path) == [] and not (tmp_path / 'big.csv').exists()
+
+
+def _table_log(path: Path, rates: list[float], temp_c: tuple[float, float]) -> None:
+    """A rate-table log: each of ``rates`` (deg/s) for 60 s at 2 Hz while the temperature ramps over ``temp_c``."""
+    ref = np.repeat(rates, 120)
+    t = np.arange(ref.size) / 2.0
+    temp = np.linspace(*temp_c, ref.size)
+    rng = np.random.default_rng(1)
+    rate = ref * 1.001 + 0.01 * (temp - 25.0) + rng.normal(0.0, 0.005, ref.size)
+    np.savetxt(path, np.column_stack([t, rate, temp, ref]), delimiter=',', header='t,rate_dps,temp_c,ref_rate',
+               comments='', fmt='%.9f')
+
+
+@pytest.mark.parametrize('rates, temp_c, rows, columns, message', [
+    ([0.0] * 20, (10.0, 40.0), 3, 4, 'not enough motion for 4 columns: the table held 1 distinct rate(s) (0 deg/s); '
+     'a polynomial with powers of the rate 0..3 needs at least 4: log more table rates, or fit --columns 1'),
+    ([0.0, 30.0] * 10, (10.0, 40.0), 3, 4, 'held 2 distinct rate(s) (0, 30 deg/s)'),
+    ([0.0, 30.0, -45.0, 60.0] * 5, (25.0, 25.3), 3, 4, 'not enough temperature range for 3 rows: the log spans '
+     '0.30 degC (25.00..25.30); a polynomial with powers of the temperature 0..2 needs at least 2 degC (1 per power): '
+     'log a wider temperature range, or fit --rows 1'),
+], ids=['at_rest', 'two_rates', 'one_temperature'])
+def test_fit_refuses_a_log_that_cannot_determine_the_polynomial(tmp_path, capsys, rates, temp_c, rows, columns,
+                                                                message):
+    """No motion: it wrote a calibration reading a true 30 deg/s as 5.9 deg/s, exit 0 (issue 25)."""
+    log = tmp_path / 'table.csv'
+    _table_log(log, rates, temp_c)
+    assert main(['fit', str(log), '--rows', str(rows), '--columns', str(columns), '--draws', '20',
+                 '--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'REPORT.json')]) == 1
+    err = capsys.readouterr().err
+    assert f'calibrate fit: error: {log}: not enough ' in err and message in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['table.csv']
+
+
+def test_fit_excludes_clipped_rows_and_says_how_many(tmp_path, capsys):
+    """Rows at +-32767 counts were fitted as values: here four spurious effects (rate_sign, ...) (issue 25)."""
+    sim = tmp_path / 'sim.csv'
+    assert main(['simulate', '--serial', 'NAVC3545', '--hours', '2', '--rate-hz', '2', '--seed', '3',
+                 '--out', str(sim)]) == 0
+    with open(sim, encoding='utf-8') as stream:
+        header = stream.readline().strip()
+    data = np.loadtxt(sim, delimiter=',', skiprows=1)
+    assert header.split(',')[1] == 'raw_rate'
+    data[:, 1] = np.clip(data[:, 1], -32768, 32767)   # the table's +-100 deg/s beyond NAVC3545's 99.94: clipped
+    clipped = int(np.count_nonzero(np.abs(data[:, 1]) >= 32767))
+    assert clipped > 500
+    log = tmp_path / 'clipped.csv'
+    np.savetxt(log, data, delimiter=',', header=header, comments='', fmt=['%.6f', '%d', '%d', '%.9g', '%.9g'])
+    capsys.readouterr()
+    assert main(['fit', str(log), '--rows', '3', '--columns', '4', '--serial', 'NAVC3545',
+                 '--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'REPORT.json')]) == 0
+    err = capsys.readouterr().err
+    assert f'warning: {clipped} of {len(data)} rows excluded: the rate clipped (at +-99.9424 deg/s)' in err, err
+    assert load_calibration(tmp_path / 'CAL.yaml').terms == ()

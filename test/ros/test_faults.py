@@ -10,6 +10,7 @@ recovery arrive without loss.
 
 from __future__ import annotations
 
+import os
 import random
 import signal
 import subprocess
@@ -22,7 +23,8 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from rosproc import REPO, Listener, domain_id, node_env, node_with_listener, stop_node, wait_until  # noqa: E402
+from rosproc import (REPO, TIMEOUT_S, Listener, domain_id, node_env, node_with_listener, start_node,  # noqa: E402
+                     stop_node, wait_until)
 from std_srvs.srv import Trigger  # noqa: E402
 
 from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
@@ -49,7 +51,8 @@ class SequenceCounts:
         """Raw (rate, temperature) counts of the frames sent at times ``t``."""
         index = np.rint(np.asarray(t) * self.rate_hz).astype(np.int64)
         temp = TEMP_BASE + index % PERIOD if self.raw_temp is None else np.full(index.shape, self.raw_temp)
-        return np.full(index.shape, self.raw_rate), temp
+        # +-1 count of "noise": a rate without any spread is no gyro's, and its static bias is refused.
+        return self.raw_rate + index % 3 - 1, temp
 
 
 def sequence_gyro(link: Path, protocol: str = 'binary') -> FakeRd2100:
@@ -421,3 +424,72 @@ def test_log_failures_stop_logging_not_publishing(tmp_path: Path, loopback: None
             stop_node(proc, signal.SIGINT, output)
         finally:
             listener.close()
+
+
+def _huge_params_file(tmp_path: Path) -> list[str]:
+    """3 MB of valid YAML: rcl's parser takes minutes over it, ignoring SIGINT (issue 25)."""
+    body = ''.join(f'    p{i}: {i}\n' for i in range(200_000))
+    (tmp_path / 'huge.yaml').write_text('/**:\n  ros__parameters:\n' + body)
+    return ['-p', 'serial_number:=NAVC3545', '--params-file', str(tmp_path / 'huge.yaml')]
+
+
+def _fifo_calibration(tmp_path: Path) -> list[str]:
+    """A FIFO nobody writes: opening it to read blocks for ever (issue 25)."""
+    os.mkfifo(tmp_path / 'cal.yaml')
+    return ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={tmp_path}/cal.yaml']
+
+
+def _fifo_params_file(tmp_path: Path) -> list[str]:
+    os.mkfifo(tmp_path / 'params.yaml')
+    return ['-p', 'serial_number:=NAVC3545', '--params-file', str(tmp_path / 'params.yaml')]
+
+
+def _duplicate_key(tmp_path: Path) -> list[str]:
+    """The polynomial given twice: the last (all zero, the rate uncompensated) won silently (issue 25)."""
+    text = (REPO / 'config' / 'NAVC3545.yaml').read_text()
+    (tmp_path / 'cal.yaml').write_text(text + '    polynomial:\n      rows: 1\n      columns: 1\n'
+                                       '      coefficients: [0.0]\n')
+    return ['--params-file', str(tmp_path / 'cal.yaml'), '-p', 'port:=/nonexistent']
+
+
+@pytest.mark.parametrize('args, message', [
+    (_huge_params_file, '{tmp}/huge.yaml: larger than 1048576 bytes: not a params file'),
+    (_fifo_calibration, '{tmp}/cal.yaml: is a FIFO, not a regular file'),
+    (_fifo_params_file, '{tmp}/params.yaml: is a FIFO, not a regular file'),
+    (_duplicate_key, "key 'polynomial' given twice, on lines"),
+], ids=['huge_params_file', 'fifo_calibration', 'fifo_params_file', 'duplicate_key'])
+def test_bad_files_refused_at_once(tmp_path: Path, args, message: str) -> None:
+    """Files that hung start-up or loaded silently wrong: refused with one line naming the file."""
+    output = tmp_path / 'node.log'
+    proc = start_node(domain_id(), output, *args(tmp_path))
+    try:
+        code = proc.wait(TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f'the node hung or ran instead of refusing:\n{output.read_text()}') from None
+    text = output.read_text()
+    assert code == 1 and text.startswith('gyro_node: error: ') and message.format(tmp=tmp_path) in text, text
+    assert 'Traceback' not in text
+
+
+def test_clipped_rates_are_counted_not_published(tmp_path: Path, loopback: None) -> None:
+    """+-32767 counts went out as +-98.8 deg/s with every status OK: a faster turn passed off as a slower one."""
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    clipped = [32767, -32767, -32768]
+    with (sequence_gyro(tmp_path / 'rd2100') as fake,
+          node_with_listener(domain, output, *node_args(fake.path, 'static_bias_on_startup:=false'))
+          as (proc, listener)):
+        wait_frames(listener, 10, proc, output)
+        for raw_rate in clipped:   # temperatures outside the sequence code: any of them published would show
+            inject_alone(fake, encode_binary(raw_rate, TEMP_BASE + PERIOD + 5))
+        inject_alone(fake, encode_binary(32766, TEMP_BASE + PERIOD + 6))   # one count inside: a measurement
+        link = listener.wait_status('link', lambda s: counter(s, 'dropped_clipped') == len(clipped),
+                                    'the clipped frames counted', proc, output)
+        assert link['level'] == ERROR and f'{len(clipped)} clipped' in link['message'], link
+        assert counter(link, 'dropped') == len(clipped)
+        wait_tail(listener, fake, proc, output)
+        extra = [c for c in counts(listener.temperatures()) if c >= TEMP_BASE + PERIOD]
+        assert extra == [TEMP_BASE + PERIOD + 6], extra
+        assert gaps(residues(listener.temperatures())) == 0
