@@ -345,11 +345,12 @@ def check_envelope(calibration: Calibration, where: str) -> None:
 def _check_correction(calibration: Calibration, where: str) -> None:
     """Refuse a polynomial whose correction exceeds the unit's range somewhere in the calibrated envelope.
 
-    Over a grid of temperatures (``temperature_range_c``) and rates (the unit's range): a
+    Over a grid of the temperatures the model is evaluated at (:attr:`Calibration.envelope_range_c`:
+    the clamp's range, else every plausible temperature) and rates (the unit's range): a
     correction larger than every rate the unit can read (a 1e300 coefficient) turns any reading
     into nonsense, published as a plausible value.
     """
-    low_c, high_c = calibration.temperature_range_c
+    low_c, high_c = calibration.envelope_range_c
     span = calibration.rate_range_dps
     temps = np.linspace(low_c, high_c, ENVELOPE_GRID[0])
     rates = np.linspace(-span, span, ENVELOPE_GRID[1])

@@ -147,12 +147,13 @@ def test_a_calibration_without_any_range_is_still_checked_over_every_plausible_t
     del params['temperature_warn_range_c']
     cal = from_parameters(params, 'test.yaml')
     assert cal.expected_range_c is None and cal.envelope_range_c == (-60.0, 130.0)
-    # Finite up to 50 degC, overflowing by 130 degC: refused without a range, loaded with one that stops short.
+    # Finite up to 50 degC, overflowing by 130 degC: without a range it overflows in the envelope; with one that
+    # stops short it does not, and is refused only as a correction beyond the unit's range within 10..50 degC.
     params['polynomial.coefficients'] = [0.0] * 3 + [3e304] + [0.0] * 8   # temp**2 rate**0: overflows by 130
     with pytest.raises(CalibrationError, match=r'test.yaml: polynomial.coefficients: .*overflows .*-60..130 degC'):
         from_parameters(params, 'test.yaml')
-    assert from_parameters({**params, 'temperature_range_c': [10.0, 50.0]}, 'test.yaml').temperature_range_c \
-        == (10.0, 50.0)
+    with pytest.raises(CalibrationError, match=r'test.yaml: polynomial.coefficients: a correction of .* \(at 50 degC'):
+        from_parameters({**params, 'temperature_range_c': [10.0, 50.0]}, 'test.yaml')
 
 
 def test_bad_files_are_refused_with_their_path(tmp_path: Path) -> None:
@@ -357,7 +358,7 @@ def test_special_files_are_refused_unread(tmp_path: Path) -> None:
 @pytest.mark.parametrize('change, message', [
     # 3 x 4, row-major, temperature powers 2..0 by rate powers 3..0: index 8 multiplies rate^3 alone.
     ({'polynomial.coefficients': [0.0] * 8 + [1e300, 0.0, 0.0, 0.0]},
-     r'polynomial.coefficients: a correction of 9.983e\+305 deg/s \(at 10 degC, -99.9424 deg/s\) exceeds the unit\'s '
+     r'polynomial.coefficients: a correction of 9.983e\+305 deg/s \(at -60 degC, -99.9424 deg/s\) exceeds the unit\'s '
      r'range of \+-99.9424 deg/s'),
     ({'polynomial.coefficients': [0.0] * 8 + [1e-3, 0.0, 0.0, 0.0]},
      'polynomial.coefficients: a correction of 998.3 deg/s'),
