@@ -196,7 +196,8 @@ def _baseline(log: GyroLog, result: LoopResult, calibration: Calibration,
         except CalibrationError:
             path = None
         if path is None:
-            return f'no baseline: no calibration of {serial} is packaged and --baseline was not given'
+            return (f'no baseline: no calibration of {serial} is packaged and --baseline was not given'
+                    if serial != DEFAULT_SERIAL else 'no baseline: neither --serial nor --baseline was given')
     baseline = load_calibration(path, expected_serial=None if serial == DEFAULT_SERIAL else serial)
     check_baseline(baseline, path, settings.loop.rate_scale_factor, settings.loop.temp_scale_factor)
     check = compare_with_baseline(log, result, calibration, baseline, path, settings.bias_samples,
