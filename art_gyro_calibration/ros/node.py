@@ -197,6 +197,8 @@ class GyroNode(Node):
         self.raw_log.close()
 
 
+# Imported by rosidl_generator_py only to generate code (see main).
+_ROSIDL_GENERATOR = 'rosidl_generator_py.generate_py_impl'
 # Set by Python's part of SIGINT: one that came before rclpy.init installed rclpy's handler stops the node too.
 _INTERRUPTED = threading.Event()
 
@@ -213,6 +215,10 @@ def main(args: list[str] | None = None) -> int:
         print(usage(__doc__.splitlines()[0]))
         return 0
     node: GyroNode | None = None
+    # rosidl_generator_py's __init__ imports its code generator (lark, empy, hashlib with OpenSSL: 6.8 MiB resident,
+    # doc/benchmark.md) to offer generate_py, which only a package build uses, and takes an ImportError there as
+    # "not available". The node builds nothing: the message type supports it imports need only import_type_support.
+    sys.modules.setdefault(_ROSIDL_GENERATOR, None)
     # SIGINT stops the node through rclpy's handler, which shuts the context down and the executor with it.
     # Python's own handler would also raise KeyboardInterrupt wherever the main thread is: inside the thread
     # pool's `with lock:` it leaves the lock held, the pool's workers wait on it, and the exit waits on them

@@ -1,0 +1,110 @@
+"""Resident memory of a running ``gyro_node``, and what holds it.
+
+``python bench/bench_node_memory.py [--seconds S] [--runs N]``: each run starts ``gyro_node`` (as
+``gyro_node`` does: ``python -m art_gyro_calibration.ros.node``) against a simulated RD2100 at 10 Hz
+with its start-up static bias, lets it run ``--seconds``, then reads the node's ``/proc/<pid>/status``
+(VmRSS, VmHWM) and ``smaps_rollup`` (anonymous and file-backed). ``--stages`` instead builds the node
+step by step in one interpreter and prints VmRSS after each step (imports, DDS participant, spinning).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from art_gyro_calibration.fake_rd2100 import FakeRd2100
+
+STAGES = '''
+import json, os, sys, threading, time
+def rss():
+    return int(open('/proc/self/status').read().split('VmRSS:')[1].split()[0]) / 1024
+out = {'python': rss()}
+import numpy
+out['+ numpy'] = rss()
+import yaml, serial
+out['+ yaml, pyserial'] = rss()
+import rclpy
+out['+ rclpy'] = rss()
+from sensor_msgs.msg import Imu
+from std_msgs.msg import Bool, Float64
+from diagnostic_msgs.msg import DiagnosticArray
+from std_srvs.srv import Trigger
+out['+ message modules'] = rss()
+import art_gyro_calibration.ros.node as n
+out['+ art_gyro_calibration (node module)'] = rss()
+if sys.argv[1] == 'block':
+    sys.modules.setdefault(n._ROSIDL_GENERATOR, None)   # as main() does
+argv = ['gyro_node', '--ros-args', '-p', 'serial_number:=NAVC3545', '-p', 'port:=/nonexistent']
+rclpy.init(args=argv)
+out['+ rclpy.init'] = rss()
+node = n.GyroNode(argv)
+out['+ GyroNode (DDS participant, type supports, entities)'] = rss()
+from rclpy.executors import MultiThreadedExecutor
+executor = MultiThreadedExecutor(num_threads=3)
+executor.add_node(node)
+threading.Thread(target=executor.spin, daemon=True).start()
+time.sleep(5.0)
+out['spinning 5 s'] = rss()
+print(json.dumps(out))
+node.close()
+executor.shutdown()
+rclpy.try_shutdown()
+'''
+
+
+def _proc_kib(pid: int, name: str, key: str) -> float:
+    text = Path(f'/proc/{pid}/{name}').read_text()
+    return float(text.split(key + ':')[1].split()[0])
+
+
+def run_node(seconds: float) -> dict[str, float]:
+    """One node against a fake gyro: its memory after ``seconds``, in MiB."""
+    with tempfile.TemporaryDirectory() as tmp, FakeRd2100('NAVC3545', profile='0', seed=1) as fake:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        with open(Path(tmp) / 'node.log', 'wb') as out:
+            proc = subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.ros.node', '--ros-args',
+                                     '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}'],
+                                    env=env, stdout=out, stderr=subprocess.STDOUT)
+        try:
+            time.sleep(seconds)
+            assert proc.poll() is None, (Path(tmp) / 'node.log').read_text()
+            log = (Path(tmp) / 'node.log').read_text()
+            assert 'static bias: StaticBiasDrift=' in log, log   # running: frames corrected, the bias taken
+            mib = {key: _proc_kib(proc.pid, 'status', key) / 1024 for key in ('VmRSS', 'VmHWM')}
+            mib.update({key: _proc_kib(proc.pid, 'smaps_rollup', key) / 1024
+                        for key in ('Anonymous', 'Pss_File', 'Shared_Clean')})
+        finally:
+            proc.send_signal(2)
+            proc.wait(30)
+    return mib
+
+
+def main() -> int:
+    """Measure and print."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--seconds', type=float, default=20.0)
+    parser.add_argument('--runs', type=int, default=3)
+    parser.add_argument('--stages', action='store_true', help='VmRSS step by step, without and with the block')
+    args = parser.parse_args()
+    if args.stages:
+        for mode in ('no block', 'block'):
+            result = subprocess.run([sys.executable, '-c', STAGES, mode.replace(' ', '_')], capture_output=True,
+                                    text=True, check=True)
+            print(mode + ': ' + result.stdout.splitlines()[0])
+        return 0
+    runs = [run_node(args.seconds) for _ in range(args.runs)]
+    for key in runs[0]:
+        values = sorted(r[key] for r in runs)
+        print(f'{key}: {statistics.median(values):.1f} MiB median ({values[0]:.1f}-{values[-1]:.1f})')
+    print(f'({args.runs} runs of gyro_node at 10 Hz for {args.seconds:g} s)')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
