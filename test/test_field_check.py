@@ -12,7 +12,7 @@ import field_check as fc  # noqa: E402
 
 
 def test_polynomial_is_the_report_form() -> None:
-    """comp is sum_ij c[i][j] T^(rows-1-i) rate^(cols-1-j), rows of temperature powers highest first."""
+    """The correction is sum_ij c[i][j] T^(rows-1-i) rate^(cols-1-j), rows of temperature powers highest first."""
     gyro = fc.Gyro.packaged('NAVC3545')
     rate, temp = np.array([-37.0, 0.0, 81.5]), np.array([12.0, 30.0, 47.0])
     c = np.array(gyro.coefficients)
