@@ -466,7 +466,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         # A robot's install has the node's runtime only: say what to add instead of a traceback.
         print(f'calibrate: error: the offline tools need {e.name}, which this installation lacks: '
-              'pip install "art_gyro_calibration[analysis]" (scipy, matplotlib, h5py, threadpoolctl, rosbags)',
+              'from the repository, pip install ".[analysis]" (scipy, matplotlib, h5py, threadpoolctl, rosbags; the '
+              'package is not on PyPI), or scripts/setup.sh',
               file=sys.stderr)
         return 1
     except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:

@@ -26,7 +26,8 @@ from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.analysis.loop import LoopResult  # noqa: E402
 from art_gyro_calibration.analysis.metrics import heading_errors_360  # noqa: E402
 from art_gyro_calibration.analysis.report import STAGES, stage_errors  # noqa: E402
-from art_gyro_calibration.signals import SIGNALS  # noqa: E402
+from art_gyro_calibration.signals import LAGGED_SIGNAL, SIGNALS  # noqa: E402
+from art_gyro_calibration.terms import Term  # noqa: E402
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS  # noqa: E402
 
 BAND_C = 10.0
@@ -85,8 +86,7 @@ def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
         centres = 0.5 * (edges[:-1] + edges[1:])
         ax.plot(centres[full], sums[full] / counts[full], 'o-', ms=3)
         ax.axhline(0.0, color='grey', lw=0.8)
-        unit = SIGNALS[name].unit if name in SIGNALS else 'log units'
-        ax.set_xlabel('heading modulo 360 (deg)' if name == 'angle' else f'{name} ({unit or "-"})')
+        ax.set_xlabel(signal_label(name))
         if name in found:
             ax.set_title(f'shape beyond chance: {found[name].shape_dph:.1f} deg/h', color='red', fontsize=10)
         ax.grid(True, alpha=0.3)
@@ -151,6 +151,27 @@ def _heading_360(errors: dict[str, NDArray[np.float64]], result: LoopResult, pat
     return _per_stage(path, 'heading error after a full turn (deg)', draw)
 
 
+def signal_label(name: str) -> str:
+    """An axis label for signal ``name``: what it is and its unit (an extra log column: its name, in its own units)."""
+    if name == 'angle':
+        return 'heading modulo 360 (deg)'
+    if name not in SIGNALS:
+        return f'{name} (log column, in its own units)'
+    return f'{name.replace("_", " ")} ({SIGNALS[name].unit or "-1, 0 or 1"})'
+
+
+def plain_term(term: Term) -> str:
+    """A legend for a fitted term in words, not in coefficients (those are in REPORT.md)."""
+    if term.form == 'exp_decay':
+        return f'fitted warm-up: decays after power-on with a {term.time_constant_s:.0f} s time constant'
+    if term.form == 'harmonic':
+        return 'fitted once-per-turn effect of the heading'
+    of = f'the temperature lagged by {term.time_constant_s:.0f} s' if term.signal == LAGGED_SIGNAL else term.signal
+    degree = max(term.powers)
+    shape = 'proportional to' if degree == 1 else f'a degree-{degree} polynomial in'
+    return f'fitted effect: {shape} {of}' + ('' if term.rate_powers == (0,) else ', times powers of the rate')
+
+
 def _residual(result: LoopResult, i: int, path: Path) -> Path:
     """What the extended model less term ``i`` leaves, against the term's signal, binned."""
     model = result.extended.model
@@ -167,11 +188,11 @@ def _residual(result: LoopResult, i: int, path: Path) -> Path:
     by = np.array([partial[c].mean() for c in chunks])
     bt = np.array([term[c].mean() for c in chunks])
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.plot(bx, by, 'o', ms=4, label='residual of the model without this term (binned means)')
-    ax.plot(bx, bt - bt.mean() + by.mean(), '-', label=effect.term.describe())
-    ax.set_xlabel(effect.signal)
-    ax.set_ylabel('residual (deg/s)')
-    ax.set_title(f'traced effect: {effect.signal}')
+    ax.plot(bx, by * DEG_PER_H_PER_DPS, 'o', ms=4, label='what the model leaves without this effect (binned means)')
+    ax.plot(bx, (bt - bt.mean() + by.mean()) * DEG_PER_H_PER_DPS, '-', label=plain_term(effect.term))
+    ax.set_xlabel(signal_label(effect.signal))
+    ax.set_ylabel('rate error left (deg/h)')
+    ax.set_title(f'effect found: {effect.signal}')
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

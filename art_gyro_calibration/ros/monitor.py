@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -27,7 +28,7 @@ class ImuEcho(Node):
         super().__init__('imu_echo')
         self._every = every
         self._count = count
-        self._received = 0
+        self.received = 0
         self._temp_c = math.nan
         self.done = False
         self.create_subscription(Imu, 'imu/data_raw', self._on_imu, 10)
@@ -37,15 +38,15 @@ class ImuEcho(Node):
         self._temp_c = msg.data
 
     def _on_imu(self, msg: Imu) -> None:
-        self._received += 1
-        if self._received % self._every == 0:
+        self.received += 1
+        if self.received % self._every == 0:
             stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
             rate = msg.angular_velocity.z
             # No temperature until one arrived (its subscription may connect after the Imu one).
             temperature = '' if math.isnan(self._temp_c) else f'  temperature {self._temp_c:6.2f} degC'
             print(f'{stamp:.3f} {msg.header.frame_id}: yaw rate {math.degrees(rate):+10.5f} deg/s '
                   f'({rate:+.7f} rad/s){temperature}', flush=True)
-        if self._count and self._received >= self._count:
+        if self._count and self.received >= self._count:
             self.done = True
 
 
@@ -96,12 +97,24 @@ def wait_static_bias(timeout_s: float) -> int:
         node.destroy_node()
 
 
-def echo(every: int, count: int) -> int:
-    """Print rates until Ctrl-C, or until ``count`` messages."""
+def silence_hint(topic: str, waited_s: float) -> str:
+    """What to check when nothing arrives: the usual causes are another domain, namespace or no node at all."""
+    domain = os.environ.get('ROS_DOMAIN_ID', '') or '0 (unset)'
+    return (f'imu_echo: no message on {topic} after {waited_s:g} s; still waiting. Check that gyro_node runs and '
+            f'got frames (its console, /diagnostics), that it uses this ROS_DOMAIN_ID ({domain}) and namespace '
+            '(remap with --ros-args -r __ns:=/robot), and ROS_AUTOMATIC_DISCOVERY_RANGE on both sides.')
+
+
+def echo(every: int, count: int, quiet_s: float) -> int:
+    """Print rates until Ctrl-C, or until ``count`` messages; say once what to check after ``quiet_s`` of silence."""
     node = ImuEcho(max(1, every), max(0, count))
+    hint_at = time.monotonic() + quiet_s
     try:
         while rclpy.ok() and not node.done:
             rclpy.spin_once(node, timeout_sec=0.5)
+            if hint_at and not node.received and time.monotonic() >= hint_at:
+                print(silence_hint(node.resolve_topic_name('imu/data_raw'), quiet_s), file=sys.stderr, flush=True)
+                hint_at = 0.0
     finally:
         node.destroy_node()
     return 0
@@ -119,6 +132,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='instead: wait until a gyro_node reports its static bias (exit 0) or its refusal (exit 1)')
     parser.add_argument('--timeout', type=float, default=60.0,
                         help='--static-bias, --wait-static-bias: seconds to wait (default 60)')
+    parser.add_argument('--quiet-s', type=float, default=5.0,
+                        help='echo: after this many seconds without a message, say once what to check (default 5)')
     options = parser.parse_args(rclpy.utilities.remove_ros_args(full)[1:])
     rclpy.init(args=full)
     try:
@@ -126,7 +141,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return call_static_bias(options.timeout)
         if options.wait_static_bias:
             return wait_static_bias(options.timeout)
-        return echo(options.every, options.count)
+        return echo(options.every, options.count, options.quiet_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:
