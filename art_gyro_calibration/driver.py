@@ -23,10 +23,12 @@ from dataclasses import dataclass
 import serial
 
 from art_gyro_calibration.frame import Frame
-from art_gyro_calibration.kvh_fog import KvhFogConfig
+from art_gyro_calibration.kvh_fog import KVH_BAUDS, KvhFogConfig, KvhFogParser
 from art_gyro_calibration.protocols import make_parser
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
+# Every rate the driver opens: the standard ones and a KVH unit's (576000, 4147200: pyserial sets them on Linux).
+BAUDS = tuple(sorted(set(STANDARD_BAUDS) | set(KVH_BAUDS)))
 # A read returns after this long without data: bounds how late stop() and an unplug are seen.
 READ_TIMEOUT_S = 0.1
 BITS_PER_BYTE = 10   # start + 8 data + stop
@@ -55,6 +57,7 @@ class DriverStats:
     last_error: str
     port: str
     lost_frames: int = 0   # numbered by the gyro but never received whole (kvh_fog sequence gaps)
+    measured_rate_hz: float | None = None   # kvh_fog: messages per second, measured (None until known)
 
 
 class WireStamper:
@@ -158,8 +161,9 @@ class Rd2100Driver:
         """``clock_ns`` is the stamps' clock; ``on_warning`` hears of clock steps and of no frames after an open."""
         if not isinstance(port, str) or not port:
             raise ValueError(f'port must be a device path such as /dev/ttyUSB0, got {port!r}')
-        if baud not in STANDARD_BAUDS:
-            raise ValueError(f'baud {baud!r} is not a standard rate: one of {", ".join(map(str, STANDARD_BAUDS))}')
+        if baud not in BAUDS:
+            raise ValueError(f'baud {baud!r} is not a standard rate nor a KVH unit\'s: '
+                             f'one of {", ".join(map(str, BAUDS))}')
         if not (isinstance(reopen_period_s, (int, float)) and math.isfinite(reopen_period_s) and reopen_period_s > 0):
             raise ValueError(f'reopen_period_s must be a positive number of seconds, got {reopen_period_s!r}')
         self._parser = make_parser(protocol, kvh_fog)
@@ -176,6 +180,10 @@ class Rd2100Driver:
         self._quiet_warned = False
         self._reopen_period_s = float(reopen_period_s)
         self._stamper = WireStamper(baud, self._parser.frame_bytes)
+        # kvh_fog: its delta angles need the stream's arrival times.
+        self._kvh = self._parser if isinstance(self._parser, KvhFogParser) else None
+        if self._kvh is not None:
+            self._kvh.byte_ns = self._stamper.byte_ns
         self._serial: serial.Serial | None = None
         self._identity: tuple[int, int] | None = None   # (st_dev, st_ino) of the open device
         self._connected = False
@@ -191,7 +199,8 @@ class Rd2100Driver:
         p = self._parser.stats
         return DriverStats(frames=p.frames, rejected=p.rejected, rejected_by_reason=dict(p.rejected_by_reason),
                            bytes_skipped=p.bytes_skipped, reopens=self._reopens, connected=self._connected,
-                           last_error=self._last_error, port=self.port, lost_frames=p.lost_frames)
+                           last_error=self._last_error, port=self.port, lost_frames=p.lost_frames,
+                           measured_rate_hz=None if self._kvh is None else self._kvh.measured_rate_hz)
 
     def start(self) -> None:
         """Start the reader thread; returns at once, even if the port is missing (it retries)."""
@@ -283,7 +292,7 @@ class Rd2100Driver:
             self._check_path()
             self._check_quiet(monotonic_ns)
             return
-        frames = self._parser.feed(data)
+        frames = self._parser.feed(data) if self._kvh is None else self._kvh.feed(data, monotonic_ns)
         stamps = self._stamper.stamp(now_ns, monotonic_ns, len(data), [end for _, end in frames])
         if self._stamper.step_ns:
             self._warn(f'the clock stepped by {self._stamper.step_ns * 1e-9:+.3f} s against the monotonic clock: '

@@ -27,6 +27,8 @@ OTHER_FORMAT = 'other_format'   # the header of another message format than the 
 AXIS_INVALID = 'axis_invalid'   # the status byte says the yaw axis' gyro data is invalid
 REPEATED_SEQUENCE = 'repeated_sequence'   # the sequence number of the message before (a duplicate)
 NO_TEMPERATURE_YET = 'no_temperature_yet'   # Format C: before the connection's first temperature
+NO_INTERVAL = 'no_interval'     # a delta angle whose interval is not measured yet (the first messages of a connection)
+BAD_TIMESTAMP = 'bad_timestamp'   # Format B: the unit's clock went back, stood still or jumped more than a second
 
 KVH_HEADER_PREFIX = b'\xfe\x81\xff'   # every format's header; the fourth byte names the format
 KVH_SEQUENCE_MODULO = 128             # the sequence number counts 0..127 and wraps
@@ -36,6 +38,18 @@ KVH_ROTATIONS = ('delta_angle', 'rate')
 KVH_ANGLE_UNITS = ('rad', 'deg')
 # =TEMPUNITS: degrees or hundredths of a degree, Celsius or Fahrenheit.
 KVH_TEMPERATURE_UNITS = ('C', 'C_100', 'F', 'F_100')
+# The unit's baud rates (=BAUD, 1775 manual section 8.3).
+KVH_BAUDS = (9600, 19200, 38400, 57600, 115200, 460800, 576000, 921600, 4147200)
+KVH_DEFAULT_BAUD = 921600
+BITS_PER_BYTE = 10   # start + 8 data + stop
+# The stream's message interval (formats without the unit's clock) is used once measured over this long: arrival
+# jitter of a few ms (a USB adapter's latency timer) then errs by a few parts in 1000, and less as it goes on.
+STREAM_BASELINE_S = 1.0
+# A configured output_rate_hz this far from the measured rate is an error (the unit is not set as the node is told).
+RATE_TOLERANCE = 0.02
+# Format B's clock: a message interval longer than this (the slowest =DR is 1 Hz) is a fault of the clock.
+MAX_INTERVAL_US = 1_500_000
+STANDARD_GRAVITY = 9.80665   # m/s^2 per g (the unit's acceleration unit)
 _KVH_HEADER = re.compile(rb'\xfe\x81\xff[\x55-\x57]')
 _KVH_AXES = re.compile(r'[+-]?[xyz]')
 
@@ -71,6 +85,21 @@ def crc32_mpeg2(data: bytes) -> int:
     return int.from_bytes(reflected.to_bytes(4, 'little').translate(_REVERSED_BITS), 'big')
 
 
+def _check_axis(name: str, value: object) -> None:
+    if isinstance(value, bool):
+        # YAML 1.1 (rcl's -p and params files) reads a bare y (and yes, on, true) as true, n (no, off) as false.
+        raise ValueError(f'kvh_fog.{name} must be x, y or z with an optional sign, got the boolean {value}: YAML '
+                         f'reads a bare y or n as a boolean; write +y (or -y), or quote it: "y"')
+    if not isinstance(value, str) or not _KVH_AXES.fullmatch(value):
+        raise ValueError(f'kvh_fog.{name} must be x, y or z with an optional sign (+z, -x, ...), got {value!r}')
+
+
+def _unit_vector(axis: str) -> tuple[float, float, float]:
+    v = [0.0, 0.0, 0.0]
+    v['xyz'.index(axis[-1])] = -1.0 if axis.startswith('-') else 1.0
+    return v[0], v[1], v[2]
+
+
 def _choice(name: str, value: object, choices: tuple[str, ...]) -> None:
     if value not in choices:
         raise ValueError(f'kvh_fog.{name} must be one of {", ".join(choices)}, got {value!r}')
@@ -90,12 +119,16 @@ class KvhFogConfig:
     angle_units: str = 'rad'        # =ROTUNITS: rad (default) or deg
     output_rate_hz: float = 1000.0  # =DR: messages per second
     temperature_units: str = 'C'    # =TEMPUNITS: C (default), C_100, F or F_100
+    forward_axis: str = ''          # the axis that points forward on the robot; '' = the one after yaw_axis in x, y, z
 
     def __post_init__(self) -> None:
         _choice('message_format', self.message_format, tuple(KVH_FORMATS))
-        if not isinstance(self.yaw_axis, str) or not _KVH_AXES.fullmatch(self.yaw_axis):
-            raise ValueError(f'kvh_fog.yaw_axis must be x, y or z with an optional sign (+z, -x, ...), '
-                             f'got {self.yaw_axis!r}')
+        _check_axis('yaw_axis', self.yaw_axis)
+        if self.forward_axis != '':
+            _check_axis('forward_axis', self.forward_axis)
+            if self.forward_axis[-1] == self.yaw_axis[-1]:
+                raise ValueError(f'kvh_fog.forward_axis {self.forward_axis!r} must be another axis than '
+                                 f'kvh_fog.yaw_axis {self.yaw_axis!r}')
         _choice('rotation', self.rotation, KVH_ROTATIONS)
         _choice('angle_units', self.angle_units, KVH_ANGLE_UNITS)
         rate = self.output_rate_hz
@@ -120,11 +153,36 @@ class KvhFogConfig:
         return -1.0 if self.yaw_axis.startswith('-') else 1.0
 
     @property
+    def delta_angle(self) -> bool:
+        """The unit sends angles per message, which become rates by the message interval."""
+        return self.rotation == 'delta_angle'
+
+    @property
+    def deg_per_unit(self) -> float:
+        """Degrees (delta angle) or deg/s (rate) per unit of a rotation float."""
+        return math.degrees(1.0) if self.angle_units == 'rad' else 1.0
+
+    @property
     def dps_per_unit(self) -> float:
-        """Yaw rate in deg/s per unit of the yaw axis' rotation float."""
-        per_angle = math.degrees(1.0) if self.angle_units == 'rad' else 1.0
-        per_rate = float(self.output_rate_hz) if self.rotation == 'delta_angle' else 1.0
-        return self.sign * per_angle * per_rate
+        """Yaw rate in deg/s per unit of the yaw axis' rotation float at the configured rate (the encoder's)."""
+        per_rate = float(self.output_rate_hz) if self.delta_angle else 1.0
+        return self.sign * self.deg_per_unit * per_rate
+
+    @property
+    def mounting(self) -> tuple[tuple[float, float, float], ...]:
+        """Rows of the rotation from the unit's axes to the robot's (REP 103: x forward, y left, z up).
+
+        Row 0 picks the forward axis, row 2 the yaw axis (both with their sign), row 1 is z x x.
+        """
+        forward = self.forward_axis or 'xyz'[(self.axis_index + 1) % 3]
+        x = _unit_vector(forward)
+        z = _unit_vector(self.yaw_axis)
+        y = (z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0])
+        return x, y, z
+
+    def max_rate_hz(self, baud: int) -> float:
+        """The messages per second ``baud`` carries in this format."""
+        return baud / (BITS_PER_BYTE * self.format.length)
 
     def _temperature_scale(self) -> tuple[float, float]:
         """(a, b) with degC = a * wire value + b."""
@@ -142,6 +200,64 @@ class KvhFogConfig:
         """A temperature in degC as the unit sends it (unrounded): the inverse of :meth:`temperature_c`."""
         a, b = self._temperature_scale()
         return (temp_c - b) / a
+
+
+@dataclass(frozen=True, slots=True)
+class KvhSample(RawSample):
+    """A kvh_fog message as the node uses it: the yaw rate and temperature of :class:`RawSample`, and the rest.
+
+    ``rates_dps`` and ``acceleration_g`` are the unit's three axes as sent (rates already per second),
+    ``status`` its validity bits, ``unit_time_us`` Format B's clock unwrapped since the connection
+    opened (None in A and C), ``interval_s`` the message interval the rates were taken over.
+    """
+
+    rates_dps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    acceleration_g: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    status: int = KVH_STATUS_ALL_VALID
+    unit_time_us: int | None = None
+    interval_s: float = math.nan
+
+
+class StreamInterval:
+    """The unit's message interval on the host's clock: least squares of arrival time against message number.
+
+    The message number counts every interval the sequence numbers say passed (lost messages
+    too), so the fit needs no assumption about the rate, and its error falls as the span grows.
+    """
+
+    __slots__ = ('_k', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_span_s')
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the measure (a new connection: the unit may have been set to another rate meanwhile)."""
+        self._k = 0
+        self._n0 = 0
+        self._t0 = 0
+        self._mean_n = self._mean_t = self._c_nt = self._c_nn = self._span_s = 0.0
+
+    def add(self, number: int, arrival_ns: int) -> None:
+        """Message ``number`` (intervals since the connection opened) arrived at ``arrival_ns`` (monotonic)."""
+        if not self._k:
+            self._n0, self._t0 = number, arrival_ns
+        n = float(number - self._n0)
+        t = (arrival_ns - self._t0) * 1e-9
+        self._k += 1
+        dn = n - self._mean_n
+        self._mean_n += dn / self._k
+        self._mean_t += (t - self._mean_t) / self._k
+        self._c_nt += dn * (t - self._mean_t)
+        self._c_nn += dn * (n - self._mean_n)
+        self._span_s = t
+
+    @property
+    def interval_s(self) -> float | None:
+        """Seconds per message, once measured over STREAM_BASELINE_S; else None."""
+        if self._span_s < STREAM_BASELINE_S or self._k < 3 or self._c_nn <= 0.0:
+            return None
+        interval = self._c_nt / self._c_nn
+        return interval if interval > 0.0 else None
 
 
 def encode_kvh_fog(rotation: tuple[float, float, float], acceleration: tuple[float, float, float], status: int,
@@ -183,13 +299,19 @@ class KvhFogEncoder:
         self.config = config
         self.sequence = 0
         self.status = KVH_STATUS_ALL_VALID
+        self.unit_time_us = 0.0   # Format B's clock: one interval of the output rate per message
+
+    def _rotation(self, rate_dps: float) -> float:
+        config = self.config
+        per_rate = float(config.output_rate_hz) if config.delta_angle else 1.0
+        return rate_dps / (config.sign * config.deg_per_unit * per_rate)
 
     def __call__(self, rate_dps: float, temp_c: float) -> bytes:
         """The next message: ``rate_dps`` about the yaw axis, ``temp_c``."""
         config = self.config
         axis = config.axis_index
         rotation = [0.0, 0.0, 0.0]
-        rotation[axis] = rate_dps / config.dps_per_unit
+        rotation[axis] = self._rotation(rate_dps)
         acceleration = [0.0, 0.0, 0.0]
         acceleration[axis] = config.sign
         temperature = config.temperature_wire(temp_c)
@@ -197,9 +319,11 @@ class KvhFogEncoder:
             temperature = round(temperature)
         sequence = self.sequence
         self.sequence = (sequence + 1) % KVH_SEQUENCE_MODULO
+        timestamp = int(self.unit_time_us) % 2 ** 32
+        self.unit_time_us += 1e6 / config.output_rate_hz
         return encode_kvh_fog((rotation[0], rotation[1], rotation[2]),
                               (acceleration[0], acceleration[1], acceleration[2]),
-                              self.status, sequence, temperature, config.message_format)
+                              self.status, sequence, temperature, config.message_format, timestamp_us=timestamp)
 
 
 class KvhFogParser(BinaryChunkParser):
@@ -208,34 +332,69 @@ class KvhFogParser(BinaryChunkParser):
     A candidate is the format's header and the message's length of bytes from it; a good CRC
     takes it whole. After a bad CRC the search resumes at the byte after the header's first, so
     a message cut short and followed by a whole one loses only the cut one. Every message with a
-    good CRC advances the sequence number; the numbers skipped since the message before are added
-    to ``stats.lost_frames`` (a gap of 128 or more cannot be told from a shorter one; none is
-    counted across :meth:`reset`, where the count is unknown). A good message is still rejected,
-    and counted by reason, when the status byte flags the yaw gyro invalid, when it repeats the
-    sequence number before it (a duplicate: publishing it would count the rotation twice), when a
-    value is not finite, and in Format C before the first temperature of the connection (the
-    temperature comes every fourth message and is held until the next).
+    good CRC advances the sequence number; the numbers skipped since the message before, less the
+    messages rejected for their CRC in between (each is one rejected frame, not also a lost one),
+    are added to ``stats.lost_frames`` (a gap of 128 or more cannot be told from a shorter one;
+    none is counted across :meth:`reset`, where the count is unknown). A good message is still
+    rejected, and counted by reason, when the status byte flags the yaw gyro invalid, when it
+    repeats the sequence number before it (a duplicate: publishing it would count the rotation
+    twice), when a value is not finite, in Format C before the first temperature of the
+    connection (the temperature comes every fourth message and is held until the next), and, for
+    delta angles, while the message interval is not known.
+
+    Delta angles become rates by the measured interval, never by the configured output rate:
+    Format B's by the unit's own clock (the timestamps of consecutive messages over the sequence
+    steps between them); A's and C's by :class:`StreamInterval`, fitted to the arrival times
+    ``feed`` is given (the driver's monotonic clock at the read, less the wire time of the bytes
+    after each message: set ``byte_ns``). Without arrival times, A and C delta angles stay
+    rejected as ``no_interval``.
     """
 
     def __init__(self, config: KvhFogConfig) -> None:
-        super().__init__((BAD_CRC, OTHER_FORMAT, AXIS_INVALID, REPEATED_SEQUENCE, NOT_FINITE, NO_TEMPERATURE_YET))
+        super().__init__((BAD_CRC, OTHER_FORMAT, AXIS_INVALID, REPEATED_SEQUENCE, NOT_FINITE, NO_TEMPERATURE_YET,
+                          NO_INTERVAL, BAD_TIMESTAMP))
         self.config = config
         fmt = config.format
         self.frame_bytes = fmt.length
+        self.byte_ns = 0   # wire time of a byte (the driver's baud): arrival of a message's end within a chunk
         self._format = fmt
         self._axis = config.axis_index
-        self._dps_per_unit = config.dps_per_unit
+        self._sign = config.sign
+        self._deg_per_unit = config.deg_per_unit
+        self._delta = config.delta_angle
+        self._clocked = fmt.name == 'B'
+        self.stream = StreamInterval()
         self._last_sequence: int | None = None
+        self._number = 0                    # intervals since the connection opened, by the sequence numbers
+        self._bad_crc_since = 0             # bad CRCs since the last good message (those messages are not lost)
         self._temp_c: float | None = None   # Format C: the latest temperature
+        self._last_time_us: int | None = None   # Format B: the previous message's clock
+        self._unit_time_us = 0                  # Format B: the clock unwrapped since the connection opened
+        self._unit_steps = 0                    # Format B: intervals over which _unit_time_us was counted
 
     def reset(self) -> None:
-        """Drop a partly received message; the sequence and held temperature restart; statistics are kept."""
+        """Drop a partly received message; the sequence, held temperature and intervals restart; statistics kept."""
         super().reset()
         self._last_sequence = None
+        self._number = 0
+        self._bad_crc_since = 0
         self._temp_c = None
+        self._last_time_us = None
+        self._unit_time_us = self._unit_steps = 0
+        self.stream.reset()
 
-    def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
-        """Parse a chunk; each valid message with the offset just past its last byte within ``data``."""
+    @property
+    def measured_rate_hz(self) -> float | None:
+        """Messages per second as measured (Format B: the unit's clock over a second or more; else the stream)."""
+        if self._clocked:
+            if self._unit_time_us < STREAM_BASELINE_S * 1e6 or not self._unit_steps:
+                return None
+            return self._unit_steps * 1e6 / self._unit_time_us
+        interval = self.stream.interval_s
+        return None if interval is None else 1.0 / interval
+
+    def feed(self, data: bytes, arrival_ns: int | None = None) -> list[tuple[RawSample, int]]:
+        """Parse a chunk read at ``arrival_ns`` (monotonic); each valid message with the offset just past it."""
         buf, held = self._join(data)
         out: list[tuple[RawSample, int]] = []
         stats = self.stats
@@ -244,6 +403,7 @@ class KvhFogParser(BinaryChunkParser):
         length = fmt.length
         pos = 0
         keep = -1
+        last_end = -1   # the end (in buf) of the chunk's last message with a good CRC
         while (match := _KVH_HEADER.search(buf, pos)) is not None:
             start = match.start()
             self._skip(start - pos)
@@ -260,6 +420,7 @@ class KvhFogParser(BinaryChunkParser):
                 break
             if crc32_mpeg2(buf[start:end - 4]) != int.from_bytes(buf[end - 4:end], 'big'):
                 reasons[BAD_CRC] += 1
+                self._bad_crc_since += 1
                 stats.bytes_skipped += 1
                 self._in_garbage = True
                 pos = start + 1
@@ -267,12 +428,16 @@ class KvhFogParser(BinaryChunkParser):
             self._in_garbage = False
             pos = end
             sample, reason = self._decode(buf, start)
+            last_end = end
             if sample is None:
                 reasons[reason] += 1
                 stats.bytes_skipped += length
             else:
                 out.append((sample, end - held))
                 stats.frames += 1
+        if last_end >= 0 and arrival_ns is not None:
+            # The read returned as its last byte came: this message's end came the bytes after it earlier.
+            self.stream.add(self._number, arrival_ns - (len(buf) - last_end) * self.byte_ns)
         if keep < 0:
             # A header's first bytes at the very end may be the start of the next message.
             keep = len(buf)
@@ -284,20 +449,29 @@ class KvhFogParser(BinaryChunkParser):
         self._buffer = buf[keep:]
         return out
 
-    def _decode(self, buf: bytes, start: int) -> tuple[RawSample | None, str]:
+    def _decode(self, buf: bytes, start: int) -> tuple[KvhSample | None, str]:
         """The sample of a message whose CRC is good, or None and the reason it is rejected."""
         values = self._format.layout.unpack_from(buf, start + 4)
         config = self.config
+        timestamp: int | None = None
         if self._format.multiplexed:
             mux, status, sequence = values[6:]
+        elif self._clocked:
+            timestamp, status, sequence, temperature = values[6:]
         else:
-            status, sequence, temperature = values[-3:]
+            status, sequence, temperature = values[6:]
         last = self._last_sequence
+        steps = 0
         if last is not None:
             if sequence == last:
                 return None, REPEATED_SEQUENCE
-            self.stats.lost_frames += (sequence - last - 1) % KVH_SEQUENCE_MODULO
+            steps = (sequence - last) % KVH_SEQUENCE_MODULO
+            # A message rejected for its CRC was received (and counted) once: not also lost.
+            self.stats.lost_frames += max(0, steps - 1 - self._bad_crc_since)
+        self._bad_crc_since = 0
         self._last_sequence = sequence
+        self._number += steps
+        interval_s = self._clock_interval(timestamp, steps) if self._clocked else self.stream.interval_s
         if self._format.multiplexed:
             if sequence % 4 == 0:
                 self._temp_c = config.temperature_c(mux)
@@ -308,7 +482,38 @@ class KvhFogParser(BinaryChunkParser):
             return None, AXIS_INVALID
         if temp_c is None:
             return None, NO_TEMPERATURE_YET
-        rate_dps = values[self._axis] * self._dps_per_unit
+        if interval_s is not None and interval_s < 0.0:
+            if self._delta:
+                return None, BAD_TIMESTAMP
+            interval_s = None   # a rate needs no interval
+        per_unit = self._deg_per_unit
+        if self._delta:
+            if interval_s is None:
+                return None, NO_INTERVAL
+            per_unit /= interval_s
+        rates = (values[0] * per_unit, values[1] * per_unit, values[2] * per_unit)
+        rate_dps = self._sign * rates[self._axis]
         if not (math.isfinite(rate_dps) and math.isfinite(temp_c)):
             return None, NOT_FINITE
-        return RawSample(rate_dps, temp_c), ''
+        return KvhSample(rate_dps, temp_c, rates, (values[3], values[4], values[5]), status,
+                         None if timestamp is None else self._unit_time_us,
+                         math.nan if interval_s is None else interval_s), ''
+
+    def _clock_interval(self, timestamp: int | None, steps: int) -> float | None:
+        """Format B: seconds per message by the unit's clock; -1.0 if the clock went wrong; None before two messages.
+
+        The mean over the connection, not the last interval alone: a microsecond tick is 0.1 % of a
+        1 kHz interval. An interval 1 % off that mean (the unit was set to another rate) starts it anew.
+        """
+        assert timestamp is not None
+        last, self._last_time_us = self._last_time_us, timestamp   # a wrong interval: measured again from here
+        if last is None or not steps:
+            return None
+        elapsed = (timestamp - last) % 2 ** 32   # the microsecond counter wraps after 71.6 minutes
+        if not 0 < elapsed <= steps * MAX_INTERVAL_US:
+            return -1.0
+        if self._unit_steps and abs(elapsed * self._unit_steps / (steps * self._unit_time_us) - 1.0) > 0.01:
+            self._unit_time_us = self._unit_steps = 0
+        self._unit_time_us += elapsed
+        self._unit_steps += steps
+        return self._unit_time_us * 1e-6 / self._unit_steps

@@ -3,6 +3,8 @@
 import threading
 import time
 
+import pytest
+
 from test_driver import wait_for
 
 from art_gyro_calibration.driver import BITS_PER_BYTE, Rd2100Driver
@@ -40,3 +42,36 @@ def test_driver_reads_kvh_fog_counts_lost_frames_and_stamps_with_the_message_len
     reading = fake.simulator.readings([0.0])[0].item()
     assert all(abs(s.raw_rate - reading) < 1e-5 and s.raw_temp == 22.0 for s in samples)
     assert all(b >= a for a, b in zip(stamps, stamps[1:])) and abs(stamps[-1] - time.time_ns()) < 5e9
+
+
+@pytest.mark.parametrize('baud', [576000, 4147200])
+def test_driver_opens_a_kvh_unit_at_its_own_bauds(baud):
+    """The unit's =BAUD list has rates no RD2100 uses: pyserial sets them on Linux and frames come through."""
+    frames: list[Frame] = []
+    config = KvhFogConfig(rotation='rate')
+    with FakeRd2100('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=100, kvh_fog=config) as fake:
+        driver = Rd2100Driver(fake.path, baud, 'kvh_fog', frames.append, kvh_fog=fake.kvh_fog)
+        driver.start()
+        try:
+            assert wait_for(lambda: len(frames) > 5)
+        finally:
+            driver.stop()
+    assert driver.stats.last_error == '' and driver.stats.reopens == 0
+
+
+def test_driver_gives_delta_angles_rates_by_the_measured_interval_not_the_configured_one():
+    """A 200 Hz unit, the driver told 1000 Hz: 30 deg/s read as 30 (the stream's interval), after a second."""
+    frames: list[Frame] = []
+    with FakeRd2100('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=200, profile='30', noise_dps=0.0,
+                    turn_on_bias_dps=0.0, temperature=25.0) as fake:
+        told = KvhFogConfig()   # output_rate_hz 1000
+        driver = Rd2100Driver(fake.path, 921600, 'kvh_fog', frames.append, kvh_fog=told)
+        driver.start()
+        try:
+            assert wait_for(lambda: len(frames) > 200, timeout_s=20.0)
+        finally:
+            driver.stop()
+    truth = fake.simulator.readings([0.0])[0].item()   # 30 deg/s plus the Earth's rate
+    assert [f.sample.raw_rate for f in frames[-100:]] == pytest.approx([truth] * 100, rel=5e-3)
+    assert driver.stats.measured_rate_hz == pytest.approx(200.0, rel=5e-3)
+    assert driver.stats.rejected_by_reason['no_interval'] >= 150

@@ -16,7 +16,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
 from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, PLAUSIBLE_TEMPERATURE_C
 from art_gyro_calibration.frame import NOT_FINITE
-from art_gyro_calibration.kvh_fog import AXIS_INVALID
+from art_gyro_calibration.kvh_fog import AXIS_INVALID, RATE_TOLERANCE
 from art_gyro_calibration.protocols import KVH_FOG
 from art_gyro_calibration.ros.raw_log import LOG_RETRY_S
 
@@ -24,6 +24,7 @@ if TYPE_CHECKING:
     from art_gyro_calibration.ros.node import GyroNode
 
 DIAGNOSTICS_PERIOD_S = 1.0
+RATE_MISMATCH_CONSOLE_PERIOD_S = 60.0   # the console repeats a wrong kvh_fog.output_rate_hz this often
 
 
 class SinceLastReport:
@@ -101,6 +102,9 @@ class Diagnostics:
         flagged = self._invalid.take(stats.rejected_by_reason.get(AXIS_INVALID, 0))
         if not stats.connected:
             return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
+        mismatch = self._rate_mismatch(stats.measured_rate_hz, values)
+        if mismatch:
+            return self._status('link', DiagnosticStatus.ERROR, mismatch, values)
         if rate_hz == 0.0:
             return self._status('link', DiagnosticStatus.WARN, 'connected, no frames', values)
         # An implausible temperature is the temperature status's ERROR; the others would show nowhere else.
@@ -113,6 +117,21 @@ class Diagnostics:
                                 f'connected, {rate_hz:.1f} Hz; since the last report {lost} frames lost (sequence '
                                 f'gaps), {flagged} flagged invalid by the gyro', values)
         return self._status('link', DiagnosticStatus.OK, f'connected, {rate_hz:.1f} Hz', values)
+
+    def _rate_mismatch(self, measured: float | None, values: dict[str, Any]) -> str:
+        """kvh_fog: why the configured output rate is wrong (also said on the console), or ''."""
+        node = self._node
+        if node.settings.protocol != KVH_FOG:
+            return ''
+        values['measured_rate_hz'] = 'not yet' if measured is None else f'{measured:.3f}'
+        configured = node.kvh_fog.output_rate_hz
+        if measured is None or abs(configured / measured - 1.0) <= RATE_TOLERANCE:
+            return ''
+        source = 'its clock' if node.kvh_fog.message_format == 'B' else 'the stream'
+        message = (f'kvh_fog.output_rate_hz is {configured:g} Hz but the unit sends {measured:.2f} messages/s '
+                   f'(measured by {source}): set the parameter to the unit\'s =DR; rates use the measured interval')
+        node.get_logger().error(message, throttle_duration_sec=RATE_MISMATCH_CONSOLE_PERIOD_S)
+        return message
 
     def _log_status(self) -> DiagnosticStatus:
         log = self._node.raw_log.state()
