@@ -19,9 +19,9 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-from art_gyro_calibration.frame import NOT_FINITE, BinaryChunkParser, RawSample, check_int16
+from art_gyro_calibration.frame import NOT_FINITE, ChunkParser, RawSample, check_int16
 
-# Rejection reasons, the keys of ParserStats.rejected_by_reason (with GARBAGE and NOT_FINITE, of frame.py).
+# Rejection reasons, the keys of ParserStats.rejected_by_reason (with NOT_FINITE, of frame.py): each is one message.
 BAD_CRC = 'bad_crc'             # a header and a message's length of bytes whose CRC is wrong
 OTHER_FORMAT = 'other_format'   # the header of another message format than the configured one
 AXIS_INVALID = 'axis_invalid'   # the status byte says the yaw axis' gyro data is invalid
@@ -38,6 +38,12 @@ KVH_ROTATIONS = ('delta_angle', 'rate')
 KVH_ANGLE_UNITS = ('rad', 'deg')
 # =TEMPUNITS: degrees or hundredths of a degree, Celsius or Fahrenheit.
 KVH_TEMPERATURE_UNITS = ('C', 'C_100', 'F', 'F_100')
+# Where a message's stamp comes from: its arrival (any format), or Format B's clock mapped to the host's.
+KVH_TIMESTAMP_SOURCES = ('arrival', 'unit_clock')
+# The unit's clock is mapped to the host's over about this long: the drift a temperature change brings is followed.
+UNIT_CLOCK_MEMORY_S = 60.0
+# The lower envelope of the arrivals (the least delayed message) may rise this fast (s/s): a slowly shrinking delay.
+UNIT_CLOCK_RELAX = 1e-4
 # The unit's baud rates (=BAUD, 1775 manual section 8.3).
 KVH_BAUDS = (9600, 19200, 38400, 57600, 115200, 460800, 576000, 921600, 4147200)
 KVH_DEFAULT_BAUD = 921600
@@ -120,6 +126,7 @@ class KvhFogConfig:
     output_rate_hz: float = 1000.0  # =DR: messages per second
     temperature_units: str = 'C'    # =TEMPUNITS: C (default), C_100, F or F_100
     forward_axis: str = ''          # the axis that points forward on the robot; '' = the one after yaw_axis in x, y, z
+    timestamp_source: str = 'arrival'   # arrival, or unit_clock (Format B: its microsecond clock mapped to the host's)
 
     def __post_init__(self) -> None:
         _choice('message_format', self.message_format, tuple(KVH_FORMATS))
@@ -136,6 +143,10 @@ class KvhFogConfig:
             raise ValueError(f'kvh_fog.output_rate_hz must be a number of Hz in (0, {KVH_MAX_OUTPUT_RATE_HZ:g}], '
                              f'got {rate!r}')
         _choice('temperature_units', self.temperature_units, KVH_TEMPERATURE_UNITS)
+        _choice('timestamp_source', self.timestamp_source, KVH_TIMESTAMP_SOURCES)
+        if self.timestamp_source == 'unit_clock' and self.message_format != 'B':
+            raise ValueError(f'kvh_fog.timestamp_source unit_clock needs kvh_fog.message_format B (the format with the '
+                             f'unit\'s clock), got {self.message_format}')
 
     @property
     def format(self) -> KvhFormat:
@@ -260,6 +271,68 @@ class StreamInterval:
         return interval if interval > 0.0 else None
 
 
+class UnitClock:
+    """Format B's microsecond clock mapped onto the host's monotonic clock: drift and offset tracked.
+
+    A line through (unit time, arrival) by least squares with exponential forgetting over about
+    UNIT_CLOCK_MEMORY_S (so a drift that changes with temperature is followed), lowered to the
+    envelope of the least delayed arrivals (a stamp is when the message left the unit, not when a
+    busy host read it). Ready once it has spanned STREAM_BASELINE_S; :meth:`reset` when the
+    clock is broken (a reopen, a clock fault), after which the driver stamps by arrival again.
+    """
+
+    __slots__ = ('_w', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_low', '_first_ns', '_last_ns')
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the mapping."""
+        self._w = 0.0
+        self._n0 = self._t0 = 0
+        self._mean_n = self._mean_t = self._c_nt = self._c_nn = 0.0
+        self._low = math.inf
+        self._first_ns = self._last_ns = 0
+
+    @property
+    def ready(self) -> bool:
+        """The mapping spans STREAM_BASELINE_S."""
+        return self._w > 2.0 and self._c_nn > 0.0 and self._last_ns - self._first_ns >= STREAM_BASELINE_S * 1e9
+
+    def add(self, unit_us: int, arrival_ns: int) -> None:
+        """A message of unit time ``unit_us`` (unwrapped) arrived at ``arrival_ns`` (monotonic, wire time less)."""
+        if not self._w:
+            self._n0, self._t0, self._first_ns = unit_us, arrival_ns, arrival_ns
+            self._last_ns = arrival_ns
+        n = float(unit_us - self._n0)
+        t = float(arrival_ns - self._t0)
+        decay = math.exp(-(arrival_ns - self._last_ns) * 1e-9 / UNIT_CLOCK_MEMORY_S)
+        self._low += (arrival_ns - self._last_ns) * UNIT_CLOCK_RELAX
+        self._last_ns = arrival_ns
+        self._w = self._w * decay + 1.0
+        dn = n - self._mean_n
+        self._mean_n += dn / self._w
+        self._mean_t += (t - self._mean_t) / self._w
+        self._c_nt = self._c_nt * decay + dn * (t - self._mean_t)
+        self._c_nn = self._c_nn * decay + dn * (n - self._mean_n)
+        if self.ready:   # before, the line is too loose for its residuals to say how early a message can come
+            self._low = min(self._low, t - self._line(n))
+
+    def _line(self, n: float) -> float:
+        return self._mean_t + self._c_nt / self._c_nn * (n - self._mean_n)
+
+    @property
+    def ns_per_us(self) -> float:
+        """Host nanoseconds per unit microsecond (1000 less the unit clock's drift)."""
+        return self._c_nt / self._c_nn if self._c_nn > 0.0 else math.nan
+
+    def map(self, unit_us: int) -> int:
+        """The monotonic time at which the message of unit time ``unit_us`` left the unit (call when ready)."""
+        n = float(unit_us - self._n0)
+        low = self._low if math.isfinite(self._low) else 0.0
+        return self._t0 + int(self._line(n) + low)
+
+
 def encode_kvh_fog(rotation: tuple[float, float, float], acceleration: tuple[float, float, float], status: int,
                    sequence: int, temperature: float, message_format: str = 'A',
                    magnetic: tuple[float, float, float] = (0.0, 0.0, 0.0), timestamp_us: int = 0) -> bytes:
@@ -326,7 +399,7 @@ class KvhFogEncoder:
                               self.status, sequence, temperature, config.message_format, timestamp_us=timestamp)
 
 
-class KvhFogParser(BinaryChunkParser):
+class KvhFogParser(ChunkParser):
     """Incremental parser of kvh_fog messages of the configured format; samples in deg/s and degC.
 
     A candidate is the format's header and the message's length of bytes from it; a good CRC
@@ -340,7 +413,9 @@ class KvhFogParser(BinaryChunkParser):
     repeats the sequence number before it (a duplicate: publishing it would count the rotation
     twice), when a value is not finite, in Format C before the first temperature of the
     connection (the temperature comes every fourth message and is held until the next), and, for
-    delta angles, while the message interval is not known.
+    delta angles, while the message interval is not known. So every message the unit numbered is
+    a frame, a rejection or lost; bytes between messages are ``stats.bytes_skipped``, each run of
+    them counted once in ``garbage_runs``, not as a rejected message.
 
     Delta angles become rates by the measured interval, never by the configured output rate:
     Format B's by the unit's own clock (the timestamps of consecutive messages over the sequence
@@ -353,6 +428,8 @@ class KvhFogParser(BinaryChunkParser):
     def __init__(self, config: KvhFogConfig) -> None:
         super().__init__((BAD_CRC, OTHER_FORMAT, AXIS_INVALID, REPEATED_SEQUENCE, NOT_FINITE, NO_TEMPERATURE_YET,
                           NO_INTERVAL, BAD_TIMESTAMP))
+        self.garbage_runs = 0   # runs of bytes that are no message (a port opened mid-message, line noise)
+        self._in_garbage = False
         self.config = config
         fmt = config.format
         self.frame_bytes = fmt.length
@@ -369,19 +446,31 @@ class KvhFogParser(BinaryChunkParser):
         self._bad_crc_since = 0             # bad CRCs since the last good message (those messages are not lost)
         self._temp_c: float | None = None   # Format C: the latest temperature
         self._last_time_us: int | None = None   # Format B: the previous message's clock
-        self._unit_time_us = 0                  # Format B: the clock unwrapped since the connection opened
-        self._unit_steps = 0                    # Format B: intervals over which _unit_time_us was counted
+        self._unit_time_us = 0                  # Format B: the clock over _unit_steps intervals (the mean interval)
+        self._unit_steps = 0
+        self._unwrapped_us = 0                  # Format B: the clock unwrapped since the connection opened
+        self.clock_faults = 0                   # Format B: times the clock went back, stood still or leapt
 
     def reset(self) -> None:
         """Drop a partly received message; the sequence, held temperature and intervals restart; statistics kept."""
-        super().reset()
+        self._skip(len(self._buffer))
+        self._buffer = b''
+        self._in_garbage = False
         self._last_sequence = None
         self._number = 0
         self._bad_crc_since = 0
         self._temp_c = None
         self._last_time_us = None
-        self._unit_time_us = self._unit_steps = 0
+        self._unit_time_us = self._unit_steps = self._unwrapped_us = 0
         self.stream.reset()
+
+    def _skip(self, count: int) -> None:
+        if count <= 0:
+            return
+        self.stats.bytes_skipped += count
+        if not self._in_garbage:
+            self.garbage_runs += 1
+            self._in_garbage = True
 
     @property
     def measured_rate_hz(self) -> float | None:
@@ -496,7 +585,7 @@ class KvhFogParser(BinaryChunkParser):
         if not (math.isfinite(rate_dps) and math.isfinite(temp_c)):
             return None, NOT_FINITE
         return KvhSample(rate_dps, temp_c, rates, (values[3], values[4], values[5]), status,
-                         None if timestamp is None else self._unit_time_us,
+                         None if timestamp is None else self._unwrapped_us,
                          math.nan if interval_s is None else interval_s), ''
 
     def _clock_interval(self, timestamp: int | None, steps: int) -> float | None:
@@ -511,7 +600,9 @@ class KvhFogParser(BinaryChunkParser):
             return None
         elapsed = (timestamp - last) % 2 ** 32   # the microsecond counter wraps after 71.6 minutes
         if not 0 < elapsed <= steps * MAX_INTERVAL_US:
+            self.clock_faults += 1
             return -1.0
+        self._unwrapped_us += elapsed
         if self._unit_steps and abs(elapsed * self._unit_steps / (steps * self._unit_time_us) - 1.0) > 0.01:
             self._unit_time_us = self._unit_steps = 0
         self._unit_time_us += elapsed

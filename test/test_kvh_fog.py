@@ -8,10 +8,10 @@ import zlib
 
 import pytest
 
-from art_gyro_calibration.frame import GARBAGE, NOT_FINITE, RawSample
+from art_gyro_calibration.frame import NOT_FINITE, RawSample
 from art_gyro_calibration.kvh_fog import (AXIS_INVALID, BAD_CRC, BAD_TIMESTAMP, KVH_FORMATS, NO_INTERVAL,
                                           NO_TEMPERATURE_YET, OTHER_FORMAT, REPEATED_SEQUENCE, KvhFogConfig,
-                                          KvhFogParser, crc32_mpeg2, encode_kvh_fog)
+                                          KvhFogParser, UnitClock, crc32_mpeg2, encode_kvh_fog)
 from art_gyro_calibration.protocols import make_encoder, make_parser
 
 
@@ -102,15 +102,17 @@ def test_kvh_stream_with_the_sample_cut_repeated_bit_flipped_and_a_sequence_gap(
         parser = KvhFogParser(config)
         got = [s for i in range(0, len(stream), size) for s in kvh_samples(parser, stream[i:i + size])]
         stats = parser.stats
-        results[size] = (got, stats.rejected_by_reason, stats.lost_frames, stats.frames, stats.bytes_skipped)
-    got, reasons, lost, frames, skipped = results[len(stream)]
+        results[size] = (got, stats.rejected_by_reason, stats.lost_frames, stats.frames, stats.bytes_skipped,
+                         parser.garbage_runs)
+    got, reasons, lost, frames, skipped, garbage_runs = results[len(stream)]
     assert all(r == results[len(stream)] for r in results.values())
     assert got == [(pytest.approx(-1.3111e-05, rel=1e-4), 40.0)] + [(pytest.approx(0.001), 40.0)] * 3
     assert frames == 4
     # The cut message and the flipped one fail their CRC; the second copy of the sample repeats sequence 61.
     # Garbage: the bytes before the cut message, and the lone header start before message 67.
-    assert reasons == {BAD_CRC: 2, GARBAGE: 2, OTHER_FORMAT: 0, AXIS_INVALID: 0, REPEATED_SEQUENCE: 1,
+    assert reasons == {BAD_CRC: 2, OTHER_FORMAT: 0, AXIS_INVALID: 0, REPEATED_SEQUENCE: 1,
                        NOT_FINITE: 0, NO_TEMPERATURE_YET: 0, NO_INTERVAL: 0, BAD_TIMESTAMP: 0}
+    assert garbage_runs == 2 and parser.stats.rejected == 3   # runs of garbage are no rejected messages
     # 64 and 65 never sent; 62 came with a bad CRC: one rejected frame, not also a lost one.
     assert lost == 2
     # Every byte is in an accepted message, skipped, or held (the last message, still arriving).
@@ -163,7 +165,7 @@ def test_kvh_other_formats_are_counted_and_skipped():
     data = kvh_message(0, message_format='C') + kvh_message(1) + kvh_message(2, message_format='B') + kvh_message(3)
     assert len(parser.feed(data)) == 2
     assert parser.stats.rejected_by_reason[OTHER_FORMAT] == 2
-    assert parser.stats.rejected_by_reason[GARBAGE] == 0 and parser.stats.rejected_by_reason[BAD_CRC] == 0
+    assert parser.garbage_runs == 0 and parser.stats.rejected_by_reason[BAD_CRC] == 0
     assert parser.stats.bytes_skipped == 38 + 40
     assert parser.stats.lost_frames == 1   # 2 came in a format this parser does not read
 
@@ -355,11 +357,45 @@ def test_kvh_forward_axis_must_be_another_axis_and_max_rate_is_what_the_baud_car
 
 
 def test_kvh_bad_crc_is_one_rejected_frame_not_also_a_lost_one():
-    """Messages 1 and 2 hit on the wire (bad CRC), 4 never sent: 2 rejected, 1 lost; garbage runs apart."""
+    """Messages 1 and 2 hit on the wire (bad CRC), 4 never sent: 2 rejected, 1 lost; garbage runs apart.
+
+    Every message the unit numbered (0..6) is a frame, a rejection or lost: garbage adds none.
+    """
     hit = [bytearray(kvh_message(s)) for s in (1, 2)]
     for message in hit:
         message[10] ^= 0x01
     parser = KvhFogParser(RATES)
-    got = parser.feed(kvh_message(0) + b'\x00\x01' + bytes(hit[0]) + bytes(hit[1]) + kvh_message(3) + kvh_message(5))
-    assert len(got) == 3
+    got = parser.feed(b'\x07' * 5 + kvh_message(0) + b'\x00\x01' + bytes(hit[0]) + bytes(hit[1]) + kvh_message(3)
+                      + b'\xfe\x81\xff' + kvh_message(5) + b'\xfe\x81' + kvh_message(6))
+    assert len(got) == 4
     assert parser.stats.rejected_by_reason[BAD_CRC] == 2 and parser.stats.lost_frames == 1
+    assert parser.stats.frames + parser.stats.rejected + parser.stats.lost_frames == 7
+    assert parser.garbage_runs == 4
+
+
+# --- stamps from Format B's clock (issue 22) ----------------------------------------------------------------------
+
+@pytest.mark.parametrize('drift_ppm', [0.0, 150.0, -80.0])
+def test_unit_clock_maps_format_b_time_to_the_host_with_its_drift_and_offset(drift_ppm):
+    """A unit at 200 Hz whose clock runs drift_ppm fast, read 0..4 ms late: mapped within 0.5 ms of leaving."""
+    rng = random.Random(3)
+    clock = UnitClock()
+    boot_ns = 5_000_000_000   # the host's monotonic time when the unit's clock read 0
+    errors = []
+    for i in range(200 * 20):
+        true_ns = boot_ns + i * 5_000_000
+        unit_us = round((true_ns - boot_ns) * 1e-3 * (1 + drift_ppm * 1e-6))
+        arrival = true_ns + int(rng.uniform(0.0, 4e6)) + (20_000_000 if i % 500 == 7 else 0)   # and a stall
+        clock.add(unit_us, arrival)
+        if clock.ready:
+            errors.append(clock.map(unit_us) - true_ns)
+    assert len(errors) > 200 * 18
+    assert max(abs(e) for e in errors[200:]) < 500_000   # from a second after it is ready
+    assert clock.ns_per_us == pytest.approx(1000.0 / (1 + drift_ppm * 1e-6), rel=2e-6)
+
+
+def test_unit_clock_source_needs_format_b():
+    with pytest.raises(ValueError, match='kvh_fog.timestamp_source unit_clock needs kvh_fog.message_format B'):
+        KvhFogConfig(timestamp_source='unit_clock')
+    with pytest.raises(ValueError, match='kvh_fog.timestamp_source must be one of arrival, unit_clock'):
+        KvhFogConfig(timestamp_source='device')

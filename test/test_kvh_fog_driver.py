@@ -75,3 +75,41 @@ def test_driver_gives_delta_angles_rates_by_the_measured_interval_not_the_config
     assert [f.sample.raw_rate for f in frames[-100:]] == pytest.approx([truth] * 100, rel=5e-3)
     assert driver.stats.measured_rate_hz == pytest.approx(200.0, rel=5e-3)
     assert driver.stats.rejected_by_reason['no_interval'] >= 150
+
+
+def test_driver_stamps_format_b_by_the_units_clock_and_falls_back_to_arrival_on_a_clock_fault():
+    """timestamp_source unit_clock: once mapped, stamps are the unit's period apart (not the reads').
+
+    A clock that jumps back is said; stamps go by arrival until it is mapped again, and never back.
+    """
+    frames: list[Frame] = []
+    warnings: list[str] = []
+    lock = threading.Lock()
+
+    def on_frame(frame):
+        with lock:
+            frames.append(frame)
+
+    config = KvhFogConfig(message_format='B', rotation='rate', timestamp_source='unit_clock')
+    with FakeRd2100('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=200, kvh_fog=config) as fake:
+        driver = Rd2100Driver(fake.path, 921600, 'kvh_fog', on_frame, kvh_fog=fake.kvh_fog, on_warning=warnings.append)
+        driver.start()
+        try:
+            assert wait_for(lambda: driver.stats.stamp_source == 'unit_clock', timeout_s=20.0)
+            start = len(frames)
+            assert wait_for(lambda: len(frames) > start + 200, timeout_s=20.0)
+            with lock:
+                mapped = [f.stamp_ns for f in frames[start:start + 200]]
+            with fake._lock:
+                fake.encoder.unit_time_us -= 10e6   # the unit's clock goes back 10 s
+            assert wait_for(lambda: driver.stats.stamp_source == 'arrival')
+            assert wait_for(lambda: driver.stats.stamp_source == 'unit_clock', timeout_s=20.0)
+        finally:
+            driver.stop()
+    spacing = [b - a for a, b in zip(mapped, mapped[1:])]
+    # The unit's 5 ms; by arrival, frames read together would be a wire time apart.
+    assert all(4_900_000 < s < 5_100_000 for s in spacing), (min(spacing), max(spacing))
+    assert any('stamps by arrival until it is mapped again' in w for w in warnings), warnings
+    with lock:
+        stamps = [f.stamp_ns for f in frames]
+    assert all(b > a for a, b in zip(stamps, stamps[1:])) and abs(stamps[-1] - time.time_ns()) < 5e9

@@ -124,6 +124,8 @@ class Diagnostics:
         if node.settings.protocol != KVH_FOG:
             return ''
         values['measured_rate_hz'] = 'not yet' if measured is None else f'{measured:.3f}'
+        values['garbage_runs'] = node.driver.stats.garbage_runs
+        values['stamp_source'] = node.driver.stats.stamp_source
         configured = node.kvh_fog.output_rate_hz
         if measured is None or abs(configured / measured - 1.0) <= RATE_TOLERANCE:
             return ''

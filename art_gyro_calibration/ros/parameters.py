@@ -79,6 +79,8 @@ _KVH_FOG_DESCRIPTIONS = {
     'output_rate_hz': 'kvh_fog messages per second (=DR), 1 to 5000 and no more than the baud carries; checked '
                       'against the measured rate (an ERROR beyond 2 %); rates come from the measured interval.',
     'temperature_units': 'kvh_fog temperature units (=TEMPUNITS): C (the default), C_100, F or F_100.',
+    'timestamp_source': 'kvh_fog stamps: arrival (the read, less the wire time) or unit_clock (Format B: the unit\'s '
+                        'microsecond clock mapped to ROS time, drift and offset tracked; by arrival until mapped).',
     'forward_axis': 'kvh_fog axis that points forward on the robot (+x, -y, ...): with yaw_axis, the REP 103 axes of '
                     'the whole IMU message; empty: the axis after yaw_axis in x, y, z.',
 }
