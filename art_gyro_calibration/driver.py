@@ -342,11 +342,12 @@ class Rd2100Driver:
             return stamps
         self._stamp_source = 'unit_clock'
         offset, steps = self._stamper.offset_ns, self._stamper.steps_ns
+        latest = stamps[-1][0]   # the chunk's last message arrived then: none of the chunk left the unit later
         out = []
         for (sample, _), (arrival, _steady) in zip(frames, stamps):
             stamp = arrival
             if isinstance(sample, KvhSample) and sample.unit_time_us is not None:
-                stamp = min(arrival, clock.map(sample.unit_time_us) + offset)
+                stamp = min(latest, clock.map(sample.unit_time_us) + offset)
             if stamp <= self._last_stamp and not self._stamper.step_ns:   # never back, but a clock step
                 stamp = self._last_stamp + 1
             self._last_stamp = stamp

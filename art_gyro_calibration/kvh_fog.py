@@ -1,6 +1,6 @@
 """KVH's ``kvh_fog`` message: the unit's settings, CRC, encoder and incremental parser (pure: no I/O, no ROS).
 
-The binary message of KVH's DSP-1750/1760 gyros and 1725/1750/1775 IMUs, whose manuals are
+The binary message of KVH's DSP-1760 gyros and 1725/1750/1775 IMUs, whose manuals are
 public (1775 IMU technical manual, section 5): a 4-byte header (``FE 81 FF 55`` Format A, 36
 bytes; ``56`` Format B, 40 bytes, with a microsecond timestamp; ``57`` Format C, 38 bytes, whose
 temperature float is multiplexed with the magnetometer by the sequence number modulo 4), six
@@ -44,6 +44,8 @@ KVH_TIMESTAMP_SOURCES = ('arrival', 'unit_clock')
 UNIT_CLOCK_MEMORY_S = 60.0
 # The lower envelope of the arrivals (the least delayed message) may rise this fast (s/s): a slowly shrinking delay.
 UNIT_CLOCK_RELAX = 1e-4
+# The mapping is slewed, never stepped, at most this fast (s/s): stamps stay the unit's period apart within 0.1 %.
+UNIT_CLOCK_SLEW = 1e-3
 # The unit's baud rates (=BAUD, 1775 manual section 8.3).
 KVH_BAUDS = (9600, 19200, 38400, 57600, 115200, 460800, 576000, 921600, 4147200)
 KVH_DEFAULT_BAUD = 921600
@@ -53,6 +55,9 @@ BITS_PER_BYTE = 10   # start + 8 data + stop
 STREAM_BASELINE_S = 1.0
 # A configured output_rate_hz this far from the measured rate is an error (the unit is not set as the node is told).
 RATE_TOLERANCE = 0.02
+# The stream's measure confirms the configured rate within this: its interval is then the unit's exactly (the unit
+# integrates over its own period), not the measure's few parts in 10,000 of host-side jitter.
+RATE_CONFIRMED = 0.01
 # Format B's clock: a message interval longer than this (the slowest =DR is 1 Hz) is a fault of the clock.
 MAX_INTERVAL_US = 1_500_000
 STANDARD_GRAVITY = 9.80665   # m/s^2 per g (the unit's acceleration unit)
@@ -277,11 +282,13 @@ class UnitClock:
     A line through (unit time, arrival) by least squares with exponential forgetting over about
     UNIT_CLOCK_MEMORY_S (so a drift that changes with temperature is followed), lowered to the
     envelope of the least delayed arrivals (a stamp is when the message left the unit, not when a
-    busy host read it). Ready once it has spanned STREAM_BASELINE_S; :meth:`reset` when the
+    busy host read it), that envelope taken from half of STREAM_BASELINE_S on. Ready once it has
+    spanned STREAM_BASELINE_S; :meth:`reset` when the
     clock is broken (a reopen, a clock fault), after which the driver stamps by arrival again.
     """
 
-    __slots__ = ('_w', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_low', '_first_ns', '_last_ns')
+    __slots__ = ('_w', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_low', '_first_ns', '_last_ns',
+                 '_mapped')
 
     def __init__(self) -> None:
         self.reset()
@@ -293,11 +300,12 @@ class UnitClock:
         self._mean_n = self._mean_t = self._c_nt = self._c_nn = 0.0
         self._low = math.inf
         self._first_ns = self._last_ns = 0
+        self._mapped: tuple[int, float] | None = None   # the last (unit time, mapped time) given
 
     @property
     def ready(self) -> bool:
         """The mapping spans STREAM_BASELINE_S."""
-        return self._w > 2.0 and self._c_nn > 0.0 and self._last_ns - self._first_ns >= STREAM_BASELINE_S * 1e9
+        return math.isfinite(self._low) and self._last_ns - self._first_ns >= STREAM_BASELINE_S * 1e9
 
     def add(self, unit_us: int, arrival_ns: int) -> None:
         """A message of unit time ``unit_us`` (unwrapped) arrived at ``arrival_ns`` (monotonic, wire time less)."""
@@ -315,7 +323,8 @@ class UnitClock:
         self._mean_t += (t - self._mean_t) / self._w
         self._c_nt = self._c_nt * decay + dn * (t - self._mean_t)
         self._c_nn = self._c_nn * decay + dn * (n - self._mean_n)
-        if self.ready:   # before, the line is too loose for its residuals to say how early a message can come
+        if self._c_nn > 0.0 and self._last_ns - self._first_ns >= STREAM_BASELINE_S * 0.5e9:
+            # Over the half second before it is ready: earlier, the line is too loose for its residuals.
             self._low = min(self._low, t - self._line(n))
 
     def _line(self, n: float) -> float:
@@ -327,10 +336,20 @@ class UnitClock:
         return self._c_nt / self._c_nn if self._c_nn > 0.0 else math.nan
 
     def map(self, unit_us: int) -> int:
-        """The monotonic time at which the message of unit time ``unit_us`` left the unit (call when ready)."""
+        """The monotonic time at which the message of unit time ``unit_us`` left the unit (call when ready).
+
+        The line and its envelope move as arrivals come: the mapping follows them by at most
+        UNIT_CLOCK_SLEW from the last time it gave, so stamps never jump.
+        """
         n = float(unit_us - self._n0)
-        low = self._low if math.isfinite(self._low) else 0.0
-        return self._t0 + int(self._line(n) + low)
+        target = self._line(n) + (self._low if math.isfinite(self._low) else 0.0)
+        if self._mapped is not None and unit_us > self._mapped[0]:
+            elapsed_us = unit_us - self._mapped[0]
+            predicted = self._mapped[1] + elapsed_us * self.ns_per_us
+            step = UNIT_CLOCK_SLEW * elapsed_us * 1e3
+            target = predicted + min(step, max(-step, target - predicted))
+        self._mapped = (unit_us, target)
+        return self._t0 + int(target)
 
 
 def encode_kvh_fog(rotation: tuple[float, float, float], acceleration: tuple[float, float, float], status: int,
@@ -417,12 +436,13 @@ class KvhFogParser(ChunkParser):
     a frame, a rejection or lost; bytes between messages are ``stats.bytes_skipped``, each run of
     them counted once in ``garbage_runs``, not as a rejected message.
 
-    Delta angles become rates by the measured interval, never by the configured output rate:
-    Format B's by the unit's own clock (the timestamps of consecutive messages over the sequence
-    steps between them); A's and C's by :class:`StreamInterval`, fitted to the arrival times
+    Delta angles become rates by the measured interval, never by an unconfirmed output rate:
+    Format B's by the unit's own clock (its timestamps over the sequence steps, the mean since the
+    connection opened); A's and C's by :class:`StreamInterval`, fitted to the arrival times
     ``feed`` is given (the driver's monotonic clock at the read, less the wire time of the bytes
-    after each message: set ``byte_ns``). Without arrival times, A and C delta angles stay
-    rejected as ``no_interval``.
+    after each message: set ``byte_ns``), or the configured rate's where that measure confirms it
+    within RATE_CONFIRMED (the unit integrates over its own period exactly; host jitter does not).
+    Without arrival times, A and C delta angles stay rejected as ``no_interval``.
     """
 
     def __init__(self, config: KvhFogConfig) -> None:
@@ -440,6 +460,7 @@ class KvhFogParser(ChunkParser):
         self._deg_per_unit = config.deg_per_unit
         self._delta = config.delta_angle
         self._clocked = fmt.name == 'B'
+        self._configured_hz = float(config.output_rate_hz)
         self.stream = StreamInterval()
         self._last_sequence: int | None = None
         self._number = 0                    # intervals since the connection opened, by the sequence numbers
@@ -560,7 +581,7 @@ class KvhFogParser(ChunkParser):
         self._bad_crc_since = 0
         self._last_sequence = sequence
         self._number += steps
-        interval_s = self._clock_interval(timestamp, steps) if self._clocked else self.stream.interval_s
+        interval_s = self._clock_interval(timestamp, steps) if self._clocked else self._stream_interval()
         if self._format.multiplexed:
             if sequence % 4 == 0:
                 self._temp_c = config.temperature_c(mux)
@@ -587,6 +608,13 @@ class KvhFogParser(ChunkParser):
         return KvhSample(rate_dps, temp_c, rates, (values[3], values[4], values[5]), status,
                          None if timestamp is None else self._unwrapped_us,
                          math.nan if interval_s is None else interval_s), ''
+
+    def _stream_interval(self) -> float | None:
+        """A and C: the stream's measured interval, or the configured one where the measure confirms it."""
+        interval = self.stream.interval_s
+        if interval is not None and abs(interval * self._configured_hz - 1.0) <= RATE_CONFIRMED:
+            return 1.0 / self._configured_hz
+        return interval
 
     def _clock_interval(self, timestamp: int | None, steps: int) -> float | None:
         """Format B: seconds per message by the unit's clock; -1.0 if the clock went wrong; None before two messages.

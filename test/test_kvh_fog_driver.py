@@ -106,9 +106,10 @@ def test_driver_stamps_format_b_by_the_units_clock_and_falls_back_to_arrival_on_
             assert wait_for(lambda: driver.stats.stamp_source == 'unit_clock', timeout_s=20.0)
         finally:
             driver.stop()
-    spacing = [b - a for a, b in zip(mapped, mapped[1:])]
-    # The unit's 5 ms; by arrival, frames read together would be a wire time apart.
-    assert all(4_900_000 < s < 5_100_000 for s in spacing), (min(spacing), max(spacing))
+    spacing = sorted(b - a for a, b in zip(mapped, mapped[1:]))
+    # The unit's 5 ms (by arrival, frames read together would be a wire time apart), but where the mapping's
+    # offset moves to a less delayed arrival.
+    assert all(4_990_000 < s < 5_010_000 for s in spacing[10:-10]), spacing
     assert any('stamps by arrival until it is mapped again' in w for w in warnings), warnings
     with lock:
         stamps = [f.stamp_ns for f in frames]

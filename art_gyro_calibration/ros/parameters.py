@@ -68,7 +68,7 @@ PARAMETERS: dict[str, tuple[Any, ...]] = {
                      '(must not exist) or a directory, where <serial>_<UTC time>.csv is created.'),
 }
 
-# --- protocol kvh_fog (KVH DSP-1750/1760, 1725/1750/1775) ------------------------------------------
+# --- protocol kvh_fog (KVH DSP-1760, 1725/1750/1775 IMUs) ----------------------------------------
 # What the unit is set to send, which its messages do not say: name: (default, description). Declared
 # and checked at startup whatever the protocol; read by the kvh_fog parser only. Defaults: the manuals'.
 _KVH_FOG_DESCRIPTIONS = {

@@ -174,8 +174,10 @@ def test_node_says_when_the_temperature_units_do_not_match_the_unit(tmp_path: Pa
      'parameter kvh_fog.output_rate_hz is 5000 but baud 921600 carries at most 2560 Format A messages'),
     (['-p', 'protocol:=kvh_fog', '-p', f'serial_number:={EXAMPLE}', '-p', 'baud:=4147200',
       '-p', 'kvh_fog.rate_stddev:=0.0'], 'parameter kvh_fog.rate_stddev must be in 1e-07..1, got 0.0'),
+    (['-p', 'protocol:=kvh_fog', '-p', f'serial_number:={EXAMPLE}', '-p', 'kvh_fog.timestamp_source:=unit_clock'],
+     'parameter kvh_fog.timestamp_source unit_clock needs kvh_fog.message_format B'),
 ], ids=['rd2100_calibration', 'yaw_axis', 'output_rate_type', 'yaw_axis_yaml_y', 'forward_axis_yaml_n',
-        'rate_beyond_baud', 'rate_stddev'])
+        'rate_beyond_baud', 'rate_stddev', 'unit_clock_needs_b'])
 def test_node_refuses_bad_kvh_fog_settings(tmp_path: Path, args: list[str], message: str) -> None:
     output = tmp_path / 'node.log'
     proc = start_node(domain_id(), output, '-p', 'port:=/nonexistent', *args)
