@@ -102,7 +102,7 @@ class Diagnostics:
         flagged = self._invalid.take(stats.rejected_by_reason.get(AXIS_INVALID, 0))
         if not stats.connected:
             return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
-        mismatch = self._rate_mismatch(stats.measured_rate_hz, values)
+        mismatch = self._kvh_fog_rate_error(stats.measured_rate_hz, values)
         if mismatch:
             return self._status('link', DiagnosticStatus.ERROR, mismatch, values)
         if rate_hz == 0.0:
@@ -118,8 +118,8 @@ class Diagnostics:
                                 f'gaps), {flagged} flagged invalid by the gyro', values)
         return self._status('link', DiagnosticStatus.OK, f'connected, {rate_hz:.1f} Hz', values)
 
-    def _rate_mismatch(self, measured: float | None, values: dict[str, Any]) -> str:
-        """kvh_fog: why the configured output rate is wrong (also said on the console), or ''."""
+    def _kvh_fog_rate_error(self, measured: float | None, values: dict[str, Any]) -> str:
+        """kvh_fog: its values added; why the configured output rate is wrong (also said on the console), or ''."""
         node = self._node
         if node.settings.protocol != KVH_FOG:
             return ''

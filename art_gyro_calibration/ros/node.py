@@ -14,7 +14,7 @@ Topics (relative names, so they follow the node's namespace and remappings):
   With ``protocol:=kvh_fog`` the message is the whole IMU: x and y rates and the three
   accelerations (m/s^2) too, in REP 103 axes from ``kvh_fog.yaw_axis`` and ``forward_axis``, with
   the variances of ``kvh_fog.rate_stddev`` and ``acceleration_stddev`` (an axis its status byte
-  flags invalid: 0 with :data:`UNMEASURED_VARIANCE`, or -1 for the accelerations).
+  flags invalid, or not finite: 0 with :data:`UNMEASURED_VARIANCE`, or -1 for the accelerations).
 - ``imu/temperature`` (std_msgs/Float64): the gyro temperature in degC.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): link, static bias, temperature, raw log
   (:mod:`.diagnostics`).
@@ -46,9 +46,9 @@ from art_gyro_calibration.compensation import FrameCorrector, RunStart
 from art_gyro_calibration.driver import Rd2100Driver
 from art_gyro_calibration.frame import Frame, RawSample
 from art_gyro_calibration.kvh_fog import STANDARD_GRAVITY, KvhSample
+from art_gyro_calibration.protocols import KVH_FOG
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
-from art_gyro_calibration.protocols import KVH_FOG
 from art_gyro_calibration.ros.parameters import IMU_TOPIC, NODE_NAME, NodeParameters, ParameterError, usage
 from art_gyro_calibration.ros.raw_log import RawLog
 
@@ -155,15 +155,16 @@ class GyroNode(Node):
         (ix, sx), (iy, sy), _ = self._axes
         rates, status = sample.rates_dps, sample.status
         covariance = imu.angular_velocity_covariance
-        valid = status >> ix & 1
+        valid = status >> ix & 1 and math.isfinite(rates[ix])
         imu.angular_velocity.x = math.radians(sx * rates[ix]) if valid else 0.0
         covariance[0] = self._rate_variance if valid else UNMEASURED_VARIANCE
-        valid = status >> iy & 1
+        valid = status >> iy & 1 and math.isfinite(rates[iy])
         imu.angular_velocity.y = math.radians(sy * rates[iy]) if valid else 0.0
         covariance[4] = self._rate_variance if valid else UNMEASURED_VARIANCE
         acceleration = imu.linear_acceleration
-        if status & 0x70 == 0x70:   # bits 4-6: the three accelerometers valid
-            g = sample.acceleration_g
+        g = sample.acceleration_g
+        # Bits 4-6: the three accelerometers valid (and a CRC-checked NaN is still no acceleration).
+        if status & 0x70 == 0x70 and math.isfinite(g[0] + g[1] + g[2]):
             (ix, sx), (iy, sy), (iz, sz) = self._axes
             acceleration.x = sx * g[ix] * STANDARD_GRAVITY
             acceleration.y = sy * g[iy] * STANDARD_GRAVITY

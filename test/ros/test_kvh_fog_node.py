@@ -225,3 +225,27 @@ def test_node_publishes_the_right_rate_when_output_rate_hz_is_wrong_and_says_so(
         assert float(link['measured_rate_hz']) == pytest.approx(RATE_HZ, rel=0.01)
         wait_until(lambda: 'kvh_fog.output_rate_hz is 1000 Hz' in output.read_text(), 'the console error')
         assert 'at 921600 baud (kvh_fog)' in output.read_text()
+
+
+def test_imu_axes_flagged_invalid_or_not_finite_are_not_measured() -> None:
+    """_fill_imu as the node calls it: REP 103 axes from the mounting; a bad axis gets no weight, never a NaN."""
+    from types import SimpleNamespace
+
+    from sensor_msgs.msg import Imu
+
+    from art_gyro_calibration.kvh_fog import KvhSample
+    from art_gyro_calibration.ros.node import UNMEASURED_VARIANCE, GyroNode
+    rows = KvhFogConfig(yaw_axis='+y', forward_axis='-x').mounting   # x = -x_unit, y = +z_unit, z = +y_unit
+    node = SimpleNamespace(_axes=tuple((max(range(3), key=lambda i: abs(r[i])), sum(r)) for r in rows),
+                           _rate_variance=1e-6, _acceleration_variance=0.0025)
+    imu = Imu()
+    GyroNode._fill_imu(node, imu, KvhSample(0.0, 25.0, (10.0, 20.0, 30.0), (0.5, 1.0, -0.25), 0x77))
+    assert (imu.angular_velocity.x, imu.angular_velocity.y) == pytest.approx((math.radians(-10.0), math.radians(30.0)))
+    assert (imu.linear_acceleration.x, imu.linear_acceleration.y, imu.linear_acceleration.z) == pytest.approx(
+        (-0.5 * 9.80665, -0.25 * 9.80665, 9.80665))
+    assert imu.angular_velocity_covariance[0] == imu.angular_velocity_covariance[4] == 1e-6
+    GyroNode._fill_imu(node, imu, KvhSample(0.0, 25.0, (math.nan, 20.0, 30.0), (0.5, math.inf, 0.0), 0x77))
+    assert imu.angular_velocity.x == 0.0 and imu.angular_velocity_covariance[0] == UNMEASURED_VARIANCE
+    assert imu.linear_acceleration_covariance[0] == -1.0 and imu.linear_acceleration.y == 0.0
+    GyroNode._fill_imu(node, imu, KvhSample(0.0, 25.0, (10.0, 20.0, 30.0), (0.5, 1.0, 0.0), 0x77 & ~0x04))
+    assert imu.angular_velocity.y == 0.0 and imu.angular_velocity_covariance[4] == UNMEASURED_VARIANCE
