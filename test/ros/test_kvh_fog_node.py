@@ -221,7 +221,8 @@ def test_node_publishes_the_right_rate_when_output_rate_hz_is_wrong_and_says_so(
         truth = 30.0 + fake.simulator.turn_on_bias_dps + fake.simulator.earth_rate_dps
         assert rates_dps(turning).mean() == pytest.approx(truth, abs=0.05)
         link = listener.wait_status('link', lambda s: s['level'] == b'\x02', 'the rate error', proc, output)
-        assert 'kvh_fog.output_rate_hz is 1000 Hz but the unit sends 100.' in link['message'], link['message']
+        assert 'kvh_fog.output_rate_hz is 1000 Hz but the unit sends ' in link['message'], link['message']
+        assert float(link['message'].split('unit sends ')[1].split()[0]) == pytest.approx(RATE_HZ, rel=0.01)
         assert float(link['measured_rate_hz']) == pytest.approx(RATE_HZ, rel=0.01)
         wait_until(lambda: 'kvh_fog.output_rate_hz is 1000 Hz' in output.read_text(), 'the console error')
         assert 'at 921600 baud (kvh_fog)' in output.read_text()
