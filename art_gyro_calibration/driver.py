@@ -22,11 +22,13 @@ from dataclasses import dataclass
 
 import serial
 
-from art_gyro_calibration.frame import Frame
-from art_gyro_calibration.kvh_fog import KvhFogConfig
+from art_gyro_calibration.frame import Frame, RawSample
+from art_gyro_calibration.kvh_fog import KVH_BAUDS, KvhFogConfig, KvhFogParser, KvhSample, UnitClock
 from art_gyro_calibration.protocols import make_parser
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
+# Every rate the driver opens: the standard ones and a KVH unit's (576000, 4147200: pyserial sets them on Linux).
+BAUDS = tuple(sorted(set(STANDARD_BAUDS) | set(KVH_BAUDS)))
 # A read returns after this long without data: bounds how late stop() and an unplug are seen.
 READ_TIMEOUT_S = 0.1
 BITS_PER_BYTE = 10   # start + 8 data + stop
@@ -55,6 +57,9 @@ class DriverStats:
     last_error: str
     port: str
     lost_frames: int = 0   # numbered by the gyro but never received whole (kvh_fog sequence gaps)
+    measured_rate_hz: float | None = None   # kvh_fog: messages per second, measured (None until known)
+    garbage_runs: int = 0   # kvh_fog: runs of bytes that were no message (not counted as rejected messages)
+    stamp_source: str = 'arrival'   # where the latest stamps came from: arrival, or unit_clock (kvh_fog Format B)
 
 
 class WireStamper:
@@ -91,6 +96,11 @@ class WireStamper:
     def restart(self) -> None:
         """After a reopen: the next chunk does not measure the period (the link was down meanwhile)."""
         self._last_steady = None
+
+    @property
+    def offset_ns(self) -> int:
+        """The caller's clock less the monotonic clock, as the latest chunk was stamped with."""
+        return self._offset_ns or 0
 
     def stamp(self, clock_ns: int, monotonic_ns: int, chunk_bytes: int,
               ends: list[int]) -> list[tuple[int, int]]:
@@ -187,8 +197,9 @@ class Rd2100Driver:
         """``clock_ns`` is the stamps' clock; ``on_warning`` hears of clock steps and of no frames after an open."""
         if not isinstance(port, str) or not port:
             raise ValueError(f'port must be a device path such as /dev/ttyUSB0, got {port!r}')
-        if baud not in STANDARD_BAUDS:
-            raise ValueError(f'baud {baud!r} is not a standard rate: one of {", ".join(map(str, STANDARD_BAUDS))}')
+        if baud not in BAUDS:
+            raise ValueError(f'baud {baud!r} is not a standard rate nor a KVH unit\'s: '
+                             f'one of {", ".join(map(str, BAUDS))}')
         if not (isinstance(reopen_period_s, (int, float)) and math.isfinite(reopen_period_s) and reopen_period_s > 0):
             raise ValueError(f'reopen_period_s must be a positive number of seconds, got {reopen_period_s!r}')
         self._parser = make_parser(protocol, kvh_fog)
@@ -206,6 +217,15 @@ class Rd2100Driver:
         self._reopen_period_s = float(reopen_period_s)
         self._stamper = WireStamper(baud, self._parser.frame_bytes)
         self._too_fast_said = False
+        # kvh_fog: its delta angles need the stream's arrival times.
+        self._kvh = self._parser if isinstance(self._parser, KvhFogParser) else None
+        if self._kvh is not None:
+            self._kvh.byte_ns = self._stamper.byte_ns
+        # kvh_fog timestamp_source unit_clock: Format B's clock mapped onto the monotonic clock.
+        self._unit_clock = UnitClock() if kvh_fog is not None and kvh_fog.timestamp_source == 'unit_clock' else None
+        self._clock_faults = 0
+        self._stamp_source = 'arrival'
+        self._last_stamp = 0
         self._serial: serial.Serial | None = None
         self._identity: tuple[int, int] | None = None   # (st_dev, st_ino) of the open device
         self._connected = False
@@ -221,7 +241,10 @@ class Rd2100Driver:
         p = self._parser.stats
         return DriverStats(frames=p.frames, rejected=p.rejected, rejected_by_reason=dict(p.rejected_by_reason),
                            bytes_skipped=p.bytes_skipped, reopens=self._reopens, connected=self._connected,
-                           last_error=self._last_error, port=self.port, lost_frames=p.lost_frames)
+                           last_error=self._last_error, port=self.port, lost_frames=p.lost_frames,
+                           measured_rate_hz=None if self._kvh is None else self._kvh.measured_rate_hz,
+                           garbage_runs=0 if self._kvh is None else self._kvh.garbage_runs,
+                           stamp_source=self._stamp_source)
 
     def start(self) -> None:
         """Start the reader thread; returns at once, even if the port is missing (it retries)."""
@@ -266,6 +289,9 @@ class Rd2100Driver:
         self._serial, self._identity = port, (st.st_dev, st.st_ino)
         self._parser.reset()
         self._stamper.restart()
+        if self._unit_clock is not None:
+            self._unit_clock.reset()   # the unit's clock is read anew from 0: the mapping too
+            self._stamp_source = 'arrival'
         self._opened_ns = self._monotonic_ns()
         self._frames_at_open = self._parser.stats.frames
         self._quiet_warned = False
@@ -313,7 +339,7 @@ class Rd2100Driver:
             self._check_path()
             self._check_quiet(monotonic_ns)
             return
-        frames = self._parser.feed(data)
+        frames = self._parser.feed(data) if self._kvh is None else self._kvh.feed(data, monotonic_ns)
         stamps = self._stamper.stamp(now_ns, monotonic_ns, len(data), [end for _, end in frames])
         if self._stamper.too_fast and not self._too_fast_said:
             self._too_fast_said = True
@@ -321,10 +347,45 @@ class Rd2100Driver:
         if self._stamper.step_ns:
             self._warn(f'the clock stepped by {self._stamper.step_ns * 1e-9:+.3f} s against the monotonic clock: '
                        'stamps re-anchored to it')
+        if self._unit_clock is not None and frames:
+            stamps = self._unit_clock_stamps(frames, stamps, monotonic_ns, len(data))
         for (sample, _), (stamp, steady) in zip(frames, stamps):
             self._on_frame(Frame(sample, stamp, steady))
         if not frames:
             self._check_quiet(monotonic_ns)
+
+    def _unit_clock_stamps(self, frames: list[tuple[RawSample, int]], stamps: list[tuple[int, int]],
+                           monotonic_ns: int, chunk_bytes: int) -> list[tuple[int, int]]:
+        """Stamps by Format B's clock once it is mapped (never after the arrival's, never back), else by arrival."""
+        clock, parser = self._unit_clock, self._kvh
+        assert clock is not None and parser is not None
+        if parser.clock_faults != self._clock_faults:
+            self._clock_faults = parser.clock_faults
+            clock.reset()
+            if self._stamp_source == 'unit_clock':
+                self._warn('kvh_fog: the unit\'s clock went back or leapt: stamps by arrival until it is mapped again')
+        sample, end = frames[-1]
+        if isinstance(sample, KvhSample) and sample.unit_time_us is not None:
+            # As the stamper: the message's first byte left the unit its wire time before its last byte arrived.
+            stamper = self._stamper
+            clock.add(sample.unit_time_us, monotonic_ns - (chunk_bytes - end) * stamper.byte_ns - stamper.frame_ns)
+        if not clock.ready:
+            self._stamp_source = 'arrival'
+            self._last_stamp = stamps[-1][0]
+            return stamps
+        self._stamp_source = 'unit_clock'
+        offset, steps = self._stamper.offset_ns, self._stamper.steps_ns
+        latest = stamps[-1][0]   # the chunk's last message arrived then: none of the chunk left the unit later
+        out = []
+        for (sample, _), (arrival, _steady) in zip(frames, stamps):
+            stamp = arrival
+            if isinstance(sample, KvhSample) and sample.unit_time_us is not None:
+                stamp = min(latest, clock.map(sample.unit_time_us) + offset)
+            if stamp <= self._last_stamp and not self._stamper.step_ns:   # never back, but a clock step
+                stamp = self._last_stamp + 1
+            self._last_stamp = stamp
+            out.append((stamp, stamp - steps))
+        return out
 
     def _warn(self, message: str) -> None:
         if self._on_warning is not None:

@@ -1,6 +1,6 @@
 """KVH's ``kvh_fog`` message: the unit's settings, CRC, encoder and incremental parser (pure: no I/O, no ROS).
 
-The binary message of KVH's DSP-1750/1760 gyros and 1725/1750/1775 IMUs, whose manuals are
+The binary message of KVH's DSP-1760 gyros and 1725/1750/1775 IMUs, whose manuals are
 public (1775 IMU technical manual, section 5): a 4-byte header (``FE 81 FF 55`` Format A, 36
 bytes; ``56`` Format B, 40 bytes, with a microsecond timestamp; ``57`` Format C, 38 bytes, whose
 temperature float is multiplexed with the magnetometer by the sequence number modulo 4), six
@@ -19,14 +19,16 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-from art_gyro_calibration.frame import NOT_FINITE, BinaryChunkParser, RawSample, check_int16
+from art_gyro_calibration.frame import NOT_FINITE, ChunkParser, RawSample, check_int16
 
-# Rejection reasons, the keys of ParserStats.rejected_by_reason (with GARBAGE and NOT_FINITE, of frame.py).
+# Rejection reasons, the keys of ParserStats.rejected_by_reason (with NOT_FINITE, of frame.py): each is one message.
 BAD_CRC = 'bad_crc'             # a header and a message's length of bytes whose CRC is wrong
 OTHER_FORMAT = 'other_format'   # the header of another message format than the configured one
 AXIS_INVALID = 'axis_invalid'   # the status byte says the yaw axis' gyro data is invalid
 REPEATED_SEQUENCE = 'repeated_sequence'   # the sequence number of the message before (a duplicate)
 NO_TEMPERATURE_YET = 'no_temperature_yet'   # Format C: before the connection's first temperature
+NO_INTERVAL = 'no_interval'     # a delta angle whose interval is not measured yet (the first messages of a connection)
+BAD_TIMESTAMP = 'bad_timestamp'   # Format B: the unit's clock went back, stood still or jumped more than a second
 
 KVH_HEADER_PREFIX = b'\xfe\x81\xff'   # every format's header; the fourth byte names the format
 KVH_SEQUENCE_MODULO = 128             # the sequence number counts 0..127 and wraps
@@ -36,6 +38,29 @@ KVH_ROTATIONS = ('delta_angle', 'rate')
 KVH_ANGLE_UNITS = ('rad', 'deg')
 # =TEMPUNITS: degrees or hundredths of a degree, Celsius or Fahrenheit.
 KVH_TEMPERATURE_UNITS = ('C', 'C_100', 'F', 'F_100')
+# Where a message's stamp comes from: its arrival (any format), or Format B's clock mapped to the host's.
+KVH_TIMESTAMP_SOURCES = ('arrival', 'unit_clock')
+# The unit's clock is mapped to the host's over about this long: the drift a temperature change brings is followed.
+UNIT_CLOCK_MEMORY_S = 60.0
+# The lower envelope of the arrivals (the least delayed message) may rise this fast (s/s): a slowly shrinking delay.
+UNIT_CLOCK_RELAX = 1e-4
+# The mapping is slewed, never stepped, at most this fast (s/s): stamps stay the unit's period apart within 0.1 %.
+UNIT_CLOCK_SLEW = 1e-3
+# The unit's baud rates (=BAUD, 1775 manual section 8.3).
+KVH_BAUDS = (9600, 19200, 38400, 57600, 115200, 460800, 576000, 921600, 4147200)
+KVH_DEFAULT_BAUD = 921600
+BITS_PER_BYTE = 10   # start + 8 data + stop
+# The stream's message interval (formats without the unit's clock) is used once measured over this long: arrival
+# jitter of a few ms (a USB adapter's latency timer) then errs by a few parts in 1000, and less as it goes on.
+STREAM_BASELINE_S = 1.0
+# A configured output_rate_hz this far from the measured rate is an error (the unit is not set as the node is told).
+RATE_TOLERANCE = 0.02
+# The stream's measure confirms the configured rate within this: its interval is then the unit's exactly (the unit
+# integrates over its own period), not the measure's few parts in 10,000 of host-side jitter.
+RATE_CONFIRMED = 0.01
+# Format B's clock: a message interval longer than this (the slowest =DR is 1 Hz) is a fault of the clock.
+MAX_INTERVAL_US = 1_500_000
+STANDARD_GRAVITY = 9.80665   # m/s^2 per g (the unit's acceleration unit)
 _KVH_HEADER = re.compile(rb'\xfe\x81\xff[\x55-\x57]')
 _KVH_AXES = re.compile(r'[+-]?[xyz]')
 
@@ -71,6 +96,21 @@ def crc32_mpeg2(data: bytes) -> int:
     return int.from_bytes(reflected.to_bytes(4, 'little').translate(_REVERSED_BITS), 'big')
 
 
+def _check_axis(name: str, value: object) -> None:
+    if isinstance(value, bool):
+        # YAML 1.1 (rcl's -p and params files) reads a bare y (and yes, on, true) as true, n (no, off) as false.
+        raise ValueError(f'kvh_fog.{name} must be x, y or z with an optional sign, got the boolean {value}: YAML '
+                         f'reads a bare y or n as a boolean; write +y (or -y), or quote it: "y"')
+    if not isinstance(value, str) or not _KVH_AXES.fullmatch(value):
+        raise ValueError(f'kvh_fog.{name} must be x, y or z with an optional sign (+z, -x, ...), got {value!r}')
+
+
+def _unit_vector(axis: str) -> tuple[float, float, float]:
+    v = [0.0, 0.0, 0.0]
+    v['xyz'.index(axis[-1])] = -1.0 if axis.startswith('-') else 1.0
+    return v[0], v[1], v[2]
+
+
 def _choice(name: str, value: object, choices: tuple[str, ...]) -> None:
     if value not in choices:
         raise ValueError(f'kvh_fog.{name} must be one of {", ".join(choices)}, got {value!r}')
@@ -90,12 +130,17 @@ class KvhFogConfig:
     angle_units: str = 'rad'        # =ROTUNITS: rad (default) or deg
     output_rate_hz: float = 1000.0  # =DR: messages per second
     temperature_units: str = 'C'    # =TEMPUNITS: C (default), C_100, F or F_100
+    forward_axis: str = ''          # the axis that points forward on the robot; '' = the one after yaw_axis in x, y, z
+    timestamp_source: str = 'arrival'   # arrival, or unit_clock (Format B: its microsecond clock mapped to the host's)
 
     def __post_init__(self) -> None:
         _choice('message_format', self.message_format, tuple(KVH_FORMATS))
-        if not isinstance(self.yaw_axis, str) or not _KVH_AXES.fullmatch(self.yaw_axis):
-            raise ValueError(f'kvh_fog.yaw_axis must be x, y or z with an optional sign (+z, -x, ...), '
-                             f'got {self.yaw_axis!r}')
+        _check_axis('yaw_axis', self.yaw_axis)
+        if self.forward_axis != '':
+            _check_axis('forward_axis', self.forward_axis)
+            if self.forward_axis[-1] == self.yaw_axis[-1]:
+                raise ValueError(f'kvh_fog.forward_axis {self.forward_axis!r} must be another axis than '
+                                 f'kvh_fog.yaw_axis {self.yaw_axis!r}')
         _choice('rotation', self.rotation, KVH_ROTATIONS)
         _choice('angle_units', self.angle_units, KVH_ANGLE_UNITS)
         rate = self.output_rate_hz
@@ -103,6 +148,10 @@ class KvhFogConfig:
             raise ValueError(f'kvh_fog.output_rate_hz must be a number of Hz in (0, {KVH_MAX_OUTPUT_RATE_HZ:g}], '
                              f'got {rate!r}')
         _choice('temperature_units', self.temperature_units, KVH_TEMPERATURE_UNITS)
+        _choice('timestamp_source', self.timestamp_source, KVH_TIMESTAMP_SOURCES)
+        if self.timestamp_source == 'unit_clock' and self.message_format != 'B':
+            raise ValueError(f'kvh_fog.timestamp_source unit_clock needs kvh_fog.message_format B (the format with the '
+                             f'unit\'s clock), got {self.message_format}')
 
     @property
     def format(self) -> KvhFormat:
@@ -120,11 +169,36 @@ class KvhFogConfig:
         return -1.0 if self.yaw_axis.startswith('-') else 1.0
 
     @property
+    def delta_angle(self) -> bool:
+        """The unit sends angles per message, which become rates by the message interval."""
+        return self.rotation == 'delta_angle'
+
+    @property
+    def deg_per_unit(self) -> float:
+        """Degrees (delta angle) or deg/s (rate) per unit of a rotation float."""
+        return math.degrees(1.0) if self.angle_units == 'rad' else 1.0
+
+    @property
     def dps_per_unit(self) -> float:
-        """Yaw rate in deg/s per unit of the yaw axis' rotation float."""
-        per_angle = math.degrees(1.0) if self.angle_units == 'rad' else 1.0
-        per_rate = float(self.output_rate_hz) if self.rotation == 'delta_angle' else 1.0
-        return self.sign * per_angle * per_rate
+        """Yaw rate in deg/s per unit of the yaw axis' rotation float at the configured rate (the encoder's)."""
+        per_rate = float(self.output_rate_hz) if self.delta_angle else 1.0
+        return self.sign * self.deg_per_unit * per_rate
+
+    @property
+    def mounting(self) -> tuple[tuple[float, float, float], ...]:
+        """Rows of the rotation from the unit's axes to the robot's (REP 103: x forward, y left, z up).
+
+        Row 0 picks the forward axis, row 2 the yaw axis (both with their sign), row 1 is z x x.
+        """
+        forward = self.forward_axis or 'xyz'[(self.axis_index + 1) % 3]
+        x = _unit_vector(forward)
+        z = _unit_vector(self.yaw_axis)
+        y = (z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0])
+        return x, y, z
+
+    def max_rate_hz(self, baud: int) -> float:
+        """The messages per second ``baud`` carries in this format."""
+        return baud / (BITS_PER_BYTE * self.format.length)
 
     def _temperature_scale(self) -> tuple[float, float]:
         """(a, b) with degC = a * wire value + b."""
@@ -142,6 +216,140 @@ class KvhFogConfig:
         """A temperature in degC as the unit sends it (unrounded): the inverse of :meth:`temperature_c`."""
         a, b = self._temperature_scale()
         return (temp_c - b) / a
+
+
+@dataclass(frozen=True, slots=True)
+class KvhSample(RawSample):
+    """A kvh_fog message as the node uses it: the yaw rate and temperature of :class:`RawSample`, and the rest.
+
+    ``rates_dps`` and ``acceleration_g`` are the unit's three axes as sent (rates already per second),
+    ``status`` its validity bits, ``unit_time_us`` Format B's clock unwrapped since the connection
+    opened (None in A and C), ``interval_s`` the message interval the rates were taken over.
+    """
+
+    rates_dps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    acceleration_g: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    status: int = KVH_STATUS_ALL_VALID
+    unit_time_us: int | None = None
+    interval_s: float = math.nan
+
+
+class StreamInterval:
+    """The unit's message interval on the host's clock: least squares of arrival time against message number.
+
+    The message number counts every interval the sequence numbers say passed (lost messages
+    too), so the fit needs no assumption about the rate, and its error falls as the span grows.
+    """
+
+    __slots__ = ('_k', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_span_s')
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the measure (a new connection: the unit may have been set to another rate meanwhile)."""
+        self._k = 0
+        self._n0 = 0
+        self._t0 = 0
+        self._mean_n = self._mean_t = self._c_nt = self._c_nn = self._span_s = 0.0
+
+    def add(self, number: int, arrival_ns: int) -> None:
+        """Message ``number`` (intervals since the connection opened) arrived at ``arrival_ns`` (monotonic)."""
+        if not self._k:
+            self._n0, self._t0 = number, arrival_ns
+        n = float(number - self._n0)
+        t = (arrival_ns - self._t0) * 1e-9
+        self._k += 1
+        dn = n - self._mean_n
+        self._mean_n += dn / self._k
+        self._mean_t += (t - self._mean_t) / self._k
+        self._c_nt += dn * (t - self._mean_t)
+        self._c_nn += dn * (n - self._mean_n)
+        self._span_s = t
+
+    @property
+    def interval_s(self) -> float | None:
+        """Seconds per message, once measured over STREAM_BASELINE_S; else None."""
+        if self._span_s < STREAM_BASELINE_S or self._k < 3 or self._c_nn <= 0.0:
+            return None
+        interval = self._c_nt / self._c_nn
+        return interval if interval > 0.0 else None
+
+
+class UnitClock:
+    """Format B's microsecond clock mapped onto the host's monotonic clock: drift and offset tracked.
+
+    A line through (unit time, arrival) by least squares with exponential forgetting over about
+    UNIT_CLOCK_MEMORY_S (so a drift that changes with temperature is followed), lowered to the
+    envelope of the least delayed arrivals (a stamp is when the message left the unit, not when a
+    busy host read it), that envelope taken from half of STREAM_BASELINE_S on. Ready once it has
+    spanned STREAM_BASELINE_S; :meth:`reset` when the
+    clock is broken (a reopen, a clock fault), after which the driver stamps by arrival again.
+    """
+
+    __slots__ = ('_w', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_low', '_first_ns', '_last_ns',
+                 '_mapped')
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the mapping."""
+        self._w = 0.0
+        self._n0 = self._t0 = 0
+        self._mean_n = self._mean_t = self._c_nt = self._c_nn = 0.0
+        self._low = math.inf
+        self._first_ns = self._last_ns = 0
+        self._mapped: tuple[int, float] | None = None   # the last (unit time, mapped time) given
+
+    @property
+    def ready(self) -> bool:
+        """The mapping spans STREAM_BASELINE_S."""
+        return math.isfinite(self._low) and self._last_ns - self._first_ns >= STREAM_BASELINE_S * 1e9
+
+    def add(self, unit_us: int, arrival_ns: int) -> None:
+        """A message of unit time ``unit_us`` (unwrapped) arrived at ``arrival_ns`` (monotonic, wire time less)."""
+        if not self._w:
+            self._n0, self._t0, self._first_ns = unit_us, arrival_ns, arrival_ns
+            self._last_ns = arrival_ns
+        n = float(unit_us - self._n0)
+        t = float(arrival_ns - self._t0)
+        decay = math.exp(-(arrival_ns - self._last_ns) * 1e-9 / UNIT_CLOCK_MEMORY_S)
+        self._low += (arrival_ns - self._last_ns) * UNIT_CLOCK_RELAX
+        self._last_ns = arrival_ns
+        self._w = self._w * decay + 1.0
+        dn = n - self._mean_n
+        self._mean_n += dn / self._w
+        self._mean_t += (t - self._mean_t) / self._w
+        self._c_nt = self._c_nt * decay + dn * (t - self._mean_t)
+        self._c_nn = self._c_nn * decay + dn * (n - self._mean_n)
+        if self._c_nn > 0.0 and self._last_ns - self._first_ns >= STREAM_BASELINE_S * 0.5e9:
+            # Over the half second before it is ready: earlier, the line is too loose for its residuals.
+            self._low = min(self._low, t - self._line(n))
+
+    def _line(self, n: float) -> float:
+        return self._mean_t + self._c_nt / self._c_nn * (n - self._mean_n)
+
+    @property
+    def ns_per_us(self) -> float:
+        """Host nanoseconds per unit microsecond (1000 less the unit clock's drift)."""
+        return self._c_nt / self._c_nn if self._c_nn > 0.0 else math.nan
+
+    def map(self, unit_us: int) -> int:
+        """The monotonic time at which the message of unit time ``unit_us`` left the unit (call when ready).
+
+        The line and its envelope move as arrivals come: the mapping follows them by at most
+        UNIT_CLOCK_SLEW from the last time it gave, so stamps never jump.
+        """
+        n = float(unit_us - self._n0)
+        target = self._line(n) + (self._low if math.isfinite(self._low) else 0.0)
+        if self._mapped is not None and unit_us > self._mapped[0]:
+            elapsed_us = unit_us - self._mapped[0]
+            predicted = self._mapped[1] + elapsed_us * self.ns_per_us
+            step = UNIT_CLOCK_SLEW * elapsed_us * 1e3
+            target = predicted + min(step, max(-step, target - predicted))
+        self._mapped = (unit_us, target)
+        return self._t0 + int(target)
 
 
 def encode_kvh_fog(rotation: tuple[float, float, float], acceleration: tuple[float, float, float], status: int,
@@ -183,13 +391,19 @@ class KvhFogEncoder:
         self.config = config
         self.sequence = 0
         self.status = KVH_STATUS_ALL_VALID
+        self.unit_time_us = 0.0   # Format B's clock: one interval of the output rate per message
+
+    def _rotation(self, rate_dps: float) -> float:
+        config = self.config
+        per_rate = float(config.output_rate_hz) if config.delta_angle else 1.0
+        return rate_dps / (config.sign * config.deg_per_unit * per_rate)
 
     def __call__(self, rate_dps: float, temp_c: float) -> bytes:
         """The next message: ``rate_dps`` about the yaw axis, ``temp_c``."""
         config = self.config
         axis = config.axis_index
         rotation = [0.0, 0.0, 0.0]
-        rotation[axis] = rate_dps / config.dps_per_unit
+        rotation[axis] = self._rotation(rate_dps)
         acceleration = [0.0, 0.0, 0.0]
         acceleration[axis] = config.sign
         temperature = config.temperature_wire(temp_c)
@@ -197,45 +411,100 @@ class KvhFogEncoder:
             temperature = round(temperature)
         sequence = self.sequence
         self.sequence = (sequence + 1) % KVH_SEQUENCE_MODULO
+        timestamp = int(self.unit_time_us) % 2 ** 32
+        self.unit_time_us += 1e6 / config.output_rate_hz
         return encode_kvh_fog((rotation[0], rotation[1], rotation[2]),
                               (acceleration[0], acceleration[1], acceleration[2]),
-                              self.status, sequence, temperature, config.message_format)
+                              self.status, sequence, temperature, config.message_format, timestamp_us=timestamp)
 
 
-class KvhFogParser(BinaryChunkParser):
+class KvhFogParser(ChunkParser):
     """Incremental parser of kvh_fog messages of the configured format; samples in deg/s and degC.
 
     A candidate is the format's header and the message's length of bytes from it; a good CRC
     takes it whole. After a bad CRC the search resumes at the byte after the header's first, so
     a message cut short and followed by a whole one loses only the cut one. Every message with a
-    good CRC advances the sequence number; the numbers skipped since the message before are added
-    to ``stats.lost_frames`` (a gap of 128 or more cannot be told from a shorter one; none is
-    counted across :meth:`reset`, where the count is unknown). A good message is still rejected,
-    and counted by reason, when the status byte flags the yaw gyro invalid, when it repeats the
-    sequence number before it (a duplicate: publishing it would count the rotation twice), when a
-    value is not finite, and in Format C before the first temperature of the connection (the
-    temperature comes every fourth message and is held until the next).
+    good CRC advances the sequence number; the numbers skipped since the message before, less the
+    messages rejected for their CRC in between (each is one rejected frame, not also a lost one),
+    are added to ``stats.lost_frames`` (a gap of 128 or more cannot be told from a shorter one;
+    none is counted across :meth:`reset`, where the count is unknown). A good message is still
+    rejected, and counted by reason, when the status byte flags the yaw gyro invalid, when it
+    repeats the sequence number before it (a duplicate: publishing it would count the rotation
+    twice), when a value is not finite, in Format C before the first temperature of the
+    connection (the temperature comes every fourth message and is held until the next), and, for
+    delta angles, while the message interval is not known. So every message the unit numbered is
+    a frame, a rejection or lost; bytes between messages are ``stats.bytes_skipped``, each run of
+    them counted once in ``garbage_runs``, not as a rejected message.
+
+    Delta angles become rates by the measured interval, never by an unconfirmed output rate:
+    Format B's by the unit's own clock (its timestamps over the sequence steps, the mean since the
+    connection opened); A's and C's by :class:`StreamInterval`, fitted to the arrival times
+    ``feed`` is given (the driver's monotonic clock at the read, less the wire time of the bytes
+    after each message: set ``byte_ns``), or the configured rate's where that measure confirms it
+    within RATE_CONFIRMED (the unit integrates over its own period exactly; host jitter does not).
+    Without arrival times, A and C delta angles stay rejected as ``no_interval``.
     """
 
     def __init__(self, config: KvhFogConfig) -> None:
-        super().__init__((BAD_CRC, OTHER_FORMAT, AXIS_INVALID, REPEATED_SEQUENCE, NOT_FINITE, NO_TEMPERATURE_YET))
+        super().__init__((BAD_CRC, OTHER_FORMAT, AXIS_INVALID, REPEATED_SEQUENCE, NOT_FINITE, NO_TEMPERATURE_YET,
+                          NO_INTERVAL, BAD_TIMESTAMP))
+        self.garbage_runs = 0   # runs of bytes that are no message (a port opened mid-message, line noise)
+        self._in_garbage = False
         self.config = config
         fmt = config.format
         self.frame_bytes = fmt.length
+        self.byte_ns = 0   # wire time of a byte (the driver's baud): arrival of a message's end within a chunk
         self._format = fmt
         self._axis = config.axis_index
-        self._dps_per_unit = config.dps_per_unit
+        self._sign = config.sign
+        self._deg_per_unit = config.deg_per_unit
+        self._delta = config.delta_angle
+        self._clocked = fmt.name == 'B'
+        self._configured_hz = float(config.output_rate_hz)
+        self.stream = StreamInterval()
         self._last_sequence: int | None = None
+        self._number = 0                    # intervals since the connection opened, by the sequence numbers
+        self._bad_crc_since = 0             # bad CRCs since the last good message (those messages are not lost)
         self._temp_c: float | None = None   # Format C: the latest temperature
+        self._last_time_us: int | None = None   # Format B: the previous message's clock
+        self._unit_time_us = 0                  # Format B: the clock over _unit_steps intervals (the mean interval)
+        self._unit_steps = 0
+        self._unwrapped_us = 0                  # Format B: the clock unwrapped since the connection opened
+        self.clock_faults = 0                   # Format B: times the clock went back, stood still or leapt
 
     def reset(self) -> None:
-        """Drop a partly received message; the sequence and held temperature restart; statistics are kept."""
-        super().reset()
+        """Drop a partly received message; the sequence, held temperature and intervals restart; statistics kept."""
+        self._skip(len(self._buffer))
+        self._buffer = b''
+        self._in_garbage = False
         self._last_sequence = None
+        self._number = 0
+        self._bad_crc_since = 0
         self._temp_c = None
+        self._last_time_us = None
+        self._unit_time_us = self._unit_steps = self._unwrapped_us = 0
+        self.stream.reset()
 
-    def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
-        """Parse a chunk; each valid message with the offset just past its last byte within ``data``."""
+    def _skip(self, count: int) -> None:
+        if count <= 0:
+            return
+        self.stats.bytes_skipped += count
+        if not self._in_garbage:
+            self.garbage_runs += 1
+            self._in_garbage = True
+
+    @property
+    def measured_rate_hz(self) -> float | None:
+        """Messages per second as measured (Format B: the unit's clock over a second or more; else the stream)."""
+        if self._clocked:
+            if self._unit_time_us < STREAM_BASELINE_S * 1e6 or not self._unit_steps:
+                return None
+            return self._unit_steps * 1e6 / self._unit_time_us
+        interval = self.stream.interval_s
+        return None if interval is None else 1.0 / interval
+
+    def feed(self, data: bytes, arrival_ns: int | None = None) -> list[tuple[RawSample, int]]:
+        """Parse a chunk read at ``arrival_ns`` (monotonic); each valid message with the offset just past it."""
         buf, held = self._join(data)
         out: list[tuple[RawSample, int]] = []
         stats = self.stats
@@ -244,6 +513,7 @@ class KvhFogParser(BinaryChunkParser):
         length = fmt.length
         pos = 0
         keep = -1
+        last_end = -1   # the end (in buf) of the chunk's last message with a good CRC
         while (match := _KVH_HEADER.search(buf, pos)) is not None:
             start = match.start()
             self._skip(start - pos)
@@ -260,6 +530,7 @@ class KvhFogParser(BinaryChunkParser):
                 break
             if crc32_mpeg2(buf[start:end - 4]) != int.from_bytes(buf[end - 4:end], 'big'):
                 reasons[BAD_CRC] += 1
+                self._bad_crc_since += 1
                 stats.bytes_skipped += 1
                 self._in_garbage = True
                 pos = start + 1
@@ -267,12 +538,16 @@ class KvhFogParser(BinaryChunkParser):
             self._in_garbage = False
             pos = end
             sample, reason = self._decode(buf, start)
+            last_end = end
             if sample is None:
                 reasons[reason] += 1
                 stats.bytes_skipped += length
             else:
                 out.append((sample, end - held))
                 stats.frames += 1
+        if last_end >= 0 and arrival_ns is not None:
+            # The read returned as its last byte came: this message's end came the bytes after it earlier.
+            self.stream.add(self._number, arrival_ns - (len(buf) - last_end) * self.byte_ns)
         if keep < 0:
             # A header's first bytes at the very end may be the start of the next message.
             keep = len(buf)
@@ -284,20 +559,29 @@ class KvhFogParser(BinaryChunkParser):
         self._buffer = buf[keep:]
         return out
 
-    def _decode(self, buf: bytes, start: int) -> tuple[RawSample | None, str]:
+    def _decode(self, buf: bytes, start: int) -> tuple[KvhSample | None, str]:
         """The sample of a message whose CRC is good, or None and the reason it is rejected."""
         values = self._format.layout.unpack_from(buf, start + 4)
         config = self.config
+        timestamp: int | None = None
         if self._format.multiplexed:
             mux, status, sequence = values[6:]
+        elif self._clocked:
+            timestamp, status, sequence, temperature = values[6:]
         else:
-            status, sequence, temperature = values[-3:]
+            status, sequence, temperature = values[6:]
         last = self._last_sequence
+        steps = 0
         if last is not None:
             if sequence == last:
                 return None, REPEATED_SEQUENCE
-            self.stats.lost_frames += (sequence - last - 1) % KVH_SEQUENCE_MODULO
+            steps = (sequence - last) % KVH_SEQUENCE_MODULO
+            # A message rejected for its CRC was received (and counted) once: not also lost.
+            self.stats.lost_frames += max(0, steps - 1 - self._bad_crc_since)
+        self._bad_crc_since = 0
         self._last_sequence = sequence
+        self._number += steps
+        interval_s = self._clock_interval(timestamp, steps) if self._clocked else self._stream_interval()
         if self._format.multiplexed:
             if sequence % 4 == 0:
                 self._temp_c = config.temperature_c(mux)
@@ -308,7 +592,47 @@ class KvhFogParser(BinaryChunkParser):
             return None, AXIS_INVALID
         if temp_c is None:
             return None, NO_TEMPERATURE_YET
-        rate_dps = values[self._axis] * self._dps_per_unit
+        if interval_s is not None and interval_s < 0.0:
+            if self._delta:
+                return None, BAD_TIMESTAMP
+            interval_s = None   # a rate needs no interval
+        per_unit = self._deg_per_unit
+        if self._delta:
+            if interval_s is None:
+                return None, NO_INTERVAL
+            per_unit /= interval_s
+        rates = (values[0] * per_unit, values[1] * per_unit, values[2] * per_unit)
+        rate_dps = self._sign * rates[self._axis]
         if not (math.isfinite(rate_dps) and math.isfinite(temp_c)):
             return None, NOT_FINITE
-        return RawSample(rate_dps, temp_c), ''
+        return KvhSample(rate_dps, temp_c, rates, (values[3], values[4], values[5]), status,
+                         None if timestamp is None else self._unwrapped_us,
+                         math.nan if interval_s is None else interval_s), ''
+
+    def _stream_interval(self) -> float | None:
+        """A and C: the stream's measured interval, or the configured one where the measure confirms it."""
+        interval = self.stream.interval_s
+        if interval is not None and abs(interval * self._configured_hz - 1.0) <= RATE_CONFIRMED:
+            return 1.0 / self._configured_hz
+        return interval
+
+    def _clock_interval(self, timestamp: int | None, steps: int) -> float | None:
+        """Format B: seconds per message by the unit's clock; -1.0 if the clock went wrong; None before two messages.
+
+        The mean over the connection, not the last interval alone: a microsecond tick is 0.1 % of a
+        1 kHz interval. An interval 1 % off that mean (the unit was set to another rate) starts it anew.
+        """
+        assert timestamp is not None
+        last, self._last_time_us = self._last_time_us, timestamp   # a wrong interval: measured again from here
+        if last is None or not steps:
+            return None
+        elapsed = (timestamp - last) % 2 ** 32   # the microsecond counter wraps after 71.6 minutes
+        if not 0 < elapsed <= steps * MAX_INTERVAL_US:
+            self.clock_faults += 1
+            return -1.0
+        self._unwrapped_us += elapsed
+        if self._unit_steps and abs(elapsed * self._unit_steps / (steps * self._unit_time_us) - 1.0) > 0.01:
+            self._unit_time_us = self._unit_steps = 0
+        self._unit_time_us += elapsed
+        self._unit_steps += steps
+        return self._unit_time_us * 1e-6 / self._unit_steps

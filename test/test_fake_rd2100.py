@@ -1,5 +1,6 @@
 """Tests of the simulated RD2100: its physics without a pty, then the pty, the link and the console entry."""
 
+import dataclasses
 import os
 import select
 import signal
@@ -298,6 +299,11 @@ def test_console_entry_refuses_an_unknown_serial():
 
 # --- protocol kvh_fog -----------------------------------------------------------------------------
 
+def as_sent(config):
+    """A parser of what the fake sends, its floats as they are: a delta angle's interval is the node's to measure."""
+    return make_parser('kvh_fog', dataclasses.replace(config, rotation='rate'))
+
+
 def read_port(path, want_bytes, baud=921600, timeout_s=10.0):
     with serial.Serial(path, baud, timeout=0.1) as port:
         data = b''
@@ -315,14 +321,15 @@ def test_kvh_fog_messages_on_the_pty_carry_the_simulated_reading(config):
                     noise_dps=0.0, turn_on_bias_dps=0.0, kvh_fog=config) as fake:
         data = read_port(fake.path, 40 * config.format.length)
     assert fake.kvh_fog.output_rate_hz == 200.0 and fake.kvh_fog.yaw_axis == config.yaw_axis
-    parser = make_parser('kvh_fog', fake.kvh_fog)
-    got = [(s.raw_rate, s.raw_temp) for s, _ in parser.feed(data)]
+    parser = as_sent(fake.kvh_fog)
+    per_second = fake.rate_hz if config.delta_angle else 1.0   # a delta angle is the rate over one interval
+    got = [(s.raw_rate * per_second, s.raw_temp) for s, _ in parser.feed(data)]
     reading = fake.simulator.readings([0.0])[0].item()
     assert abs(reading + 20.0) > 0.01   # the calibrated error is in it
     # The port may open mid-message (one garbage run) and, in Format C, before a temperature (up to 3 messages).
     reasons = parser.stats.rejected_by_reason
     assert len(got) >= 30 and parser.stats.lost_frames == reasons['bad_crc'] == 0
-    assert reasons['garbage'] <= 1 and reasons['no_temperature_yet'] <= 3
+    assert parser.garbage_runs <= 1 and reasons['no_temperature_yet'] <= 3
     assert [r for r, _ in got] == pytest.approx([reading] * len(got), rel=1e-6)
     assert [t for _, t in got] == pytest.approx([18.25 if config.temperature_units == 'C_100' else 18.0] * len(got))
 
@@ -330,7 +337,7 @@ def test_kvh_fog_messages_on_the_pty_carry_the_simulated_reading(config):
 def test_drop_loses_frames_on_the_wire_which_the_sequence_shows():
     with FakeRd2100('NAVC3545', protocol='kvh_fog', rate_hz=200) as fake:
         with serial.Serial(fake.path, 921600, timeout=0.1) as port:
-            parser = make_parser('kvh_fog', fake.kvh_fog)
+            parser = as_sent(fake.kvh_fog)
             deadline = time.monotonic() + 10.0
             while parser.stats.frames < 10 and time.monotonic() < deadline:
                 parser.feed(port.read(4096))
@@ -352,8 +359,8 @@ def test_console_entry_sends_kvh_fog():
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    parser = make_parser('kvh_fog', KvhFogConfig(message_format='C', yaw_axis='-y', output_rate_hz=100.0))
-    rates = [s.raw_rate for s, _ in parser.feed(data)]
+    parser = as_sent(KvhFogConfig(message_format='C', yaw_axis='-y'))
+    rates = [s.raw_rate * 100.0 for s, _ in parser.feed(data)]   # delta angles at 100 Hz
     assert len(rates) >= 10 and np.mean(rates) == pytest.approx(10.0, abs=0.1)
     bad = run_main('--serial', 'NAVC3545', '--protocol', 'kvh_fog', '--kvh-yaw-axis', 'up')
     _, err = bad.communicate(timeout=30)

@@ -162,13 +162,18 @@ def kvh_stream(fmt: str) -> st.SearchStrategy[bytes]:
 
 
 def reference_kvh(data: bytes, config: KvhFogConfig) -> tuple[list[tuple[float, float, int]], int]:
-    """(rate, temperature, end) of every accepted message and the lost count: byte offsets from the manual's tables."""
+    """(rate, temperature, end) of every accepted message and the lost count: byte offsets from the manual's tables.
+
+    A delta angle has no interval without arrival times: none is accepted. A message with a bad CRC
+    between two good ones is rejected, not also lost.
+    """
     header = {'A': b'\xfe\x81\xff\x55', 'C': b'\xfe\x81\xff\x57'}[config.message_format]
     length = {'A': 36, 'C': 38}[config.message_format]
-    out, lost, last, held_temp, i = [], 0, None, None, 0
+    out, lost, last, held_temp, i, bad_crc = [], 0, None, None, 0, 0
     while i + length <= len(data):
         message = data[i:i + length]
         if message[:4] != header or crc32_mpeg2_bitwise(message[:-4]) != int.from_bytes(message[-4:], 'big'):
+            bad_crc += message[:4] == header
             i += 1
             continue
         i += length
@@ -183,10 +188,11 @@ def reference_kvh(data: bytes, config: KvhFogConfig) -> tuple[list[tuple[float, 
         if last is not None:
             if sequence == last:
                 continue
-            lost += (sequence - last - 1) % 128
-        last = sequence
+            lost += max(0, (sequence - last - 1) % 128 - bad_crc)
+        last, bad_crc = sequence, 0
         rate = rotation * config.dps_per_unit
-        if status >> config.axis_index & 1 and temp is not None and math.isfinite(rate) and math.isfinite(temp):
+        if (status >> config.axis_index & 1 and temp is not None and math.isfinite(rate) and math.isfinite(temp)
+                and not config.delta_angle):
             out.append((rate, temp, i))
     return out, lost
 

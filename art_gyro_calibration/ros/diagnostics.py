@@ -21,13 +21,14 @@ from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, PLAUSIBLE_TEMPERATURE_C, FrameCorrector
 from art_gyro_calibration.driver import Rd2100Driver
 from art_gyro_calibration.frame import NOT_FINITE
-from art_gyro_calibration.kvh_fog import AXIS_INVALID
+from art_gyro_calibration.kvh_fog import AXIS_INVALID, RATE_TOLERANCE
 from art_gyro_calibration.protocols import KVH_FOG
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.parameters import Settings
 from art_gyro_calibration.ros.raw_log import LOG_RETRY_S, RawLog
 
 DIAGNOSTICS_PERIOD_S = 1.0
+RATE_MISMATCH_CONSOLE_PERIOD_S = 60.0   # the console repeats a wrong kvh_fog.output_rate_hz this often
 
 
 class DiagnosedNode(Protocol):
@@ -130,6 +131,9 @@ class Diagnostics:
         flagged = self._invalid.take(stats.rejected_by_reason.get(AXIS_INVALID, 0))
         if not stats.connected:
             return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
+        mismatch = self._kvh_fog_rate_error(stats.measured_rate_hz, values)
+        if mismatch:
+            return self._status('link', DiagnosticStatus.ERROR, mismatch, values)
         if rate_hz == 0.0:
             return self._status('link', DiagnosticStatus.WARN, 'connected, no frames', values)
         # An implausible temperature is the temperature status's ERROR; the others would show nowhere else.
@@ -142,6 +146,23 @@ class Diagnostics:
                                 f'connected, {rate_hz:.1f} Hz; since the last report {lost} frames lost (sequence '
                                 f'gaps), {flagged} flagged invalid by the gyro', values)
         return self._status('link', DiagnosticStatus.OK, f'connected, {rate_hz:.1f} Hz', values)
+
+    def _kvh_fog_rate_error(self, measured: float | None, values: dict[str, Any]) -> str:
+        """kvh_fog: its values added; why the configured output rate is wrong (also said on the console), or ''."""
+        node = self._node
+        if node.settings.protocol != KVH_FOG:
+            return ''
+        values['measured_rate_hz'] = 'not yet' if measured is None else f'{measured:.3f}'
+        values['garbage_runs'] = node.driver.stats.garbage_runs
+        values['stamp_source'] = node.driver.stats.stamp_source
+        configured = node.kvh_fog.output_rate_hz
+        if measured is None or abs(configured / measured - 1.0) <= RATE_TOLERANCE:
+            return ''
+        source = 'its clock' if node.kvh_fog.message_format == 'B' else 'the stream'
+        message = (f'kvh_fog.output_rate_hz is {configured:g} Hz but the unit sends {measured:.2f} messages/s '
+                   f'(measured by {source}): set the parameter to the unit\'s =DR; rates use the measured interval')
+        node.get_logger().error(message, throttle_duration_sec=RATE_MISMATCH_CONSOLE_PERIOD_S)
+        return message
 
     def _log_status(self) -> DiagnosticStatus:
         log = self._node.raw_log.state()

@@ -12,6 +12,10 @@ Topics (relative names, so they follow the node's namespace and remappings):
   measures z only: x and y are reported as 0 with variance :data:`UNMEASURED_VARIANCE`, so a
   filter that fuses them gives them no weight; element 8 is ``yaw_rate_stddev`` squared while a
   static bias is in force, :data:`UNCORRECTED_YAW_VARIANCE` before (an uncorrected rate).
+  With ``protocol:=kvh_fog`` the message is the whole IMU: x and y rates and the three
+  accelerations (m/s^2) too, in REP 103 axes from ``kvh_fog.yaw_axis`` and ``forward_axis``, with
+  the variances of ``kvh_fog.rate_stddev`` and ``acceleration_stddev`` (an axis its status byte
+  flags invalid, or not finite: 0 with :data:`UNMEASURED_VARIANCE`, or -1 for the accelerations).
 - ``imu/is_calibrated`` (std_msgs/Bool, transient local): true once a static bias is in force.
 - ``imu/temperature`` (std_msgs/Float64): the gyro temperature in degC.
 - ``imu/uncalibrated`` (sensor_msgs/Imu), only with ``publish_uncalibrated``: the rate with only the
@@ -47,7 +51,9 @@ from std_msgs.msg import Bool, Float64
 from art_gyro_calibration.calibration import CalibrationError
 from art_gyro_calibration.compensation import FrameCorrector, RunStart
 from art_gyro_calibration.driver import Rd2100Driver
-from art_gyro_calibration.frame import Frame
+from art_gyro_calibration.frame import Frame, RawSample
+from art_gyro_calibration.kvh_fog import STANDARD_GRAVITY, KvhSample
+from art_gyro_calibration.protocols import KVH_FOG
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
 from art_gyro_calibration.ros.parameters import (IMU_TOPIC, NODE_NAME, NodeParameters, ParameterError,
@@ -98,6 +104,13 @@ class GyroNode(Node):
         self._imu.angular_velocity_covariance[0] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[8] = UNCORRECTED_YAW_VARIANCE   # until a static bias is in force
+        # kvh_fog: for the robot's x, y, z, the unit axis and its sign (REP 103 axes from the mounting).
+        self._axes: tuple[tuple[int, float], ...] = ()
+        if self.settings.protocol == KVH_FOG:
+            self._axes = tuple((max(range(3), key=lambda i: abs(row[i])), sum(row))
+                               for row in self.kvh_fog.mounting)
+            self._rate_variance = parameters.kvh_rate_stddev ** 2
+            self._acceleration_variance = parameters.kvh_acceleration_stddev ** 2
         self._temperature = Float64()
         self._uncalibrated: Imu | None = None   # imu/uncalibrated's message, when publish_uncalibrated
         self._rate_scale = self.calibration.rate_scale_factor
@@ -141,12 +154,13 @@ class GyroNode(Node):
     def _handle_frame(self, frame: Frame) -> None:
         sample = frame.sample
         stamp_ns = frame.stamp_ns
-        self._publish(sample.raw_rate, sample.raw_temp, stamp_ns, frame.steady_ns * 1e-9)
+        self._publish(sample.raw_rate, sample.raw_temp, stamp_ns, frame.steady_ns * 1e-9, sample)
         # After publishing: a log that fails (full disk) must not delay or stop the messages.
         # The log keeps what the wire said, at the steady time: a clock stepped back made the stamps' log unreadable.
         self.raw_log.write(frame.steady_ns * 1e-9, sample.raw_rate, sample.raw_temp)
 
-    def _publish(self, raw_rate: int, raw_temp: int, stamp_ns: int, t: float) -> None:
+    def _publish(self, raw_rate: float, raw_temp: float, stamp_ns: int, t: float,
+                 sample: RawSample | None = None) -> None:
         corrector = self.corrector
         if corrector.step(raw_rate, raw_temp, t):
             return   # dropped, and counted by the corrector
@@ -154,6 +168,8 @@ class GyroNode(Node):
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
         imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
         imu.angular_velocity.z = math.radians(corrector.rate_dps)
+        if self._axes and isinstance(sample, KvhSample):
+            self._fill_imu(imu, sample)
         self._imu_pub.publish(imu)
         uncalibrated = self._uncalibrated
         if uncalibrated is not None:   # the rate as the compensator scales it, before any correction
@@ -177,6 +193,31 @@ class GyroNode(Node):
             self.is_calibrated = True
             self._imu.angular_velocity_covariance[8] = self.settings.yaw_rate_stddev ** 2
             self._calibrated_pub.publish(Bool(data=True))
+
+    def _fill_imu(self, imu: Imu, sample: KvhSample) -> None:
+        """The x and y rates and the accelerations of a kvh_fog IMU in REP 103 axes (z is the calibrated yaw)."""
+        (ix, sx), (iy, sy), _ = self._axes
+        rates, status = sample.rates_dps, sample.status
+        covariance = imu.angular_velocity_covariance
+        valid = status >> ix & 1 and math.isfinite(rates[ix])
+        imu.angular_velocity.x = math.radians(sx * rates[ix]) if valid else 0.0
+        covariance[0] = self._rate_variance if valid else UNMEASURED_VARIANCE
+        valid = status >> iy & 1 and math.isfinite(rates[iy])
+        imu.angular_velocity.y = math.radians(sy * rates[iy]) if valid else 0.0
+        covariance[4] = self._rate_variance if valid else UNMEASURED_VARIANCE
+        acceleration = imu.linear_acceleration
+        g = sample.acceleration_g
+        # Bits 4-6: the three accelerometers valid (and a CRC-checked NaN is still no acceleration).
+        if status & 0x70 == 0x70 and math.isfinite(g[0] + g[1] + g[2]):
+            (ix, sx), (iy, sy), (iz, sz) = self._axes
+            acceleration.x = sx * g[ix] * STANDARD_GRAVITY
+            acceleration.y = sy * g[iy] * STANDARD_GRAVITY
+            acceleration.z = sz * g[iz] * STANDARD_GRAVITY
+            covariance = imu.linear_acceleration_covariance
+            covariance[0] = covariance[4] = covariance[8] = self._acceleration_variance
+        else:   # REP 145: not measured (a DSP-1760 has no accelerometers)
+            acceleration.x = acceleration.y = acceleration.z = 0.0
+            imu.linear_acceleration_covariance[0] = -1.0
 
     def _on_link(self, connected: bool, message: str) -> None:
         if connected:

@@ -20,8 +20,8 @@ from rclpy.node import Node
 from art_gyro_calibration.calibration import (CALIBRATION_KEYS, Calibration, CalibrationError, closest,
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
                                               load_calibration, read_yaml, resolve_calibration_url)
-from art_gyro_calibration.driver import STANDARD_BAUDS
-from art_gyro_calibration.kvh_fog import KvhFogConfig
+from art_gyro_calibration.driver import BAUDS
+from art_gyro_calibration.kvh_fog import KVH_DEFAULT_BAUD, KvhFogConfig
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES
 
@@ -40,8 +40,8 @@ class Range(NamedTuple):
 # The constraint is a Range for a number or a tuple of the allowed values; the type is the default's.
 PARAMETERS: dict[str, tuple[Any, ...]] = {
     'port': ('/dev/ttyUSB0', 'Serial port of the gyro.'),
-    'baud': (9600, 'Serial baud rate (check the unit\'s setting; a 1 kHz unit needs 115200 or more).',
-             STANDARD_BAUDS),
+    'baud': (9600, 'Serial baud rate (check the unit\'s setting; a 1 kHz unit needs 115200 or more); '
+                   f'{KVH_DEFAULT_BAUD} for protocol kvh_fog when not given.', BAUDS),
     'protocol': ('binary', 'Frame format on the wire: binary (8-byte RD2100 frames) or ascii '
                            '("<raw_rate> <raw_temp>" lines).', PROTOCOLS),
     'serial_number': ('', 'KVH serial number of the gyro; loads the packaged config/<serial_number>.yaml '
@@ -71,7 +71,7 @@ PARAMETERS: dict[str, tuple[Any, ...]] = {
                                     'then holds what calibrate fit and calibrate allan need.'),
 }
 
-# --- protocol kvh_fog (KVH DSP-1750/1760, 1725/1750/1775) ------------------------------------------
+# --- protocol kvh_fog (KVH DSP-1760, 1725/1750/1775 IMUs) ----------------------------------------
 # What the unit is set to send, which its messages do not say: name: (default, description). Declared
 # and checked at startup whatever the protocol; read by the kvh_fog parser only. Defaults: the manuals'.
 _KVH_FOG_DESCRIPTIONS = {
@@ -79,12 +79,25 @@ _KVH_FOG_DESCRIPTIONS = {
     'yaw_axis': 'kvh_fog axis that points up on the robot: x, y or z, or -x, -y, -z if it points down.',
     'rotation': 'kvh_fog rotation output (=ROTFMT): delta_angle (the default) or rate.',
     'angle_units': 'kvh_fog angle units (=ROTUNITS): rad (the default) or deg.',
-    'output_rate_hz': 'kvh_fog messages per second (=DR); a delta angle times it is the rate.',
+    'output_rate_hz': 'kvh_fog messages per second (=DR), 1 to 5000 and no more than the baud carries; checked '
+                      'against the measured rate (an ERROR beyond 2 %); rates come from the measured interval.',
     'temperature_units': 'kvh_fog temperature units (=TEMPUNITS): C (the default), C_100, F or F_100.',
+    'timestamp_source': 'kvh_fog stamps: arrival (the read, less the wire time) or unit_clock (Format B: the unit\'s '
+                        'microsecond clock mapped to ROS time, drift and offset tracked; by arrival until mapped).',
+    'forward_axis': 'kvh_fog axis that points forward on the robot (+x, -y, ...): with yaw_axis, the REP 103 axes of '
+                    'the whole IMU message; empty: the axis after yaw_axis in x, y, z.',
 }
 KVH_FOG_PARAMETERS: dict[str, tuple[Any, str]] = {
     f'kvh_fog.{name}': (getattr(KvhFogConfig(), name), description)
     for name, description in _KVH_FOG_DESCRIPTIONS.items()}
+# The IMU message's uncalibrated axes (kvh_fog): name: (default, description, range).
+KVH_FOG_PARAMETERS.update({
+    'kvh_fog.rate_stddev': (0.001, 'kvh_fog standard deviation (rad/s) of the x and y rates, which the calibration '
+                                   'does not correct; its square is angular_velocity_covariance[0] and [4].'),
+    'kvh_fog.acceleration_stddev': (0.05, 'kvh_fog standard deviation (m/s^2) of each acceleration; its square is '
+                                          'the diagonal of linear_acceleration_covariance.'),
+})
+KVH_FOG_RANGES = {'kvh_fog.rate_stddev': Range(1e-7, 1.0), 'kvh_fog.acceleration_stddev': Range(1e-6, 100.0)}
 
 
 class ParameterError(ValueError):
@@ -190,6 +203,13 @@ def usage(summary: str) -> str:
         allowed = describe_constraint(name)
         lines.append(f'  {name} ({type(default).__name__}, default {default!r}{", " + allowed if allowed else ""})')
         lines.append(f'      {description}')
+    lines += ['', 'protocol kvh_fog (KVH DSP-1760, 1725/1750/1775 IMUs): what the unit is set to send, and the IMU '
+              'message:']
+    for name, (default, description) in KVH_FOG_PARAMETERS.items():
+        bounds = KVH_FOG_RANGES.get(name)
+        allowed = f', {bounds.low:g}..{bounds.high:g}' if bounds else ''
+        lines.append(f'  {name} ({type(default).__name__}, default {default!r}{allowed})')
+        lines.append(f'      {description}')
     lines += ['', 'calibration parameters (from the calibration file, read-only): '
               + ', '.join(sorted(CALIBRATION_KEYS)) + ', extended.<signal>.*',
               f'QoS of {IMU_TOPIC} (default reliable, depth 10): qos_overrides./<namespace>/{IMU_TOPIC}.publisher.'
@@ -261,11 +281,21 @@ class NodeParameters:
         self.check_known_names(lambda name: name in PARAMETERS or name in KVH_FOG_PARAMETERS
                                or is_calibration_key(name) or node.has_parameter(name)
                                or name.startswith('qos_overrides.'))
-        self.settings = check_settings({name: self._override(name, entry[0]) for name, entry in PARAMETERS.items()})
+        values = {name: self._override(name, entry[0]) for name, entry in PARAMETERS.items()}
+        if values['protocol'] == KVH_FOG and 'baud' not in node._parameter_overrides:
+            values['baud'] = KVH_DEFAULT_BAUD   # the unit's factory rate, not an RD2100's
+        self.settings = check_settings(values)
         for name in PARAMETERS:
             # Read-only: the node reads them once at startup, so a later change is refused, not ignored.
             node.declare_parameter(name, getattr(self.settings, name), descriptor(name), ignore_override=True)
-        self.kvh_fog = self._kvh_fog_config()
+        self.kvh_fog, self.kvh_rate_stddev, self.kvh_acceleration_stddev = self._kvh_fog_config()
+        if self.settings.protocol == KVH_FOG:
+            carried = self.kvh_fog.max_rate_hz(self.settings.baud)
+            if self.kvh_fog.output_rate_hz > carried:
+                raise ParameterError(
+                    f'parameter kvh_fog.output_rate_hz is {self.kvh_fog.output_rate_hz:g} but baud '
+                    f'{self.settings.baud} carries at most {carried:.0f} Format {self.kvh_fog.message_format} '
+                    f'messages ({self.kvh_fog.format.length} bytes) per second: raise baud or lower the rate')
         self.calibration, self.calibration_source = self._load_calibration()
         if self.settings.protocol == KVH_FOG:
             check_kvh_fog_calibration(self.calibration, self.calibration_source)
@@ -287,15 +317,25 @@ class NodeParameters:
             return default
         return _coerce(name, self._node._parameter_overrides[name].value, default)
 
-    def _kvh_fog_config(self) -> KvhFogConfig:
+    def _kvh_fog_config(self) -> tuple[KvhFogConfig, float, float]:
         values = {}
         for name, (default, description) in KVH_FOG_PARAMETERS.items():
-            value = self._override(name, default)
-            self._node.declare_parameter(
-                name, value, ParameterDescriptor(description=description, read_only=True), ignore_override=True)
+            given = self._node._parameter_overrides.get(name)
+            if name.endswith('_axis') and given is not None and isinstance(given.value, bool):
+                value = given.value   # YAML's bare y: KvhFogConfig refuses it with the hint to quote it
+            else:
+                value = self._override(name, default)
+            bounds = KVH_FOG_RANGES.get(name)
+            if bounds is not None and not (math.isfinite(value) and bounds.low <= value <= bounds.high):
+                raise ParameterError(f'parameter {name} must be in {bounds.low:g}..{bounds.high:g}, got {value!r}')
+            if not isinstance(value, bool):   # declared once KvhFogConfig has refused a boolean axis
+                self._node.declare_parameter(
+                    name, value, ParameterDescriptor(description=description, read_only=True), ignore_override=True)
             values[name.removeprefix('kvh_fog.')] = value
+        rate_stddev = values.pop('rate_stddev')
+        acceleration_stddev = values.pop('acceleration_stddev')
         try:
-            return KvhFogConfig(**values)
+            return KvhFogConfig(**values), rate_stddev, acceleration_stddev
         except ValueError as e:
             raise ParameterError(f'parameter {e}') from None
 

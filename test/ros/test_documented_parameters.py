@@ -32,7 +32,8 @@ SAMPLES: dict[str, Any] = {
     'yaw_rate_stddev': 0.002, 'powered_on_at_start': True, 'log_path': 'TMP',   # the test's directory
     'publish_uncalibrated': True,
     'kvh_fog.message_format': 'B', 'kvh_fog.yaw_axis': '-z', 'kvh_fog.rotation': 'rate', 'kvh_fog.angle_units': 'deg',
-    'kvh_fog.output_rate_hz': 500.0, 'kvh_fog.temperature_units': 'F',
+    'kvh_fog.output_rate_hz': 500.0, 'kvh_fog.temperature_units': 'F', 'kvh_fog.forward_axis': '+x',
+    'kvh_fog.timestamp_source': 'unit_clock', 'kvh_fog.rate_stddev': 0.002, 'kvh_fog.acceleration_stddev': 0.1,
     QOS + 'reliability': 'best_effort', QOS + 'history': 'keep_last', QOS + 'depth': 5,
     QOS + 'durability': 'transient_local',
 }

@@ -24,7 +24,7 @@ from art_gyro_calibration.fake_rd2100 import FakeRd2100, GyroSimulator, RateProf
 from art_gyro_calibration.kvh_fog import KvhFogConfig, encode_kvh_fog  # noqa: E402
 from art_gyro_calibration.log import read_log, write_columns  # noqa: E402
 from art_gyro_calibration.ros.parameters import (KVH_FOG_PARAMETERS, PARAMETERS,  # noqa: E402
-                                                 check_kvh_fog_calibration, check_settings)
+                                                 check_kvh_fog_calibration, check_settings, usage)
 
 EXAMPLE = 'KVH_DSP1760_EXAMPLE'
 RATE_HZ = 100.0
@@ -54,7 +54,17 @@ def test_node_reads_a_kvh_fog_unit_counts_lost_and_invalid_frames_and_logs_deg_s
         # The static bias took the turn-on bias and the Earth's rate out of the reading.
         assert float(bias['static_bias_drift_dps']) == pytest.approx(
             fake.simulator.turn_on_bias_dps + fake.simulator.earth_rate_dps, abs=0.005)
-        assert abs(rates_dps(listener.wait_imu(50, proc, output)).mean()) < 0.01
+        still = listener.wait_imu(50, proc, output)
+        assert abs(rates_dps(still).mean()) < 0.01
+        # The whole IMU: the unit upside down reads -1 g on its z, which is +9.80665 m/s^2 up in REP 103 axes.
+        imu = still[-1]
+        assert (imu.linear_acceleration.x, imu.linear_acceleration.y, imu.linear_acceleration.z) == (
+            0.0, 0.0, pytest.approx(9.80665, rel=1e-6))
+        assert list(imu.linear_acceleration_covariance) == pytest.approx([0.05 ** 2, 0, 0, 0, 0.05 ** 2, 0, 0, 0,
+                                                                          0.05 ** 2])
+        assert abs(imu.angular_velocity.x) < 1e-3 and abs(imu.angular_velocity.y) < 1e-3
+        assert list(imu.angular_velocity_covariance) == pytest.approx([1e-6, 0, 0, 0, 1e-6, 0, 0, 0, 1e-6])
+        assert imu.orientation_covariance[0] == -1.0
         wait_until(lambda: listener.temperature, 'a temperature', proc, output)
         assert listener.temperatures()[-1] == 31.0
         link = listener.wait_status('link', lambda s: float(s['frame_rate_hz']) > 0, 'frames counted', proc, output)
@@ -153,7 +163,21 @@ def test_node_says_when_the_temperature_units_do_not_match_the_unit(tmp_path: Pa
      'parameter kvh_fog.yaw_axis must be x, y or z'),
     (['-p', f'serial_number:={EXAMPLE}', '-p', 'kvh_fog.output_rate_hz:=fast'],
      'parameter kvh_fog.output_rate_hz must be a number'),
-], ids=['rd2100_calibration', 'yaw_axis', 'output_rate_type'])
+    # YAML reads a bare y as true: refused with the hint, not "must be a string, got True".
+    (['-p', 'protocol:=kvh_fog', '-p', f'serial_number:={EXAMPLE}', '-p', 'kvh_fog.yaw_axis:=y'],
+     'parameter kvh_fog.yaw_axis must be x, y or z with an optional sign, got the boolean True: YAML reads a bare '
+     'y or n as a boolean; write +y (or -y), or quote it'),
+    (['-p', 'protocol:=kvh_fog', '-p', f'serial_number:={EXAMPLE}', '-p', 'kvh_fog.forward_axis:=n'],
+     'parameter kvh_fog.forward_axis must be x, y or z with an optional sign, got the boolean False'),
+    # Without baud, kvh_fog opens at the unit's 921600, which carries 2560 Format A messages a second.
+    (['-p', 'protocol:=kvh_fog', '-p', f'serial_number:={EXAMPLE}', '-p', 'kvh_fog.output_rate_hz:=5000.0'],
+     'parameter kvh_fog.output_rate_hz is 5000 but baud 921600 carries at most 2560 Format A messages'),
+    (['-p', 'protocol:=kvh_fog', '-p', f'serial_number:={EXAMPLE}', '-p', 'baud:=4147200',
+      '-p', 'kvh_fog.rate_stddev:=0.0'], 'parameter kvh_fog.rate_stddev must be in 1e-07..1, got 0.0'),
+    (['-p', 'protocol:=kvh_fog', '-p', f'serial_number:={EXAMPLE}', '-p', 'kvh_fog.timestamp_source:=unit_clock'],
+     'parameter kvh_fog.timestamp_source unit_clock needs kvh_fog.message_format B'),
+], ids=['rd2100_calibration', 'yaw_axis', 'output_rate_type', 'yaw_axis_yaml_y', 'forward_axis_yaml_n',
+        'rate_beyond_baud', 'rate_stddev', 'unit_clock_needs_b'])
 def test_node_refuses_bad_kvh_fog_settings(tmp_path: Path, args: list[str], message: str) -> None:
     output = tmp_path / 'node.log'
     proc = start_node(domain_id(), output, '-p', 'port:=/nonexistent', *args)
@@ -171,6 +195,58 @@ def test_kvh_fog_params_file_sets_valid_node_parameters() -> None:
     settings = check_settings({**{n: d for n, (d, *_) in PARAMETERS.items()},
                                **{n: v for n, v in values.items() if n in PARAMETERS}})
     assert settings.protocol == 'kvh_fog' and settings.serial_number == EXAMPLE
-    kvh = KvhFogConfig(**{n.removeprefix('kvh_fog.'): v for n, v in values.items() if n in KVH_FOG_PARAMETERS})
+    kvh = KvhFogConfig(**{n.removeprefix('kvh_fog.'): v for n, v in values.items()
+                          if n in KVH_FOG_PARAMETERS and not n.endswith('_stddev')})
     assert kvh == KvhFogConfig() and set(values) >= set(KVH_FOG_PARAMETERS)
     assert math.isclose(kvh.dps_per_unit, math.degrees(1000.0))
+    assert values['baud'] == 921600 and kvh.max_rate_hz(values['baud']) >= kvh.output_rate_hz
+
+
+def test_help_lists_every_kvh_fog_parameter() -> None:
+    text = usage('gyro_node')
+    assert all(f'  {name} (' in text for name in KVH_FOG_PARAMETERS), text
+
+
+def test_node_publishes_the_right_rate_when_output_rate_hz_is_wrong_and_says_so(tmp_path: Path,
+                                                                                loopback: None) -> None:
+    """A unit at 100 Hz, output_rate_hz left at 1000 (and baud at the kvh_fog default): 30 deg/s, and an ERROR."""
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    with (FakeRd2100(EXAMPLE, protocol='kvh_fog', rate_hz=RATE_HZ, profile='30', temperature=30.0, seed=7) as fake,
+          node_with_listener(domain, output, '-p', f'port:={fake.path}', '-p', 'protocol:=kvh_fog',
+                             '-p', f'serial_number:={EXAMPLE}', '-p', 'static_bias_on_startup:=false')
+          as (proc, listener)):
+        turning = listener.wait_imu(100, proc, output)[-50:]
+        # No static bias: the reading is the turn plus the turn-on bias and the Earth's rate.
+        truth = 30.0 + fake.simulator.turn_on_bias_dps + fake.simulator.earth_rate_dps
+        assert rates_dps(turning).mean() == pytest.approx(truth, abs=0.05)
+        link = listener.wait_status('link', lambda s: s['level'] == b'\x02', 'the rate error', proc, output)
+        assert 'kvh_fog.output_rate_hz is 1000 Hz but the unit sends ' in link['message'], link['message']
+        assert float(link['message'].split('unit sends ')[1].split()[0]) == pytest.approx(RATE_HZ, rel=0.01)
+        assert float(link['measured_rate_hz']) == pytest.approx(RATE_HZ, rel=0.01)
+        wait_until(lambda: 'kvh_fog.output_rate_hz is 1000 Hz' in output.read_text(), 'the console error')
+        assert 'at 921600 baud (kvh_fog)' in output.read_text()
+
+
+def test_imu_axes_flagged_invalid_or_not_finite_are_not_measured() -> None:
+    """_fill_imu as the node calls it: REP 103 axes from the mounting; a bad axis gets no weight, never a NaN."""
+    from types import SimpleNamespace
+
+    from sensor_msgs.msg import Imu
+
+    from art_gyro_calibration.kvh_fog import KvhSample
+    from art_gyro_calibration.ros.node import UNMEASURED_VARIANCE, GyroNode
+    rows = KvhFogConfig(yaw_axis='+y', forward_axis='-x').mounting   # x = -x_unit, y = +z_unit, z = +y_unit
+    node = SimpleNamespace(_axes=tuple((max(range(3), key=lambda i: abs(r[i])), sum(r)) for r in rows),
+                           _rate_variance=1e-6, _acceleration_variance=0.0025)
+    imu = Imu()
+    GyroNode._fill_imu(node, imu, KvhSample(0.0, 25.0, (10.0, 20.0, 30.0), (0.5, 1.0, -0.25), 0x77))
+    assert (imu.angular_velocity.x, imu.angular_velocity.y) == pytest.approx((math.radians(-10.0), math.radians(30.0)))
+    assert (imu.linear_acceleration.x, imu.linear_acceleration.y, imu.linear_acceleration.z) == pytest.approx(
+        (-0.5 * 9.80665, -0.25 * 9.80665, 9.80665))
+    assert imu.angular_velocity_covariance[0] == imu.angular_velocity_covariance[4] == 1e-6
+    GyroNode._fill_imu(node, imu, KvhSample(0.0, 25.0, (math.nan, 20.0, 30.0), (0.5, math.inf, 0.0), 0x77))
+    assert imu.angular_velocity.x == 0.0 and imu.angular_velocity_covariance[0] == UNMEASURED_VARIANCE
+    assert imu.linear_acceleration_covariance[0] == -1.0 and imu.linear_acceleration.y == 0.0
+    GyroNode._fill_imu(node, imu, KvhSample(0.0, 25.0, (10.0, 20.0, 30.0), (0.5, 1.0, 0.0), 0x77 & ~0x04))
+    assert imu.angular_velocity.y == 0.0 and imu.angular_velocity_covariance[4] == UNMEASURED_VARIANCE
