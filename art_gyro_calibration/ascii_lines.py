@@ -29,8 +29,9 @@ class AsciiFrameParser(ChunkParser):
     # Nominal: a typical line such as b'-1234 500\r\n' (wire-time stamping needs a figure).
     frame_bytes = 11
 
-    def __init__(self) -> None:
-        super().__init__((MALFORMED, OUT_OF_RANGE, LINE_TOO_LONG))
+    def __init__(self, lock_frames: int = 1) -> None:
+        """``lock_frames``: valid lines in a row before one is accepted (the driver's LOCK_FRAMES, 1 for none)."""
+        super().__init__((MALFORMED, OUT_OF_RANGE, LINE_TOO_LONG), lock_frames)
         self._discarding = False   # inside the rest of an overlong line, or of a line cut by a reset
 
     def reset(self) -> None:
@@ -42,6 +43,7 @@ class AsciiFrameParser(ChunkParser):
         self.stats.bytes_skipped += len(self._buffer)
         self._buffer = b''
         self._discarding = True
+        self._run = 0
 
     def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
         """Parse a chunk; each valid line with the offset just past its newline within ``data``."""
@@ -55,20 +57,23 @@ class AsciiFrameParser(ChunkParser):
             if self._discarding:
                 self._discarding = False
                 stats.bytes_skipped += end - pos
+                self._run = 0
             elif newline - pos > MAX_LINE_BYTES:
                 reasons[LINE_TOO_LONG] += 1
                 stats.bytes_skipped += end - pos
+                self._run = 0
             elif (match := _ASCII_LINE.fullmatch(buf, pos, newline)) is not None:
                 raw_rate, raw_temp = int(match.group(1)), int(match.group(2))
                 if INT16_MIN <= raw_rate <= INT16_MAX and INT16_MIN <= raw_temp <= INT16_MAX:
-                    out.append((RawSample(raw_rate, raw_temp), end - held))
-                    stats.frames += 1
+                    self._accept(RawSample(raw_rate, raw_temp), end - held, end - pos, out)
                 else:
                     reasons[OUT_OF_RANGE] += 1
                     stats.bytes_skipped += end - pos
+                    self._run = 0
             else:
-                if _BLANK.fullmatch(buf, pos, newline) is None:   # blank lines are not frames
+                if _BLANK.fullmatch(buf, pos, newline) is None:   # blank lines are not frames, nor break the lock
                     reasons[MALFORMED] += 1
+                    self._run = 0
                 stats.bytes_skipped += end - pos
             pos = end
         rest = len(buf) - pos
@@ -76,6 +81,7 @@ class AsciiFrameParser(ChunkParser):
             if not self._discarding:
                 reasons[LINE_TOO_LONG] += 1
                 self._discarding = True
+                self._run = 0
             stats.bytes_skipped += rest
             pos = len(buf)
         self._buffer = buf[pos:]

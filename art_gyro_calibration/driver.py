@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import serial
 
-from art_gyro_calibration.frame import Frame, RawSample
+from art_gyro_calibration.frame import LOCK_FRAMES, Frame, RawSample
 from art_gyro_calibration.kvh_fog import KVH_BAUDS, KvhFogConfig, KvhFogParser, KvhSample, UnitClock
 from art_gyro_calibration.protocols import make_parser
 
@@ -42,6 +42,10 @@ PERIOD_ACCEPT = (0.6, 1.6)
 PERIOD_SMOOTHING = 16   # the estimate averages about this many chunks
 # After the port opens, this long without a valid frame means the wrong baud rate or protocol (or no gyro).
 NO_FRAMES_WARNING_S = 2.0
+# Once frames came: more than this share of the bytes of a NO_FRAMES_WARNING_S window skipped (garbage, bad or
+# unlocked frames) is warned once, until the share is back under half of it: a baud or protocol changed, or a
+# link that corrupts bytes. A correct link skips almost none (the lock's first frames after a reopen).
+BAD_SHARE_WARNING = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,7 +206,7 @@ class Rd2100Driver:
                              f'one of {", ".join(map(str, BAUDS))}')
         if not (isinstance(reopen_period_s, (int, float)) and math.isfinite(reopen_period_s) and reopen_period_s > 0):
             raise ValueError(f'reopen_period_s must be a positive number of seconds, got {reopen_period_s!r}')
-        self._parser = make_parser(protocol, kvh_fog)
+        self._parser = make_parser(protocol, kvh_fog, LOCK_FRAMES)   # a frame is trusted once the stream is locked
         self.port = port
         self.baud = baud
         self.protocol = protocol
@@ -214,6 +218,10 @@ class Rd2100Driver:
         self._opened_ns = 0            # monotonic time of the last open
         self._frames_at_open = 0
         self._quiet_warned = False
+        self._share_warned = False
+        self._window_ns = 0            # the byte-share window: when it started, bytes read, skipped before it
+        self._window_bytes = 0
+        self._window_skipped = 0
         self._reopen_period_s = float(reopen_period_s)
         self._stamper = WireStamper(baud, self._parser.frame_bytes)
         self._too_fast_said = False
@@ -295,6 +303,8 @@ class Rd2100Driver:
         self._opened_ns = self._monotonic_ns()
         self._frames_at_open = self._parser.stats.frames
         self._quiet_warned = False
+        self._window_ns, self._window_bytes = self._opened_ns, 0
+        self._window_skipped = self._parser.stats.bytes_skipped
         self._connected = True
         if self._ever_connected:
             self._reopens += 1
@@ -340,6 +350,9 @@ class Rd2100Driver:
             self._check_quiet(monotonic_ns)
             return
         frames = self._parser.feed(data) if self._kvh is None else self._kvh.feed(data, monotonic_ns)
+        self._window_bytes += len(data)
+        if monotonic_ns - self._window_ns >= NO_FRAMES_WARNING_S * 1e9:
+            self._check_share(monotonic_ns)
         stamps = self._stamper.stamp(now_ns, monotonic_ns, len(data), [end for _, end in frames])
         if self._stamper.too_fast and not self._too_fast_said:
             self._too_fast_said = True
@@ -406,6 +419,25 @@ class Rd2100Driver:
         else:
             self._warn(f'nothing received from {self.port} in {NO_FRAMES_WARNING_S:g} s after opening it: '
                        'is the gyro powered and wired to this port?')
+
+    def _check_share(self, monotonic_ns: int) -> None:
+        """Warn once when, after frames came, most bytes of a window were no valid frame (re-armed on recovery)."""
+        stats = self._parser.stats
+        skipped = stats.bytes_skipped - self._window_skipped
+        share = min(1.0, skipped / self._window_bytes) if self._window_bytes else 0.0
+        seconds = (monotonic_ns - self._window_ns) * 1e-9
+        total = self._window_bytes
+        self._window_ns, self._window_bytes, self._window_skipped = monotonic_ns, 0, stats.bytes_skipped
+        if stats.frames == self._frames_at_open:
+            return   # no frame since the open: _check_quiet says so
+        if share > BAD_SHARE_WARNING and not self._share_warned:
+            self._share_warned = True
+            rejected = ', '.join(f'{count} {reason}' for reason, count in stats.rejected_by_reason.items() if count)
+            self._warn(f'{100 * share:.0f} % of the {total} bytes from {self.port} in the last {seconds:.1f} s were '
+                       f'no valid frame (rejected so far: {rejected}): check the baud rate ({self.baud}) and the '
+                       f'protocol ({self.protocol}) against the gyro\'s settings, and the cable')
+        elif share < BAD_SHARE_WARNING / 2:
+            self._share_warned = False
 
     def _check_path(self) -> None:
         """A quiet port may be gone without a read error: its path vanished or now names another device."""

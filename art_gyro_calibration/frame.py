@@ -18,6 +18,11 @@ INT16_MAX = 0x7FFF
 GARBAGE = 'garbage'             # binary, kvh_fog: a run of bytes that cannot start a frame (counted once per run)
 # kvh_fog: a NaN or infinite rotation or temperature (the CRC passed); the node: a non-finite compensated rate.
 NOT_FINITE = 'not_finite'
+# RD2100 protocols: a valid frame before the stream is locked (fewer than the lock's frames in a row, contiguous).
+UNLOCKED = 'unlocked'
+# An RD2100 frame's 8-bit checksum passes one random window in 256: a run of this many valid frames, each
+# starting where the last ended, is what a gyro sends and noise does not (about 1 in 256**3 windows).
+LOCK_FRAMES = 3
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,11 +92,37 @@ def check_int16(name: str, value: int) -> None:
 
 
 class ChunkParser:
-    """What every parser shares: the bytes held between chunks and the statistics."""
+    """What every parser shares: the bytes held between chunks, the statistics and the stream lock.
 
-    def __init__(self, reasons: tuple[str, ...]) -> None:
+    With ``lock_frames`` > 1 a valid frame is accepted only as the ``lock_frames``-th or later of a run of
+    valid frames each starting where the last ended: the first ones of a run are counted as UNLOCKED, and
+    any byte skipped or frame rejected between them (garbage, a bad frame, a reopen) ends the run.
+    """
+
+    def __init__(self, reasons: tuple[str, ...], lock_frames: int = 1) -> None:
+        if not isinstance(lock_frames, int) or lock_frames < 1:
+            raise ValueError(f'lock_frames must be a positive integer, got {lock_frames!r}')
+        if lock_frames > 1:
+            reasons += (UNLOCKED,)
         self.stats = ParserStats(rejected_by_reason=dict.fromkeys(reasons, 0))
         self._buffer = b''
+        self.lock_frames = lock_frames
+        self._run = 0   # valid frames in a row so far
+
+    @property
+    def locked(self) -> bool:
+        """Whether the next valid frame, if contiguous, is accepted."""
+        return self._run >= self.lock_frames - 1
+
+    def _accept(self, sample: RawSample, end: int, frame_bytes: int, out: list[tuple[RawSample, int]]) -> None:
+        """A valid frame: accepted if the stream is locked, else counted as UNLOCKED (its bytes skipped)."""
+        self._run += 1
+        if self._run >= self.lock_frames:
+            out.append((sample, end))
+            self.stats.frames += 1
+        else:
+            self.stats.rejected_by_reason[UNLOCKED] += 1
+            self.stats.bytes_skipped += frame_bytes
 
     def _join(self, data: bytes) -> tuple[bytes, int]:
         """The held bytes followed by ``data``, and how many were held (offsets in ``data`` start there)."""
@@ -102,19 +133,21 @@ class ChunkParser:
 class BinaryChunkParser(ChunkParser):
     """What the binary parsers share: bytes between frames are skipped, each run counted once as garbage."""
 
-    def __init__(self, reasons: tuple[str, ...]) -> None:
-        super().__init__(reasons + (GARBAGE,))
+    def __init__(self, reasons: tuple[str, ...], lock_frames: int = 1) -> None:
+        super().__init__(reasons + (GARBAGE,), lock_frames)
         self._in_garbage = False
 
     def reset(self) -> None:
-        """Drop a partly received frame; statistics are kept."""
+        """Drop a partly received frame and the lock; statistics are kept."""
         self._skip(len(self._buffer))
         self._buffer = b''
         self._in_garbage = False
+        self._run = 0
 
     def _skip(self, count: int) -> None:
         if count <= 0:
             return
+        self._run = 0
         self.stats.bytes_skipped += count
         if not self._in_garbage:
             self.stats.rejected_by_reason[GARBAGE] += 1

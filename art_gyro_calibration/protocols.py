@@ -20,12 +20,16 @@ def check_protocol(protocol: str) -> str:
     return protocol
 
 
-def make_parser(protocol: str, kvh_fog: KvhFogConfig | None = None) -> FrameParser:
-    """A fresh parser for ``protocol`` (one of :data:`PROTOCOLS`); ``kvh_fog`` configures that protocol's."""
+def make_parser(protocol: str, kvh_fog: KvhFogConfig | None = None, lock_frames: int = 1) -> FrameParser:
+    """A fresh parser for ``protocol`` (one of :data:`PROTOCOLS`); ``kvh_fog`` configures that protocol's.
+
+    ``lock_frames``: the RD2100 protocols' stream lock (valid frames in a row before one is accepted); kvh_fog's
+    CRC-32 needs none.
+    """
     check_protocol(protocol)
     if protocol == KVH_FOG:
         return KvhFogParser(kvh_fog or KvhFogConfig())
-    return BinaryFrameParser() if protocol == 'binary' else AsciiFrameParser()
+    return BinaryFrameParser(lock_frames) if protocol == 'binary' else AsciiFrameParser(lock_frames)
 
 
 def make_encoder(protocol: str, kvh_fog: KvhFogConfig | None = None) -> Callable[..., bytes]:

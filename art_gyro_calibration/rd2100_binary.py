@@ -71,8 +71,9 @@ class BinaryFrameParser(BinaryChunkParser):
 
     frame_bytes = BINARY_FRAME_BYTES
 
-    def __init__(self) -> None:
-        super().__init__((BAD_CHECKSUM, ALL_ZERO))
+    def __init__(self, lock_frames: int = 1) -> None:
+        """``lock_frames``: valid frames in a row before one is accepted (the driver's LOCK_FRAMES, 1 for none)."""
+        super().__init__((BAD_CHECKSUM, ALL_ZERO), lock_frames)
 
     def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
         """Parse a chunk; each valid frame with the offset just past its last byte within ``data``."""
@@ -88,12 +89,14 @@ class BinaryFrameParser(BinaryChunkParser):
             if sum(bits.to_bytes(7, 'big')) & 0xFF:
                 stats.rejected_by_reason[BAD_CHECKSUM] += 1
                 stats.bytes_skipped += BINARY_FRAME_BYTES
+                self._run = 0
             elif not bits:
                 stats.rejected_by_reason[ALL_ZERO] += 1
                 stats.bytes_skipped += BINARY_FRAME_BYTES
+                self._run = 0
             else:
-                out.append((RawSample(_int16(bits & 0xFFFF), _int16((bits >> 16) & 0xFFFF)), end - held))
-                stats.frames += 1
+                self._accept(RawSample(_int16(bits & 0xFFFF), _int16((bits >> 16) & 0xFFFF)), end - held,
+                             BINARY_FRAME_BYTES, out)
             self._in_garbage = False
             pos = end
         partial = _PARTIAL.search(buf, max(pos, len(buf) - BINARY_FRAME_BYTES + 1))

@@ -4,7 +4,7 @@ from test_protocols import samples
 
 from art_gyro_calibration.ascii_lines import (LINE_TOO_LONG, MALFORMED, MAX_LINE_BYTES, OUT_OF_RANGE,
                                               AsciiFrameParser)
-from art_gyro_calibration.frame import RawSample
+from art_gyro_calibration.frame import UNLOCKED, RawSample
 
 
 def test_ascii_reset_skips_to_the_next_line_break_so_a_cut_line_gives_no_wrong_sample():
@@ -47,3 +47,13 @@ def test_ascii_overlong_complete_line_is_counted():
     parser = AsciiFrameParser()
     assert samples(parser.feed(b' ' * (MAX_LINE_BYTES + 1) + b'\n1 2\n')) == [(1, 2)]
     assert parser.stats.rejected_by_reason[LINE_TOO_LONG] == 1
+
+
+def test_a_locked_ascii_parser_accepts_a_line_only_after_lock_frames_in_a_row():
+    """A line of digits among noise is no gyro (issue 25): three valid lines in a row lock the stream."""
+    parser = AsciiFrameParser(lock_frames=3)
+    assert parser.feed(b'1 2\nxx\n3 4\n\x07\n') == []
+    assert parser.stats.rejected_by_reason[UNLOCKED] == 2 and parser.stats.rejected_by_reason[MALFORMED] == 2
+    assert samples(parser.feed(b'5 6\n7 8\r\n\r\n9 10\n')) == [(9, 10)]   # a blank line keeps the lock
+    assert samples(parser.feed(b'99999 1\n1 1\n2 2\n3 3\n')) == [(3, 3)]   # out of range loses it
+    assert parser.stats.rejected_by_reason[OUT_OF_RANGE] == 1

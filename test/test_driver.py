@@ -8,7 +8,8 @@ import pytest
 
 from art_gyro_calibration.driver import STANDARD_BAUDS, Rd2100Driver, WireStamper
 from art_gyro_calibration.fake_rd2100 import FakeRd2100
-from art_gyro_calibration.frame import GARBAGE, Frame
+from art_gyro_calibration.frame import GARBAGE, LOCK_FRAMES, UNLOCKED, Frame
+from art_gyro_calibration.rd2100_binary import encode_binary
 
 TIMEOUT_S = 10.0   # generous: the machine is shared; nothing asserts how fast, only that it happens
 
@@ -77,7 +78,10 @@ def test_frames_arrive_with_the_values_sent(make_driver, recorder, protocol):
         driver = make_driver(fake.path, protocol)
         assert wait_for(recorder.more_than(20))
         stats = driver.stats
-        assert stats.connected and stats.frames >= 20 and stats.rejected == 0 and stats.port == fake.path
+        assert stats.connected and stats.frames >= 20 and stats.port == fake.path
+        # Streaming from the start: the lock holds back at most its first frames, and nothing else is rejected.
+        unlocked = stats.rejected_by_reason[UNLOCKED]
+        assert unlocked <= LOCK_FRAMES - 1 and stats.rejected == unlocked
     assert expected == (round(fake.simulator.reading_dps(30.0, 31.5).item() / 0.00305), 630)
     assert {(f.sample.raw_rate, f.sample.raw_temp) for f in recorder.frames} == {expected}
     assert recorder.links[0][0] is True
@@ -263,7 +267,53 @@ def test_garbage_is_counted_and_frames_keep_flowing(make_driver, recorder):
             n = recorder.count()
             assert wait_for(lambda: driver.stats.rejected_by_reason[GARBAGE] == run)
             assert wait_for(recorder.more_than(n + 5))
-        assert driver.stats.bytes_skipped == 7 and driver.stats.rejected == 2
+        stats = driver.stats
+        # Each garbage run loses the lock: the LOCK_FRAMES - 1 frames after it (and at the start) are held back.
+        unlocked = stats.rejected_by_reason[UNLOCKED]
+        assert unlocked == 3 * (LOCK_FRAMES - 1)
+        assert stats.bytes_skipped == 7 + 8 * unlocked and stats.rejected == 2 + unlocked
+
+
+def test_the_baud_hint_fires_when_the_valid_share_falls_after_frames_came(recorder):
+    """The hint fired only before the first frame: a link turned to garbage later was not said (issue 25)."""
+    warnings = []
+    with FakeRd2100('NAVC3545', rate_hz=100, seed=4) as fake:
+        driver = Rd2100Driver(fake.path, 115200, 'binary', recorder.on_frame, on_warning=warnings.append)
+        driver.start()
+        try:
+            assert wait_for(recorder.more_than(20))
+            time.sleep(2.5)   # a whole window of good frames: nothing said
+            assert warnings == []
+            deadline = time.monotonic() + 5.0
+            while not warnings and time.monotonic() < deadline:
+                fake.inject(b'\x55' * 2000)
+                time.sleep(0.05)
+        finally:
+            driver.stop()
+    assert len(warnings) == 1, warnings
+    assert 'were no valid frame' in warnings[0] and 'check the baud rate (115200)' in warnings[0], warnings
+
+
+def test_a_frame_is_delivered_only_once_the_stream_is_locked(recorder, tmp_path):
+    """Garbage with a valid frame now and then (a checksum passing by chance) went out as rates (issue 25)."""
+    silent = FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
+    try:
+        driver = Rd2100Driver(silent.path, 115200, 'binary', recorder.on_frame)
+        driver.start()
+        try:
+            assert wait_for(lambda: driver.stats.connected)
+            for i in range(10):
+                silent.inject(b'\x01\x02\xff' + encode_binary(100 + i, 500))
+            assert wait_for(lambda: driver.stats.rejected_by_reason[UNLOCKED] == 10)
+            silent.inject(b'\x01' + b''.join(encode_binary(i, 500) for i in range(LOCK_FRAMES + 2)))
+            assert wait_for(lambda: driver.stats.frames == 3)
+            time.sleep(0.2)
+        finally:
+            driver.stop()
+    finally:
+        silent.stop()
+    assert [f.sample.raw_rate for f in recorder.frames] == list(range(LOCK_FRAMES - 1, LOCK_FRAMES + 2))
+    assert driver.stats.rejected_by_reason[UNLOCKED] == 10 + LOCK_FRAMES - 1
 
 
 def test_port_missing_at_start_then_appearing(make_driver, recorder, tmp_path):

@@ -2,7 +2,7 @@
 
 from test_protocols import samples
 
-from art_gyro_calibration.frame import GARBAGE, RawSample
+from art_gyro_calibration.frame import GARBAGE, UNLOCKED, RawSample
 from art_gyro_calibration.rd2100_binary import ALL_ZERO, BAD_CHECKSUM, BinaryFrameParser, encode_binary
 
 
@@ -83,3 +83,33 @@ def test_all_zero_frames_are_not_a_gyro():
     assert samples(parser.feed(zero * 3 + encode_binary(0, 1) + zero + encode_binary(1, 0))) == [(0, 1), (1, 0)]
     assert parser.stats.rejected_by_reason[ALL_ZERO] == 4 and parser.stats.frames == 2
     assert parser.stats.bytes_skipped == 32
+
+
+def test_a_locked_parser_accepts_a_frame_only_after_lock_frames_contiguous_ones():
+    """Random windows pass the 8-bit checksum once in 256 (issue 25): a lone one between garbage is no gyro."""
+    frames = [encode_binary(i, 500) for i in range(1, 8)]
+    parser = BinaryFrameParser(lock_frames=3)
+    # One valid frame between garbage, twice: never accepted, counted as unlocked.
+    assert parser.feed(b'\x01\x02' + frames[0] + b'\x03' + frames[1] + b'\x04') == []
+    assert parser.stats.rejected_by_reason[UNLOCKED] == 2 and parser.stats.frames == 0
+    # Three in a row (across chunks): the third and the later ones are accepted.
+    assert parser.feed(frames[2] + frames[3][:5]) == []
+    assert samples(parser.feed(frames[3][5:] + frames[4] + frames[5])) == [(5, 500), (6, 500)]
+    assert parser.stats.rejected_by_reason[UNLOCKED] == 4 and parser.stats.frames == 2
+    # A bad frame loses the lock: the next two are held back again.
+    bad = bytearray(frames[6])
+    bad[7] ^= 1
+    assert parser.feed(bytes(bad) + frames[0] + frames[1] + frames[2]) == [(RawSample(3, 500), 32)]
+    assert parser.stats.rejected_by_reason[BAD_CHECKSUM] == 1 and parser.stats.rejected_by_reason[UNLOCKED] == 6
+    # A reopen loses it too.
+    parser.reset()
+    assert samples(parser.feed(frames[3] + frames[4] + frames[5])) == [(6, 500)]
+
+
+def test_random_bytes_publish_no_frame_once_locked():
+    """1 MiB of random bytes: the 8-bit checksum passes a few windows, the lock none (before: about 4)."""
+    import numpy as np
+    data = np.random.default_rng(3).integers(0, 256, 1 << 20, dtype=np.uint8).tobytes()
+    assert BinaryFrameParser().feed(data)   # the checksum alone lets some through
+    parser = BinaryFrameParser(lock_frames=3)
+    assert parser.feed(data) == [] and parser.stats.rejected_by_reason[UNLOCKED] > 0
