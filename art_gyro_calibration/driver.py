@@ -46,6 +46,12 @@ NO_FRAMES_WARNING_S = 2.0
 # unlocked frames) is warned once, until the share is back under half of it: a baud or protocol changed, or a
 # link that corrupts bytes. A correct link skips almost none (the lock's first frames after a reopen).
 BAD_SHARE_WARNING = 0.5
+# RD2100 protocols: a yaw rate cannot change faster than this between two frames (deg/s per second between their
+# stamps). A chosen bound, not a measured one: it takes a rate from 0 to the RD2100's full 98.8 deg/s in 20 ms,
+# faster than a vehicle's body turns; a frame beyond it is a corrupt one whose checksum passed (at 50 Hz, a jump of
+# more than 100 deg/s from the last trusted frame). Counted as RATE_JUMP, not delivered.
+MAX_ANGULAR_ACCEL_DPS2 = 5000.0
+RATE_JUMP = 'rate_jump'
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,8 +203,12 @@ class Rd2100Driver:
                  clock_ns: Callable[[], int] = time.time_ns, reopen_period_s: float = 0.5,
                  on_link: Callable[[bool, str], None] | None = None, kvh_fog: KvhFogConfig | None = None,
                  on_warning: Callable[[str], None] | None = None,
-                 monotonic_ns: Callable[[], int] = time.monotonic_ns) -> None:
-        """``clock_ns`` is the stamps' clock; ``on_warning`` hears of clock steps and of no frames after an open."""
+                 monotonic_ns: Callable[[], int] = time.monotonic_ns, rate_scale_dps: float | None = None) -> None:
+        """``clock_ns`` is the stamps' clock; ``on_warning`` hears of clock steps and of no frames after an open.
+
+        ``rate_scale_dps`` (deg/s per count, the calibration's rate_scale_factor) turns on the RD2100 protocols'
+        rate-jump check (MAX_ANGULAR_ACCEL_DPS2); None: no check (kvh_fog is left to its CRC-32).
+        """
         if not isinstance(port, str) or not port:
             raise ValueError(f'port must be a device path such as /dev/ttyUSB0, got {port!r}')
         if baud not in BAUDS:
@@ -207,6 +217,15 @@ class Rd2100Driver:
         if not (isinstance(reopen_period_s, (int, float)) and math.isfinite(reopen_period_s) and reopen_period_s > 0):
             raise ValueError(f'reopen_period_s must be a positive number of seconds, got {reopen_period_s!r}')
         self._parser = make_parser(protocol, kvh_fog, LOCK_FRAMES)   # a frame is trusted once the stream is locked
+        if rate_scale_dps is not None and not (isinstance(rate_scale_dps, (int, float))
+                                               and math.isfinite(rate_scale_dps) and rate_scale_dps > 0):
+            raise ValueError(f'rate_scale_dps must be a positive number of deg/s per count, got {rate_scale_dps!r}')
+        # Counts per nanosecond between frames that the rate may change by, or 0: no check.
+        self._jump_counts_per_ns = (MAX_ANGULAR_ACCEL_DPS2 * 1e-9 / rate_scale_dps
+                                    if rate_scale_dps is not None and protocol != 'kvh_fog' else 0.0)
+        if self._jump_counts_per_ns:
+            self._parser.stats.rejected_by_reason[RATE_JUMP] = 0
+        self._trusted: tuple[float, int] | None = None   # (raw rate, steady ns) of the last frame delivered
         self.port = port
         self.baud = baud
         self.protocol = protocol
@@ -297,6 +316,7 @@ class Rd2100Driver:
         self._serial, self._identity = port, (st.st_dev, st.st_ino)
         self._parser.reset()
         self._stamper.restart()
+        self._trusted = None
         if self._unit_clock is not None:
             self._unit_clock.reset()   # the unit's clock is read anew from 0: the mapping too
             self._stamp_source = 'arrival'
@@ -363,9 +383,25 @@ class Rd2100Driver:
         if self._unit_clock is not None and frames:
             stamps = self._unit_clock_stamps(frames, stamps, monotonic_ns, len(data))
         for (sample, _), (stamp, steady) in zip(frames, stamps):
+            if self._jump_counts_per_ns and self._jumped(sample.raw_rate, steady):
+                continue
             self._on_frame(Frame(sample, stamp, steady))
         if not frames:
             self._check_quiet(monotonic_ns)
+
+    def _jumped(self, raw_rate: float, steady_ns: int) -> bool:
+        """Whether the rate changed beyond MAX_ANGULAR_ACCEL_DPS2 since the last frame delivered (then counted)."""
+        trusted = self._trusted
+        # At least a frame's wire time apart: the stamps are estimates (one pushed back to its arrival may come
+        # closer to the last), the wire is not.
+        elapsed = max(steady_ns - trusted[1], self._stamper.frame_ns) if trusted is not None else 0
+        if trusted is not None and abs(raw_rate - trusted[0]) > self._jump_counts_per_ns * elapsed:
+            stats = self._parser.stats
+            stats.rejected_by_reason[RATE_JUMP] += 1
+            stats.frames -= 1
+            return True
+        self._trusted = (raw_rate, steady_ns)
+        return False
 
     def _unit_clock_stamps(self, frames: list[tuple[RawSample, int]], stamps: list[tuple[int, int]],
                            monotonic_ns: int, chunk_bytes: int) -> list[tuple[int, int]]:

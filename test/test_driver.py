@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from art_gyro_calibration.driver import STANDARD_BAUDS, Rd2100Driver, WireStamper
+from art_gyro_calibration.driver import RATE_JUMP, STANDARD_BAUDS, Rd2100Driver, WireStamper
 from art_gyro_calibration.fake_rd2100 import FakeRd2100
 from art_gyro_calibration.frame import GARBAGE, LOCK_FRAMES, UNLOCKED, Frame
 from art_gyro_calibration.rd2100_binary import encode_binary
@@ -447,3 +447,24 @@ def test_a_late_read_alone_is_not_warned_as_too_fast():
         (stamp, _), = stamper.stamp(mono, mono, 8, [8])
         assert stamp <= mono
     assert stamper.too_fast == ''
+
+
+def test_a_rate_jump_beyond_the_gyro_in_one_period_is_counted_not_delivered(recorder, tmp_path):
+    """A frame of 91.5 deg/s between frames of 0, 0.7 ms apart, passed as a rate (issue 25)."""
+    silent = FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
+    try:
+        driver = Rd2100Driver(silent.path, 115200, 'binary', recorder.on_frame, rate_scale_dps=0.00305)
+        driver.start()
+        try:
+            assert wait_for(lambda: driver.stats.connected)
+            rates = [0, 1, -1, 0, 30000, 1, 0, -1]
+            silent.inject(b''.join(encode_binary(r, 500) for r in rates))
+            assert wait_for(lambda: driver.stats.rejected_by_reason[RATE_JUMP] == 1)
+            assert wait_for(lambda: recorder.count() == len(rates) - (LOCK_FRAMES - 1) - 1)
+            time.sleep(0.2)
+        finally:
+            driver.stop()
+    finally:
+        silent.stop()
+    assert [f.sample.raw_rate for f in recorder.frames] == rates[LOCK_FRAMES - 1:4] + rates[5:]
+    assert driver.stats.frames == 5 and driver.stats.rejected_by_reason[RATE_JUMP] == 1

@@ -138,7 +138,8 @@ class GyroNode(Node):
             f'reading {self.settings.port} at {self.settings.baud} baud ({self.settings.protocol})')
         self.driver = Rd2100Driver(self.settings.port, self.settings.baud, self.settings.protocol,
                                    self._on_frame, on_link=self._on_link, on_warning=self._on_driver_warning,
-                                   clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog)
+                                   clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog,
+                                   rate_scale_dps=self.calibration.rate_scale_factor)
         self.driver.start()
 
     # --- per frame (driver reader thread) ------------------------------------------------

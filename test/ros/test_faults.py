@@ -233,6 +233,12 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
                                     proc, output)
         assert counter(back, 'frames_outside_range') > 3
 
+        # A valid frame whose rate jumps 91.5 deg/s from its neighbours' in 20 ms: counted, not published.
+        published = counter(listener.wait_status('link', lambda s: True, 'a link status', proc, output), 'published')
+        inject_alone(fake, encode_binary(30000, TEMP_BASE))
+        jumped = listener.wait_status('link', lambda s: counter(s, 'rejected_rate_jump') == 1
+                                      and counter(s, 'published') > published, 'the rate jump counted', proc, output)
+        assert jumped['level'] == OK and counter(jumped, 'dropped') == 2   # the absurd temperatures' drops alone
         # No frame of the fake lost in the whole test, including the end, but the hot frames (not in the
         # sequence) and those the lock held back after the faults.
         wait_tail(listener, fake, proc, output)
@@ -498,9 +504,11 @@ def test_clipped_rates_are_counted_not_published(tmp_path: Path, loopback: None)
     """+-32767 counts went out as +-98.8 deg/s with every status OK: a faster turn passed off as a slower one."""
     domain = domain_id()
     output = tmp_path / 'node.log'
-    clipped = [32767, -32767, -32768]
-    with (sequence_gyro(tmp_path / 'rd2100') as fake,
-          node_with_listener(domain, output, *node_args(fake.path, 'static_bias_on_startup:=false'))
+    clipped = [32767, 32767, 32767]
+    fake = sequence_gyro(tmp_path / 'rd2100')
+    # Turning near full scale from the start: a clipped count then is no jump (a jump is rejected_rate_jump).
+    fake.simulator.raw_rate = 32000
+    with (fake, node_with_listener(domain, output, *node_args(fake.path, 'static_bias_on_startup:=false'))
           as (proc, listener)):
         wait_frames(listener, 10, proc, output)
         for raw_rate in clipped:   # temperatures outside the sequence code: any of them published would show
