@@ -75,6 +75,25 @@ def write_bag(path, log, stamps_ns, storage=StoragePlugin.MCAP, namespace='', re
     return path
 
 
+def tiny_bag(path, reference_type, reference):
+    """Ten still gyro messages at 10 Hz (rate, temperature) and ``/table/rate`` of ``reference_type``.
+
+    ``reference(k, ns)`` gives the k-th reference message (written 2 ns after the gyro's), or None for none.
+    """
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        rate = w.add_connection('/imu/uncalibrated', 'sensor_msgs/msg/Imu', typestore=TS)
+        temp = w.add_connection('/imu/temperature', 'std_msgs/msg/Float64', typestore=TS)
+        ref = w.add_connection('/table/rate', reference_type, typestore=TS)
+        for k in range(10):
+            ns = EPOCH_NS + k * 10 ** 8
+            w.write(rate, ns, TS.serialize_cdr(imu_message(ns, 0.0), 'sensor_msgs/msg/Imu'))
+            w.write(temp, ns + 1, TS.serialize_cdr(T['std_msgs/msg/Float64'](data=25.0), 'std_msgs/msg/Float64'))
+            message = reference(k, ns)
+            if message is not None:
+                w.write(ref, ns + 2, TS.serialize_cdr(message, reference_type))
+    return path
+
+
 @pytest.fixture(scope='module')
 def run(tmp_path_factory):
     """A simulated 2 h rate-table run at 2 Hz: its CSV log, in physical units, at epoch stamps."""
@@ -182,16 +201,7 @@ def test_clear_errors_name_the_topic(run, tmp_path):
         read_bag(wrong)
     shifted = write_bag(tmp_path / 's', part, part_ns, reference='twist')
     # A reference stamped an hour later than the gyro: no overlap.
-    with Writer(tmp_path / 'x', version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        rate = w.add_connection('/imu/uncalibrated', 'sensor_msgs/msg/Imu', typestore=TS)
-        temp = w.add_connection('/imu/temperature', 'std_msgs/msg/Float64', typestore=TS)
-        ref = w.add_connection('/table/rate', 'geometry_msgs/msg/TwistStamped', typestore=TS)
-        for k in range(10):
-            ns = EPOCH_NS + k * 10 ** 8
-            w.write(rate, ns, TS.serialize_cdr(imu_message(ns, 0.0), 'sensor_msgs/msg/Imu'))
-            w.write(temp, ns + 1, TS.serialize_cdr(T['std_msgs/msg/Float64'](data=25.0), 'std_msgs/msg/Float64'))
-            w.write(ref, ns + 2, TS.serialize_cdr(twist_message(ns + 3600 * 10 ** 9, 0.0),
-                                                  'geometry_msgs/msg/TwistStamped'))
+    tiny_bag(tmp_path / 'x', 'geometry_msgs/msg/TwistStamped', lambda k, ns: twist_message(ns + 3600 * 10 ** 9, 0.0))
     with pytest.raises(LogError, match='topic /table/rate\'s stamps .* do not overlap the gyro\'s'):
         read_bag(tmp_path / 'x', BagTopics(reference='/table/rate'))
     # A table's command holds: one given before the recording began covers it.
@@ -210,16 +220,8 @@ def test_a_reference_that_starts_late_leaves_the_rows_before_it_out_and_says_so(
     # The twist is stamped 3 ms before each gyro sample: every row has its true rate.
     got = read_bag(bag, BagTopics(reference='table/rate'), told.append)
     assert len(got) == len(part) and not told
-    with Writer(tmp_path / 'late', version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        rate = w.add_connection('/imu/uncalibrated', 'sensor_msgs/msg/Imu', typestore=TS)
-        temp = w.add_connection('/imu/temperature', 'std_msgs/msg/Float64', typestore=TS)
-        ref = w.add_connection('/table/rate', 'std_msgs/msg/Float64', typestore=TS)
-        for k in range(10):
-            ns = EPOCH_NS + k * 10 ** 8
-            w.write(rate, ns, TS.serialize_cdr(imu_message(ns, 0.0), 'sensor_msgs/msg/Imu'))
-            w.write(temp, ns + 1, TS.serialize_cdr(T['std_msgs/msg/Float64'](data=25.0), 'std_msgs/msg/Float64'))
-            if k >= 4:
-                w.write(ref, ns + 2, TS.serialize_cdr(T['std_msgs/msg/Float64'](data=10.0), 'std_msgs/msg/Float64'))
+    tiny_bag(tmp_path / 'late', 'std_msgs/msg/Float64',
+             lambda k, ns: T['std_msgs/msg/Float64'](data=10.0) if k >= 4 else None)
     got = read_bag(tmp_path / 'late', BagTopics(reference='/table/rate'), told.append)
     assert len(got) == 6 and np.all(got.ref_rate == 10.0)
     assert told == [f'{tmp_path / "late"}: 4 gyro messages before the first /table/rate message have no true rate: '
