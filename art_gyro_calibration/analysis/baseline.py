@@ -31,12 +31,12 @@ from numpy.typing import NDArray
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.analysis.loop import LoopResult
 from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, field_errors, steady_segments
-from art_gyro_calibration.analysis.replay import RESTART_FRACTIONS, field_score_dps, own_restarts, replay
+from art_gyro_calibration.analysis.replay import RESTART_FRACTIONS, field_score_dps, own_restarts, replay_anyway
 from art_gyro_calibration.calibration import Calibration, CalibrationError
 from art_gyro_calibration.compensation import RunStart
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
-from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
+from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 
@@ -156,12 +156,7 @@ def _on_top(result: LoopResult, baseline: Calibration, base_error: NDArray[np.fl
 def _replay_run(log: GyroLog, calibration: Calibration, bias_samples: int, settle_s: float,
                 start: RunStart) -> tuple[NDArray[np.float64], NDArray[np.bool_], bool]:
     """Per-row error (NaN where the node drops the row), kept rows and whether the node refused the static bias."""
-    try:
-        r = replay(log, calibration, bias_samples, settle_s, start)
-        refused = False
-    except MotionError:
-        r = replay(log, calibration, bias_samples, settle_s, start, max_mean_dps=math.inf, max_std_dps=math.inf)
-        refused = True
+    r, refused = replay_anyway(log, calibration, bias_samples, settle_s, start)
     error = np.full(len(log), np.nan)
     error[r.applied.kept] = r.error_dps
     return error, r.applied.kept, refused

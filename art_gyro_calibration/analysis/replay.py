@@ -64,20 +64,28 @@ def replay(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_S
                                                bias_samples))
 
 
-def replay_field(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_SAMPLES,
-                 settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart(), checked: bool = True) -> FieldErrors:
-    """:func:`replay`'s field errors, also where the node would refuse the static bias.
+def replay_anyway(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_SAMPLES,
+                  settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart(),
+                  checked: bool = True) -> tuple[Replay, bool]:
+    """:func:`replay`, also where the node would refuse the static bias, and whether it would have.
 
-    Such a run is measured with the bias taken anyway and marked ``bias_refused``; not
-    ``checked``, the node's motion checks are off and nothing is refused.
+    Such a run is measured with the bias taken anyway; not ``checked``, the node's motion
+    checks are off and nothing is refused.
     """
     if checked:
         try:
-            return replay(log, calibration, bias_samples, settle_s, start).field
+            return replay(log, calibration, bias_samples, settle_s, start), False
         except MotionError:
             pass
     anyway = replay(log, calibration, bias_samples, settle_s, start, max_mean_dps=math.inf, max_std_dps=math.inf)
-    return replace(anyway.field, bias_refused=checked)
+    return anyway, checked
+
+
+def replay_field(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_SAMPLES,
+                 settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart(), checked: bool = True) -> FieldErrors:
+    """:func:`replay_anyway`'s field errors; a run whose static bias the node would refuse: ``bias_refused``."""
+    done, refused = replay_anyway(log, calibration, bias_samples, settle_s, start, checked)
+    return replace(done.field, bias_refused=refused) if refused else done.field
 
 
 def restart(log: GyroLog, start_s: float) -> GyroLog:
