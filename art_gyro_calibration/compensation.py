@@ -9,6 +9,12 @@ calibration has one (the report's do not: their polynomial applies at every temp
 the samples outside the range it is expected to hold, and refine a static bias the temperature-rate terms need
 refined (:class:`static_bias.Refinement`). How the run started (:class:`RunStart`) decides
 whether a warm-up term applies.
+
+Until the refinement is ready, the temperature-rate terms are held at their mean over the
+bias window: the static bias has taken the true Shupe error of the window (the causal
+filter read about 0 there), so letting the filter's rise through its first minutes into
+the output would subtract that error a second time (up to 23 deg/h for minutes after a
+cold start with self-heating, measured).
 """
 
 from __future__ import annotations
@@ -25,7 +31,8 @@ from art_gyro_calibration.calibration import (MAX_UNIT_RANGE_DPS, PLAUSIBLE_TEMP
                                               check_signals_available, unit_range_dps)
 from art_gyro_calibration.frame import INT16_MAX, NOT_FINITE
 from art_gyro_calibration.log import GyroLog
-from art_gyro_calibration.signals import DERIVED_SIGNALS, SignalState, SignalTracker, compute_signals
+from art_gyro_calibration.model import ErrorModel
+from art_gyro_calibration.signals import DERIVED_SIGNALS, Signals, SignalState, SignalTracker, compute_signals
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS, REFINE_SPAN_TAUS,
                                               BiasWindow, Refinement, StaticBias, StaticBiasCollector,
                                               static_bias)
@@ -145,6 +152,7 @@ class Compensator:
                 self._bias, self._refinement = refinement.refined(), None
             else:
                 refinement.add(t, temp_c)
+                return refinement.held(self._model.error_one(tracker) - self._model.refinable_error_one(tracker))
         return self._model.error_one(tracker)
 
     def causal_dps(self) -> float:
@@ -224,6 +232,11 @@ def _nothing(collector: StaticBiasCollector) -> None:
     """No collection was started: nothing to do (see :meth:`FrameCorrector.collect`)."""
 
 
+def _refinable_error(model: ErrorModel, signals: Signals, rows: slice) -> NDArray[np.float64]:
+    """The temperature-rate terms' part of the modelled error over ``rows`` of a log."""
+    return np.asarray(sum(model.term_error(t, signals)[rows] for t in model.refinable))
+
+
 def _refine_span_s(calibration: Calibration) -> float:
     return REFINE_SPAN_TAUS * calibration.filters.temperature_rate_tau_s
 
@@ -278,17 +291,21 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
         bias = static_bias(log.rate_dps[:n], comp[:n], max_mean_dps, max_std_dps)
         refinement = None
         if model.refinable:
-            causal = sum(model.term_error(t, signals)[:n] for t in model.refinable)
+            causal = _refinable_error(model, signals, slice(0, n))
             bias = replace(bias, window=BiasWindow(log.t[:n].copy(), log.rate_dps[:n].copy(), log.temp_c[:n].copy(),
                                                    float(np.mean(causal))))
             refinement = Refinement(bias, model.refinable, _refine_span_s(calibration))
         first = n   # the rows after the window feed the refinement
     else:
         bias, refinement, first = after.bias, after.refinement, 0
-    corrected = bias.correct(log.rate_dps, comp)
     if refinement is not None:
         ready = first + int(np.searchsorted(log.t[first:], refinement.ready_at, side='left'))
         refinement.add_many(log.t[first:ready], log.temp_c[first:ready])
+        held = slice(first, ready)
+        if ready > first:   # the temperature-rate terms held at their window mean until the refinement
+            comp[held] = refinement.held(comp[held] - _refinable_error(model, signals, held))
+    corrected = bias.correct(log.rate_dps, comp)
+    if refinement is not None:
         if ready < len(log):
             bias, refinement = refinement.refined(), None
             corrected[ready:] = bias.correct(log.rate_dps[ready:], comp[ready:])

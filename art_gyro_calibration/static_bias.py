@@ -212,6 +212,17 @@ class Refinement:
         for i, column in enumerate(powers + [temp, temp * u, temp * u * u]):
             self.sums[i] += float(column.sum())
 
+    def held(self, others_dps: Rate) -> Rate:
+        """The modelled error before :attr:`ready_at`: ``others_dps`` (the other terms') plus these terms' window mean.
+
+        The static bias took the true error of these terms over its window, where the causal
+        filter read about 0; held there, the filter's rise over the next minutes is not
+        subtracted a second time.
+        """
+        window = self.bias.window
+        assert window is not None   # checked when made
+        return others_dps + window.causal_dps
+
     def refined(self) -> StaticBias:
         """The static bias with ``CalcStaticBiasDrift`` recomputed; unchanged if the fit is not determined."""
         s = self.sums

@@ -127,6 +127,27 @@ def test_the_static_bias_is_refined_once_the_temperature_rate_is_known() -> None
     np.testing.assert_allclose(np.concatenate(parts), applied.corrected_dps, rtol=0, atol=1e-9)
 
 
+def test_until_the_refinement_the_temperature_rate_terms_hold_their_window_value() -> None:
+    """The minutes between the bias window and its refinement carry no Shupe error twice (issue 20, item 1).
+
+    The static bias took the window's true Shupe error (the causal filter read about 0 there);
+    as the filter rose over its first minutes the model subtracted that error again: up to
+    -0.0045 deg/s (-16 deg/h) for six minutes after each cold start. Held at their window
+    mean until the refinement, the terms leave only how far the true error moved since.
+    """
+    log, shupe, true_rate = _self_heating()
+    cal = _calibration(Term('temperature_rate', 'power', (shupe,), (1,)))
+    applied = apply_calibration(log, cal, BIAS_SAMPLES, start=RunStart(powered_on_at_start=True))
+    t = log.t
+    minutes = (t >= BIAS_SAMPLES / RATE_HZ) & (t < 360.0)
+    moved = shupe * (true_rate[minutes] - true_rate[:BIAS_SAMPLES].mean())
+    np.testing.assert_allclose(applied.corrected_dps[minutes], moved, rtol=0, atol=0.0006)
+    assert np.max(np.abs(applied.corrected_dps[t >= BIAS_SAMPLES / RATE_HZ])) < 0.0025
+    # The node holds them the same way, frame by frame.
+    np.testing.assert_allclose(_per_sample(cal, log, RunStart(powered_on_at_start=True)),
+                               applied.corrected_dps[BIAS_SAMPLES - 1:], rtol=0, atol=1e-9)
+
+
 def test_temperatures_outside_the_calibrated_range_are_clamped_and_counted() -> None:
     """Outside a fitted file's temperature_range_c the model is evaluated at the range's edge; samples counted."""
     cal = dataclasses.replace(_calibration(Term('temperature_lag', 'power', (1e-3,), (1,), 60.0)),
