@@ -38,7 +38,7 @@ from numpy.typing import NDArray  # noqa: E402
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model  # noqa: E402
 from art_gyro_calibration.analysis.loop import LoopOptions, close_loop  # noqa: E402
 from art_gyro_calibration.analysis.replay import replay_field, startup_check  # noqa: E402
-from art_gyro_calibration.analysis.simulate import (ALL_EFFECTS, COIL_LAG_TAU_S, EFFECTS,  # noqa: E402
+from art_gyro_calibration.analysis.simulate import (COIL_LAG_TAU_S, EFFECTS,  # noqa: E402
                                                     SimulatedRun, SimulationSettings, effect_size, lagged,
                                                     same_gyro, simulate_run, warm_restart)
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration  # noqa: E402
@@ -55,6 +55,8 @@ RATE_HZ = 10.0
 WANDER_DPS = 3e-4
 WANDER_TAU_S = SECONDS_PER_HOUR
 RATE_RANDOM_WALK_DPH_RTHR = 0.5
+# The power table's effects: the simulator's first seven (shupe_true_rate is in the cold-start section).
+ALL_EFFECTS = ('shupe', 'warmup', 'supply_voltage', 'coil_lag', 'rate_t3', 'rate_temperature_rate', 'drift')
 MAGNITUDES = (0.1, 0.25, 0.5, 1.0)
 HOURS = (2.0, 6.0)
 VALIDATION_HOURS = 2.0

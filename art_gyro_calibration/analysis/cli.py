@@ -4,7 +4,8 @@
 - ``calibrate fit LOG.csv --rows R --columns C [--serial SN] --out CAL.yaml --report REPORT.json [--plots DIR]
   [--validate OTHER_LOG ...]``
 - ``calibrate replay OTHER_LOG.csv --calibration CAL.yaml [--start-s S] [--bias-samples N]``
-- ``calibrate simulate --serial SN --hours H --out LOG.csv [--effect NAME ...]``
+- ``calibrate simulate --serial SN --hours H --out LOG.csv [--effect NAME ...] [--self-heating-c DT]
+  [--self-heating-tau-s TAU]``
 - ``calibrate record --port P --out LOG.csv [--protocol binary] [--baud 9600] [--serial SN] [--duration S]``
 - ``calibrate allan LOG_OR_BAG --out ALLAN.json [--plots DIR] [--serial SN] [--node-rate-hz F]``
 
@@ -123,8 +124,12 @@ def _simulate(args: argparse.Namespace) -> int:
         out = outputs.claim(args.out, beside=[truth_path(args.out)])
         calibration = load_packaged_calibration(args.serial)
         settings = SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=tuple(args.effect),
-                                      seed=args.seed)
-        run = simulate_run(calibration, settings)
+                                      seed=args.seed, self_heating_c=args.self_heating_c,
+                                      self_heating_tau_s=args.self_heating_tau_s)
+        try:
+            run = simulate_run(calibration, settings)
+        except ValueError as e:   # a self-heating as wide as the calibrated range
+            raise ValueError(f'--self-heating-c: {e}') from None
         write_run(out, run)
     print(f'{args.out}: {len(run.columns["t"])} rows of {args.serial} '
           f'(effects: {", ".join(args.effect) or "none"}); truth in {truth_path(args.out)}')
@@ -374,6 +379,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help='switch an effect on (repeat for several)')
     p.add_argument('--rate-hz', type=float, default=10.0, help='samples per second (default %(default)s)')
     p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--self-heating-c', type=_nonnegative_float, default=0.0, metavar='DEG_C',
+                   help='the gyro warms itself by this much after power-on, above the chamber (whose top set point '
+                        'is lowered by as much); the sensor reads it, the polynomial and effects see it '
+                        '(default %(default)s)')
+    p.add_argument('--self-heating-tau-s', type=_positive_float, default=900.0, metavar='SECONDS',
+                   help='time constant of the self-heating (default %(default)s)')
     _force_option(p)
     p.set_defaults(run=_simulate)
 
@@ -405,6 +416,13 @@ def _positive_float(text: str) -> float:
     value = float(text)
     if not value > 0.0 or not math.isfinite(value):
         raise argparse.ArgumentTypeError(f'must be a positive number, got {text}')
+    return value
+
+
+def _nonnegative_float(text: str) -> float:
+    value = float(text)
+    if not value >= 0.0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f'must be a number >= 0, got {text}')
     return value
 
 

@@ -2,7 +2,10 @@
 
 The table steps through positive and negative rates up to the full scale, each step a
 whole number of turns, with rests between; the chamber holds and ramps through the
-calibrated temperature range and the gyro follows it with a thermal lag. The gyro's
+calibrated temperature range and the gyro follows it with a thermal lag, warming by itself after
+power-on when asked (``self_heating_c``: the gyro's temperature rises by ``dT * (1 - exp(-t / tau))``
+from power-on, ``tau`` = ``self_heating_tau_s``; the sensor reads it and the polynomial sees it, and the
+chamber's top set point is lowered by ``dT`` so that the warm gyro stays in the calibrated range). The gyro's
 error is its report polynomial (:func:`gyro_physics.measured_from_true`) plus a turn-on bias,
 the Earth's rate, a first-order Gauss-Markov bias instability, white noise and count
 quantisation. Switchable effects the ART model lacks:
@@ -14,7 +17,9 @@ quantisation. Switchable effects the ART model lacks:
 
 and effects outside those forms (:data:`WIDER_EFFECTS`), which a loop must find by a wider search
 or by its lack-of-fit alarm: a coil whose temperature lags the sensor's, a scale factor in the
-cube of temperature, a scale factor in the temperature rate, and a linear drift.
+cube of temperature, a scale factor in the temperature rate, a linear drift, and a Shupe effect on
+the true rate of change of the gyro's temperature (``shupe_true_rate``: a real coil follows its own
+temperature, not the node's 120 s filtered rate that ``shupe`` follows).
 
 Slow noise beyond the 300 s bias instability is off by default (``wander_dps``: a Gauss-Markov
 bias wander of correlation time ``wander_tau_s``, 1 h; ``rate_random_walk_dph_rthr``). A second run
@@ -73,6 +78,10 @@ WIDER_EFFECTS: dict[str, float] = {
     'rate_temperature_rate': 0.008,
     # size * seconds since power-on: 1.8 deg/h more every hour.
     'drift': 5e-7,
+    # size * d/dt of the gyro's true temperature (deg/s per degC/s; a central difference of the noiseless
+    # temperature before quantisation, self-heating included): the default is shupe's, 0.24, 0.004 deg/s
+    # (14 deg/h) on a 1 degC/min ramp, 0.0064 deg/s at power-on with 4 degC of self-heating over 10 minutes.
+    'shupe_true_rate': 0.24,
 }
 ALL_EFFECTS = (*EFFECTS, *WIDER_EFFECTS)
 
@@ -107,6 +116,10 @@ class SimulationSettings:
     # another heading, takes its static bias.
     restarts_s: tuple[float, ...] = ()
     restart_turn_deg: float = 0.0
+    # Self-heating at power-on: the gyro's temperature rises by self_heating_c * (1 - exp(-t / self_heating_tau_s))
+    # above the chamber's (lagged) profile, whose top set point is lowered by self_heating_c.
+    self_heating_c: float = 0.0
+    self_heating_tau_s: float = 900.0
 
     def __post_init__(self) -> None:
         unknown = [e for e in self.effects if e not in ALL_EFFECTS]
@@ -114,6 +127,10 @@ class SimulationSettings:
             raise ValueError(f'unknown effect(s) {unknown}; choose from {", ".join(ALL_EFFECTS)}')
         if not (self.hours > 0 and self.rate_hz > 0):
             raise ValueError(f'hours and rate_hz must be positive, got {self.hours}, {self.rate_hz}')
+        if not (math.isfinite(self.self_heating_c) and self.self_heating_c >= 0.0):
+            raise ValueError(f'self_heating_c must be a finite number >= 0 (degC), got {self.self_heating_c}')
+        if not (math.isfinite(self.self_heating_tau_s) and self.self_heating_tau_s > 0.0):
+            raise ValueError(f'self_heating_tau_s must be a positive number of seconds, got {self.self_heating_tau_s}')
 
 
 @dataclass(frozen=True)
@@ -172,13 +189,35 @@ def chamber_profile(t: NDArray[np.float64], settings: SimulationSettings,
     return lagged
 
 
+def self_heating(t: NDArray[np.float64], settings: SimulationSettings) -> NDArray[np.float64]:
+    """How far the gyro has warmed itself above the chamber's profile ``t`` s after power-on (degC)."""
+    if settings.self_heating_c == 0.0:
+        return np.zeros(len(t))
+    return settings.self_heating_c * -np.expm1(-t / settings.self_heating_tau_s)
+
+
+def chamber_range_c(calibration: Calibration, settings: SimulationSettings) -> tuple[float, float]:
+    """The chamber's set points: the calibration's range, its top lowered by the self-heating."""
+    low, high = _chamber_range_c(calibration)
+    if settings.self_heating_c >= high - low:
+        raise ValueError(f'self_heating_c {settings.self_heating_c:g} degC must be smaller than the calibrated '
+                         f'range {low:g}..{high:g} degC: the warm gyro is kept inside it')
+    return low, high - settings.self_heating_c
+
+
+def gyro_temperature(t: NDArray[np.float64], calibration: Calibration,
+                     settings: SimulationSettings) -> NDArray[np.float64]:
+    """The gyro's true temperature (before quantisation): the chamber through its lag, plus the self-heating."""
+    return chamber_profile(t, settings, chamber_range_c(calibration, settings)) + self_heating(t, settings)
+
+
 def simulate_run(calibration: Calibration, settings: SimulationSettings) -> SimulatedRun:
     """Simulate one run of the gyro ``calibration`` describes (its polynomial is the true error)."""
     rng = np.random.default_rng(settings.seed)
     n = int(round(settings.hours * SECONDS_PER_HOUR * settings.rate_hz))
     t = np.arange(n) / settings.rate_hz
     table = table_profile(t, settings, rng)
-    temp = chamber_profile(t, settings, _chamber_range_c(calibration))
+    temp = gyro_temperature(t, calibration, settings)
     earth = earth_rate_dps(settings.latitude_deg)
     turn_on = float(rng.normal(0.0, settings.turn_on_bias_std_dps))
     # Gauss-Markov bias instability: stationary from the first sample.
@@ -227,9 +266,16 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
         'start_s': 0.0,
         'powered_on_at_start': True,
         'heading_at_start_deg': 0.0,
-        'settings': {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()},
+        'settings': {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(settings).items()
+                     if k not in _SELF_HEATING or settings.self_heating_c},   # without it, as before it existed
     }
+    if settings.self_heating_c:
+        truth['self_heating'] = {'c': settings.self_heating_c, 'time_constant_s': settings.self_heating_tau_s,
+                                 'chamber_range_c': list(chamber_range_c(calibration, settings))}
     return SimulatedRun(columns, truth)
+
+
+_SELF_HEATING = ('self_heating_c', 'self_heating_tau_s')
 
 
 def _chamber_range_c(calibration: Calibration) -> tuple[float, float]:
@@ -268,6 +314,10 @@ def _wider_effects(signals: Signals, settings: SimulationSettings, temperature_r
             error = size * signals.rate * u ** 3
             entry = {'signal': 'rate * u**3', 'form': 'product', 'coefficients': [size],
                      'temperature_range_c': [low, high]}
+        elif name == 'shupe_true_rate':
+            error = size * true_temperature_rate(signals.t, signals.temperature)
+            entry = {'signal': 'true temperature rate', 'form': 'power', 'powers': [1], 'coefficients': [size],
+                     'derivative': 'central difference of the noiseless temperature'}
         elif name == 'rate_temperature_rate':
             error = size * signals.rate * signals.temperature_rate
             entry = {'signal': 'rate * temperature_rate', 'form': 'product', 'coefficients': [size]}
@@ -276,6 +326,13 @@ def _wider_effects(signals: Signals, settings: SimulationSettings, temperature_r
             entry = {'signal': 'time', 'form': 'power', 'powers': [1], 'coefficients': [size]}
         out[name] = (error, entry)
     return out, polynomial_temp
+
+
+def true_temperature_rate(t: NDArray[np.float64], temp: NDArray[np.float64]) -> NDArray[np.float64]:
+    """d/dt of the gyro's noiseless temperature (degC/s): central differences, one-sided at the ends."""
+    if len(t) < 2:
+        return np.zeros(len(t))
+    return np.gradient(temp, t)
 
 
 def lagged(t: NDArray[np.float64], x: NDArray[np.float64], tau_s: float) -> NDArray[np.float64]:

@@ -291,6 +291,36 @@ def test_a_failing_fit_writes_nothing(fitted, tmp_path, monkeypatch, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_simulate_self_heating_and_a_shupe_effect_on_the_true_rate(tmp_path, capsys):
+    out = tmp_path / 'sim.csv'
+    assert main(['simulate', '--serial', 'NAVC3545', '--hours', '0.1', '--out', str(out), '--effect', 'shupe_true_rate',
+                 '--self-heating-c', '3', '--self-heating-tau-s', '300']) == 0
+    truth = json.loads((tmp_path / 'sim.truth.json').read_text())
+    assert truth['self_heating']['c'] == 3.0 and truth['self_heating']['time_constant_s'] == 300.0
+    assert list(truth['effects']) == ['shupe_true_rate']
+    cal = load_packaged_calibration('NAVC3545')
+    log = read_log(out, cal.rate_scale_factor, cal.temp_scale_factor)
+    # The chamber holds for 15 minutes at the bottom: what the gyro reads rise is its own warming.
+    assert log.temp_c[-1] - log.temp_c[0] == pytest.approx(3.0 * (1 - np.exp(-log.t[-1] / 300.0)),
+                                                           abs=cal.temp_scale_factor)
+
+
+@pytest.mark.parametrize('option, value, message', [
+    ('--self-heating-c', '-1', 'argument --self-heating-c: must be a number >= 0, got -1'),
+    ('--self-heating-c', 'inf', 'argument --self-heating-c: must be a number >= 0'),
+    ('--self-heating-c', '40', '--self-heating-c: self_heating_c 40 degC must be smaller than the calibrated range'),
+    ('--self-heating-tau-s', '0', 'argument --self-heating-tau-s: must be a positive number, got 0')])
+def test_simulate_refuses_a_bad_self_heating(tmp_path, capsys, option, value, message):
+    out = tmp_path / 'sim.csv'
+    try:
+        status = main(['simulate', '--serial', 'NAVC3545', '--hours', '0.01', '--out', str(out), option, value])
+    except SystemExit as e:   # argparse's refusal
+        status = e.code
+    assert status in (1, 2)
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_simulate_refuses_to_replace_a_log(tmp_path, capsys):
     out = tmp_path / 'sim.csv'
     (tmp_path / 'sim.truth.json').write_text('{}')

@@ -8,8 +8,9 @@ import pytest
 
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.log import read_log
-from art_gyro_calibration.analysis.simulate import (COIL_LAG_TAU_S, EFFECTS, WIDER_EFFECTS, SimulationSettings, lagged,
-                                                    same_gyro, simulate_run, truth_path, warm_restart, write_run)
+from art_gyro_calibration.analysis.simulate import (COIL_LAG_TAU_S, EFFECTS, WIDER_EFFECTS, SimulationSettings,
+                                                    chamber_profile, lagged, same_gyro, simulate_run, truth_path,
+                                                    warm_restart, write_run)
 from art_gyro_calibration.signals import compute_signals
 
 
@@ -93,6 +94,7 @@ def test_each_wider_effect_is_recovered_from_its_truth(calibration, effect):
         'rate_t3': signals.rate * u ** 3,
         'rate_temperature_rate': signals.rate * signals.temperature_rate,
         'drift': signals.time,
+        'shupe_true_rate': np.gradient(chamber_profile(c['t'], settings, (low, high)), c['t']),
     }[effect]
     want = truth['fraction'] if effect == 'coil_lag' else truth['coefficients'][0]
     assert want == WIDER_EFFECTS[effect]
@@ -152,3 +154,65 @@ def test_a_warm_restart_is_a_slice_of_a_long_run_at_another_heading(calibration)
     assert np.sum(turn) / settings.rate_hz == pytest.approx(90.0, abs=10.0 / settings.rate_hz)
     # Warm: the warm-up decayed hours ago.
     assert warm.truth['effects']['warmup']['time_constant_s'] * 5 < c['t'][0]
+
+
+def test_self_heating_warms_the_gyro_above_the_chamber_from_power_on(calibration, tmp_path):
+    dt_c, tau = 4.0, 600.0
+    settings = SimulationSettings(hours=1.0, rate_hz=10.0, seed=7, self_heating_c=dt_c, self_heating_tau_s=tau)
+    run = simulate_run(calibration, settings)
+    t = run.columns['t']
+    low, high = calibration.expected_range_c
+    # The chamber's top set point is lowered by the self-heating: the warm gyro stays in the calibrated range.
+    chamber = chamber_profile(t, settings, (low, high - dt_c))
+    above = run.columns['raw_temp'] * calibration.temp_scale_factor - chamber
+    quantum = calibration.temp_scale_factor / 2 + 1e-9
+    for time_s, want in ((0.0, 0.0), (tau, dt_c * (1 - np.exp(-1.0))), (3 * tau, dt_c * (1 - np.exp(-3.0)))):
+        row = int(np.searchsorted(t, time_s))
+        assert above[row] == pytest.approx(want, abs=quantum)
+    assert run.truth['self_heating'] == {'c': dt_c, 'time_constant_s': tau, 'chamber_range_c': [low, high - dt_c]}
+    # Off by default, and then the run (log and truth) is what it was before the option existed.
+    default = SimulationSettings(hours=0.2, rate_hz=2.0, seed=7)
+    assert default.self_heating_c == 0.0
+    plain = simulate_run(calibration, default)
+    assert 'self_heating' not in plain.truth and 'self_heating_c' not in plain.truth['settings']
+    other_tau = simulate_run(calibration, replace(default, self_heating_tau_s=60.0))
+    for k, v in plain.columns.items():
+        np.testing.assert_array_equal(v, other_tau.columns[k])
+
+
+@pytest.mark.parametrize('changes, message', [({'self_heating_c': -1.0}, 'self_heating_c'),
+                                              ({'self_heating_c': float('nan')}, 'self_heating_c'),
+                                              ({'self_heating_tau_s': 0.0}, 'self_heating_tau_s')])
+def test_a_bad_self_heating_is_refused(changes, message):
+    with pytest.raises(ValueError, match=message):
+        SimulationSettings(**changes)
+
+
+def test_self_heating_as_wide_as_the_range_is_refused(calibration):
+    low, high = calibration.expected_range_c
+    with pytest.raises(ValueError, match='self_heating_c'):
+        simulate_run(calibration, SimulationSettings(hours=0.1, self_heating_c=high - low))
+
+
+def test_shupe_on_the_true_temperature_rate(calibration):
+    # Large, so that a count (0.003 deg/s) is small beside it.
+    k, dt_c, tau, lag = 24.0, 5.0, 600.0, 300.0
+    settings = SimulationSettings(hours=1.5, rate_hz=10.0, seed=8, self_heating_c=dt_c, self_heating_tau_s=tau,
+                                  thermal_lag_s=lag)
+    run, diff = _difference_dps(calibration, settings, effects=('shupe_true_rate',),
+                                effect_sizes={'shupe_true_rate': k})
+    assert run.truth['effects']['shupe_true_rate']['coefficients'] == [k]
+    assert run.truth['effects']['shupe_true_rate']['signal'] == 'true temperature rate'
+    t = run.columns['t']
+    # The chamber holds at the bottom for hold_s, then ramps at ramp_c_per_min, seen through the lag.
+    ramp = settings.ramp_c_per_min / 60.0
+    for time_s in (60.0, 300.0, 800.0, settings.hold_s + 600.0, settings.hold_s + 1500.0):
+        row = int(np.searchsorted(t, time_s))
+        chamber_rate = 0.0 if time_s < settings.hold_s else ramp * -np.expm1(-(time_s - settings.hold_s) / lag)
+        want = k * (chamber_rate + dt_c / tau * np.exp(-time_s / tau))
+        # Within a count and a half of the gyro's error in the polynomial's rate slope (ppm).
+        assert diff[row] == pytest.approx(want, abs=2 * calibration.rate_scale_factor + 0.01 * abs(want))
+    # Not the node's filtered rate: at the ramp's start the true rate leads it.
+    signals = compute_signals(t, run.columns['ref_rate'], run.columns['raw_temp'] * calibration.temp_scale_factor)
+    row = int(np.searchsorted(t, settings.hold_s + 120.0))
+    assert diff[row] > 1.5 * k * signals.temperature_rate[row]
