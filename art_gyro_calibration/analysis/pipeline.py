@@ -27,8 +27,8 @@ from art_gyro_calibration.analysis.fit import check_coverage
 from art_gyro_calibration.analysis.loop import (DEFAULT_SERIAL, HEADING_SIGNALS, LoopOptions, LoopResult, close_loop,
                                                 not_written_reason)
 from art_gyro_calibration.analysis.metrics import steady_segments
-from art_gyro_calibration.analysis.replay import (RESTARTS_NAME, Validation, startup_check, unjudged_warm_up,
-                                                  validate)
+from art_gyro_calibration.analysis.replay import (COLD_START_NAME, OWN_RUNS_NAME, RESTARTS_NAME, Validation,
+                                                  startup_check, unjudged_warm_up, validate)
 from art_gyro_calibration.analysis.report import build_report, validation_section
 
 
@@ -137,7 +137,7 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     found = ', '.join(e.signal for e in result.effects) or 'nothing'
     if startup is not None:
         report['startup_check'] = validation_section(startup, restarts)
-        found += _dropped(startup, RESTARTS_NAME)
+        found += _dropped(startup, OWN_RUNS_NAME if restarts[:1] == [COLD_START_NAME] else RESTARTS_NAME)
     for finding in loop.findings:
         if finding.signal not in HEADING_SIGNALS:
             warn(f'an effect on {finding.signal} ({finding.score.effect_dph:.2f} deg/h) was found and not written: '

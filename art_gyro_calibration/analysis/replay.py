@@ -11,15 +11,18 @@ the table with :func:`metrics.field_errors`: bias included, nothing removed.
 :func:`validate` replays the report's calibration (the ART polynomial alone) and the
 extended one on each validation run, and drops from the extended calibration every
 term without which the runs are better (refitting the rest on the fitted log).
-:func:`startup_check` does the same on warm restarts of the fitted log itself, which
-every fit has: a term fitted to the slow noise of one run (a long coil lag, say) can
-fit it well from power-on and still shift the static bias of a node started later.
+:func:`startup_check` does the same on the fitted log itself, which every fit has: from
+its power-on, as a node started cold sees it, and on warm restarts. A term fitted to the
+slow noise of one run (a long coil lag, say) can fit it well from power-on and still shift
+the static bias of a node started later; a short warm-up that stands in for what the
+causal temperature-rate filter misses after power-on fits the log, yet the node's static
+bias refinement puts that back too, and a cold start carries it twice for the whole mission.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -100,6 +103,9 @@ def restart(log: GyroLog, start_s: float) -> GyroLog:
 RESTART_FRACTIONS = (0.25, 0.5)
 # How the drops of the start-up check name the runs they were judged on.
 RESTARTS_NAME = 'the fitted log\'s restarts'
+OWN_RUNS_NAME = 'the fitted log\'s cold start and restarts'
+# How the start-up check names the fitted log replayed from its own power-on.
+COLD_START_NAME = 'from the log\'s power-on'
 
 
 def own_restarts(log: GyroLog, bias_samples: int = DEFAULT_SAMPLES,
@@ -177,38 +183,45 @@ def field_score_dps(errors: Sequence[FieldErrors]) -> float:
 
 
 def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DEFAULT_SAMPLES,
-             settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart(),
+             settle_s: float = DEFAULT_SETTLE_S, start: RunStart | Sequence[RunStart] = RunStart(),
              kept_signals: Sequence[str] = (), margin_dps: float = 0.0, strict: bool = True,
-             runs_name: str = 'the validation runs') -> Validation:
+             runs_name: str = 'the validation runs', simplest: bool = False) -> Validation:
     """Replay ``result``'s calibrations on ``logs``; drop each term the runs are better without.
 
     Terms are dropped one at a time, the one whose removal helps most first; the rest are
     refitted jointly with the polynomial on the fitted log (the loop's signals, error and
     steady rows) before the next comparison. Calibrations per run: ``art``, ``extended``
-    and, when terms were dropped, ``validated`` (the one to write). ``start``: how the runs started.
+    and, when terms were dropped, ``validated`` (the one to write). ``start``: how the runs started
+    (one for all, or one per run).
     Terms on ``kept_signals`` are never dropped (the runs cannot judge them); a term is dropped
     only when the runs are better without it by more than ``margin_dps`` (:func:`field_score_dps`).
     A run whose static bias the node refuses with the report's calibration raises
     :class:`static_bias.MotionError` if ``strict``; else (a noisy gyro the node's default checks
     refuse) it is measured with the checks off for every calibration: the refusal is not the terms'.
-    ``runs_name`` names the runs in the reasons of the drops.
+    ``runs_name`` names the runs in the reasons of the drops. With ``simplest``, the terms left are
+    then judged against each term alone (:func:`_simplest`): the set with the fewest coefficients
+    within ``margin_dps`` of the best is written.
     """
     if not logs:
         raise ValueError('validation needs at least one run')
+    starts = [start] * len(logs) if isinstance(start, RunStart) else list(start)
+    if len(starts) != len(logs):
+        raise ValueError(f'{len(starts)} run starts for {len(logs)} runs')
     art: list[FieldErrors] = []
     checked: list[bool] = []
-    for i, log in enumerate(logs):
+    for i, (log, how) in enumerate(zip(logs, starts)):
         try:
-            art.append(replay(log, result.art, bias_samples, settle_s, start).field)
+            art.append(replay(log, result.art, bias_samples, settle_s, how).field)
             checked.append(True)
         except MotionError as e:
             if strict:
                 raise MotionError(f'run {i + 1} of {len(logs)}: with the report\'s calibration alone: {e}') from None
-            art.append(replay_field(log, result.art, bias_samples, settle_s, start, checked=False))
+            art.append(replay_field(log, result.art, bias_samples, settle_s, how, checked=False))
             checked.append(False)
 
     def field(calibration: Calibration) -> list[FieldErrors]:
-        return [replay_field(log, calibration, bias_samples, settle_s, start, ok) for log, ok in zip(logs, checked)]
+        return [replay_field(log, calibration, bias_samples, settle_s, how, ok)
+                for log, how, ok in zip(logs, starts, checked)]
 
     extended = field(result.extended)
     current, current_errors = result.extended, extended
@@ -231,6 +244,9 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
                                      f'{scores[best] * DEG_PER_H_PER_DPS:.2f} deg/h without{needed}'))
         current = options[best]
         current_errors = field(current)
+    if simplest:
+        current, current_errors, dropped = _simplest(result, current, current_errors, dropped, field, kept_signals,
+                                                     margin_dps, runs_name)
     runs: list[dict[str, FieldErrors]] = []
     for i in range(len(logs)):
         run = {'art': art[i], 'extended': extended[i]}
@@ -240,26 +256,77 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
     return Validation(current, tuple(runs), tuple(dropped))
 
 
+def _coefficients(calibration: Calibration) -> int:
+    return sum(len(t.coefficients) for t in calibration.terms)
+
+
+def _simplest(result: LoopResult, current: Calibration, errors: list[FieldErrors], dropped: list[Dropped],
+              field: Callable[[Calibration], list[FieldErrors]], kept_signals: Sequence[str], margin_dps: float,
+              runs_name: str) -> tuple[Calibration, list[FieldErrors], list[Dropped]]:
+    """Among ``current`` and each term the loop found alone (with the kept ones): the fewest coefficients in the margin.
+
+    Correlated terms stand in for one another: a short lag beside a temperature rate of the
+    wrong sign, a 30 s warm-up, together mimic the one Shupe term, fit the log as well, and
+    can still leave a cold start worse. So a combination is kept only if it beats every
+    single term of it by more than ``margin_dps`` as the runs judge them. (Not the polynomial
+    alone: a term is dropped for doing nothing only when the runs are better without it.)
+    """
+    judged = [t for t in result.extended.terms if t.signal not in kept_signals]
+    if len(judged) < 2:
+        return current, errors, dropped
+    sets = [(current, errors)]
+    for term in judged:
+        alone = _refit(result, tuple(t for t in result.extended.terms if t is term or t.signal in kept_signals))
+        sets.append((alone, field(alone)))
+    scores = [field_score_dps(e) for _, e in sets]
+    best = min(scores)
+    if math.isinf(best):
+        return current, errors, dropped
+    pick = min((k for k in range(len(sets)) if scores[k] <= best + margin_dps),
+               key=lambda k: (_coefficients(sets[k][0]), scores[k]))
+    if pick == 0:
+        return current, errors, dropped
+    chosen, chosen_errors = sets[pick]
+    alone = ', '.join(t.signal for t in chosen.terms)
+    reason = (f'{runs_name} do as well with {alone} alone: {scores[pick] * DEG_PER_H_PER_DPS:.2f} deg/h, against '
+              f'{scores[0] * DEG_PER_H_PER_DPS:.2f} with {", ".join(t.signal for t in current.terms)} '
+              f'(within {margin_dps * DEG_PER_H_PER_DPS:.2f} deg/h of the best set, fewer coefficients win)')
+    kept = {t.signal for t in chosen.terms}
+    gone = {d.term.signal for d in dropped}
+    return chosen, chosen_errors, [d for d in dropped if d.term.signal not in kept] + [
+        Dropped(t, reason) for t in result.extended.terms if t.signal not in kept | gone]
+
+
 def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_SAMPLES,
                   settle_s: float = DEFAULT_SETTLE_S) -> tuple[LoopResult, Validation | None, list[str]]:
-    """Judge ``result``'s terms on warm restarts of ``log``, the log it was fitted on (:func:`own_restarts`).
+    """Judge ``result``'s terms on the log it was fitted on, as the node would run on it.
 
-    Returns the result with the terms dropped that the restarts are better without by more than
-    the loop's materiality (the rest refitted, its effects those kept), the check (None when
-    there was nothing to check: no term, or no still stretch to restart at) and a name per
-    restart. A warm-up is kept: the restarts do not know the power-on.
+    The runs: the log from its own start as a cold start, when it began at the gyro's power-on
+    (``result.start``) at rest, and its warm restarts (:func:`own_restarts`). Returns the result
+    with the terms dropped that the runs are better without by more than the loop's
+    materiality (the rest refitted, its effects those kept), the check (None when there was
+    nothing to check: no term, or no run the node could start) and a name per run. Without a
+    cold start a warm-up is kept: a restart, power-on unknown, cannot judge it.
     """
-    restarts = own_restarts(log, bias_samples) if result.extended.terms else []
-    if not restarts:
+    if not result.extended.terms:
         return result, None, []
-    names = [f'restarted at {start_s / 60.0:.0f} min' for start_s, _ in restarts]
+    runs = [(name, run, RunStart()) for name, run in
+            ((f'restarted at {start_s / 60.0:.0f} min', run) for start_s, run in own_restarts(log, bias_samples))]
+    assert log.ref_rate is not None   # own_restarts refuses a log without it
+    cold = (result.start.powered_on_at_start and len(log) > 2 * bias_samples
+            and not np.any(log.ref_rate[:bias_samples]))
+    if cold:
+        runs.insert(0, (COLD_START_NAME, log, result.start))
+    if not runs:
+        return result, None, []
+    names = [name for name, _, _ in runs]
     # The restarts are an hour or two of one run: a true term that matters little can score a few tenths of
     # a deg/h worse on them by chance (a quarter-size supply effect in 6 h logs: 0.1-0.9 deg/h in 9 of 20 runs),
-    # where a term fitted to noise that shifts the static bias scores worse by several deg/h. A warm-up is
-    # kept: it is applied only from a declared power-on, and a restart, power-on unknown, cannot judge it.
-    check = validate(result, [run for _, run in restarts], bias_samples, settle_s, RunStart(),
-                     kept_signals=(POWER_ON_SIGNAL,), margin_dps=result.materiality_dph / DEG_PER_H_PER_DPS,
-                     strict=False, runs_name=RESTARTS_NAME)
+    # where a term fitted to noise that shifts the static bias scores worse by several deg/h.
+    check = validate(result, [run for _, run, _ in runs], bias_samples, settle_s, [how for _, _, how in runs],
+                     kept_signals=() if cold else (POWER_ON_SIGNAL,),
+                     margin_dps=result.materiality_dph / DEG_PER_H_PER_DPS,
+                     strict=False, runs_name=OWN_RUNS_NAME if cold else RESTARTS_NAME, simplest=True)
     if not check.dropped:
         return result, check, names
     kept = {term.signal: term for term in check.calibration.terms}

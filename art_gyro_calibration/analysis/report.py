@@ -23,7 +23,7 @@ from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.analysis.loop import Effect, LoopResult, not_written_reason
 from art_gyro_calibration.analysis.metrics import error_metrics
-from art_gyro_calibration.analysis.replay import Validation
+from art_gyro_calibration.analysis.replay import COLD_START_NAME, Validation
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_DRAWS, FORMS_TRIED
 from art_gyro_calibration.static_bias import static_bias
 
@@ -174,9 +174,13 @@ def markdown_summary(report: dict[str, Any]) -> str:
     lines += [line for warning in report.get('warnings', []) for line in ('', f'**Warning:** {warning}.')]
     lines += ['', 'Forms tried: ' + '; '.join(f'{name} ({what})' for name, what in report['forms_tried'].items()) + '.']
     if 'startup_check' in report:
-        lines += validation_markdown(report['startup_check'], 'Start-up check: the fitted log restarted warm',
-                                     'The fitted log restarted later, power-on unknown (a warm-up counts as decayed '
-                                     'and is kept), each calibration applied as the node applies it')
+        cold = [r['source'] for r in report['startup_check']['runs'][:1]] == [COLD_START_NAME]
+        lines += validation_markdown(
+            report['startup_check'],
+            'Start-up check: the fitted log run ' + ('from its power-on and ' if cold else '') + 'restarted warm',
+            ('The fitted log from its power-on (the node told so) and ' if cold else 'The fitted log ')
+            + 'restarted later, power-on unknown (a warm-up counts as decayed'
+            + ('' if cold else ' and is kept') + '), each calibration applied as the node applies it')
     if 'validation' in report:
         lines += validation_markdown(report['validation'])
     if 'baseline' in report:

@@ -197,10 +197,11 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
                         LoopOptions(serial_number='NAVC3545', rate_scale_factor=truth.rate_scale_factor, seed=1397))
     assert [e.signal for e in result.effects] == ['temperature_lag']
     checked, check, names = startup_check(result, log)
-    assert names == ['restarted at 90 min', 'restarted at 182 min']
+    # The log began at power-on, at rest: the node started cold on it is judged too.
+    assert names == ["from the log's power-on", 'restarted at 90 min', 'restarted at 182 min']
     [dropped] = check.dropped
     assert dropped.term.signal == 'temperature_lag'
-    assert dropped.reason.startswith("the fitted log's restarts are better without it")
+    assert dropped.reason.startswith("the fitted log's cold start and restarts are better without it")
     assert checked.effects == () and checked.extended.terms == ()
     art, extended = (field_score_dps([run[name] for run in check.runs]) for name in ('art', 'extended'))
     assert extended > 2.0 * art
@@ -220,7 +221,8 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     assert [e['signal'] for e in report['effects']] == ['temperature_lag']
     assert [d['signal'] for d in report['startup_check']['dropped']] == ['temperature_lag']
     assert load_calibration(out).terms == ()
-    assert "nothing (temperature_lag dropped: the fitted log's restarts were better without)" in out.read_text()
+    assert ("nothing (temperature_lag dropped: the fitted log's cold start and restarts were better without)"
+            in out.read_text())
     assert 'Dropped from the written calibration' in (tmp_path / 'REPORT.md').read_text()
     # REPORT.json lists the loop's effects (the lag among them): what the file holds is said apart.
     assert json.loads(report_path.read_text())['written'] == {'calibration': str(out), 'terms': []}
@@ -240,11 +242,13 @@ def test_a_start_up_check_keeps_what_the_restarts_are_better_with(calibration, t
     assert [e['signal'] for e in report['effects']] == ['temperature_rate']
     check = report['startup_check']
     assert check['dropped'] == []
-    assert [r['source'] for r in check['runs']] == ['restarted at 31 min', 'restarted at 60 min']
+    assert [r['source'] for r in check['runs']] == ["from the log's power-on", 'restarted at 31 min',
+                                                    'restarted at 60 min']
     for r in check['runs']:
         assert r['calibrations']['extended']['systematic_rms_dph'] < r['calibrations']['art']['systematic_rms_dph']
     assert [t.signal for t in load_calibration(tmp_path / 'CAL.yaml').terms] == ['temperature_rate']
-    assert '## Start-up check: the fitted log restarted warm' in (tmp_path / 'REPORT.md').read_text()
+    assert '## Start-up check: the fitted log run from its power-on and restarted warm' in \
+        (tmp_path / 'REPORT.md').read_text()
 
 
 def test_a_warm_up_is_never_judged_by_restarts(calibration):
@@ -319,4 +323,4 @@ def test_a_gyro_too_noisy_for_the_nodes_motion_check_is_measured_not_refused(cal
     lenient = validate(result, runs, strict=False)
     assert not any(e.bias_refused for run in lenient.runs for e in run.values())
     checked, check, names = startup_check(result, log)
-    assert check is not None and len(check.runs) == len(names) == 2
+    assert check is not None and len(check.runs) == len(names) == 3
