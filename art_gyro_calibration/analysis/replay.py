@@ -288,7 +288,7 @@ def _simplest(result: LoopResult, current: Calibration, errors: list[FieldErrors
         return current, errors, dropped
     chosen, chosen_errors = sets[pick]
     alone = ', '.join(t.signal for t in chosen.terms)
-    reason = (f'{runs_name} do as well with {alone} alone: {scores[pick] * DEG_PER_H_PER_DPS:.2f} deg/h, against '
+    reason = (f'{runs_name} are as good with {alone} alone: {scores[pick] * DEG_PER_H_PER_DPS:.2f} deg/h, against '
               f'{scores[0] * DEG_PER_H_PER_DPS:.2f} with {", ".join(t.signal for t in current.terms)} '
               f'(within {margin_dps * DEG_PER_H_PER_DPS:.2f} deg/h of the best set, fewer coefficients win)')
     kept = {t.signal for t in chosen.terms}

@@ -231,6 +231,30 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     assert f'Written: {out}, the baseline\'s polynomial with no term beyond it.' in summary
 
 
+def test_one_physical_term_beats_the_correlated_terms_that_stand_in_for_it():
+    # Shupe on the true temperature rate (0.6 deg/s per degC/s), the gyro heating itself 4 degC over 25 min
+    # from power-on: the loop explains it with a temperature rate of the wrong sign (-1.35), an 89 s coil
+    # lag of eight coefficients and a 30 s warm-up, which together fit the 6 h log as well as the one term.
+    truth = load_packaged_calibration('NAVC3545')
+    run = simulate_run(truth, SimulationSettings(hours=6.0, rate_hz=10.0, seed=2, effects=('shupe_true_rate',),
+                                                 effect_sizes={'shupe_true_rate': 0.6}, ramp_c_per_min=0.5,
+                                                 self_heating_c=4.0, self_heating_tau_s=1500.0))
+    log = run.log(truth)
+    result = close_loop(log, 3, 4, LoopOptions(serial_number='NAVC3545', rate_scale_factor=truth.rate_scale_factor,
+                                               seed=2))
+    assert {t.signal for t in result.extended.terms} == {'temperature_rate', 'temperature_lag', POWER_ON_SIGNAL}
+    checked, check, names = startup_check(result, log)
+    assert names[0] == "from the log's power-on"
+    # Greedy drops alone keep the lag and the warm-up (3.74 deg/h over the cold start and restarts); the
+    # temperature rate alone, refitted, does better with one coefficient (2.42 deg/h) and is written, at its size.
+    [term] = checked.extended.terms
+    assert term.signal == 'temperature_rate' and term.coefficients[0] == pytest.approx(0.6, abs=0.05)
+    assert {d.term.signal for d in check.dropped} == {'temperature_lag', POWER_ON_SIGNAL}
+    assert all('are as good with temperature_rate alone' in d.reason for d in check.dropped)
+    scores = {name: field_score_dps([r[name] for r in check.runs]) for name in ('art', 'extended', 'validated')}
+    assert scores['validated'] < scores['extended'] < scores['art']
+
+
 def test_a_start_up_check_keeps_what_the_restarts_are_better_with(calibration, tmp_path):
     # A Shupe effect found on a 2 h run: the restarts of the run are better with its term, which stays.
     run = simulate_run(calibration, SimulationSettings(hours=2.0, rate_hz=10.0, seed=4, effects=('shupe',)))
