@@ -12,6 +12,14 @@ Three calibrations are replayed: the report's (ART polynomial alone), the loop's
 one, and a fit that knows the true form (:func:`analysis.fit.fit_model` with the true term,
 its time constant included; for the effects no term can express, the true signal as an
 extra log column, or for the lagging coil the true lagged temperature).
+
+Issue 20 item 6 adds three sections (``--no-item6`` skips them; ``--cold-reps``, ``--item6-nulls``,
+``--shape-reps`` and ``--item6-budget-s`` size them), each fit log written as a CSV and fitted by
+:func:`analysis.pipeline.fit_log` (what ``calibrate fit`` writes, loaded back from the file): cold starts
+over self-heating profiles against a fit that knows the true form and the packaged baseline; null fit logs
+judged against the baseline on cold and warm second runs; and the form-free lack-of-fit check on shapes
+injected on logged signals, sized from the null runs' materiality. Their raw results go into the same JSON
+(``item6``), their sections into the same document.
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import multiprocessing  # noqa: E402
 import subprocess  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from collections import Counter  # noqa: E402
 from dataclasses import dataclass, replace  # noqa: E402
@@ -37,14 +46,18 @@ from numpy.typing import NDArray  # noqa: E402
 
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model  # noqa: E402
 from art_gyro_calibration.analysis.loop import LoopOptions, close_loop  # noqa: E402
+from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, steady_segments  # noqa: E402
+from art_gyro_calibration.analysis.pipeline import FitSettings, fit_log  # noqa: E402
 from art_gyro_calibration.analysis.replay import replay_field, startup_check  # noqa: E402
 from art_gyro_calibration.analysis.simulate import (COIL_LAG_TAU_S, EFFECTS,  # noqa: E402
-                                                    SimulatedRun, SimulationSettings, effect_size, lagged,
-                                                    same_gyro, simulate_run, warm_restart)
-from art_gyro_calibration.calibration import Calibration, load_packaged_calibration  # noqa: E402
+                                                    SimulatedRun, SimulationSettings, effect_size,
+                                                    gyro_temperature, lagged, same_gyro, simulate_run,
+                                                    true_temperature_rate, warm_restart, write_run)
+from art_gyro_calibration.calibration import (Calibration, load_calibration,  # noqa: E402
+                                              load_packaged_calibration, write_calibration)
 from art_gyro_calibration.compensation import RunStart  # noqa: E402
 from art_gyro_calibration.log import GyroLog  # noqa: E402
-from art_gyro_calibration.signals import compute_signals  # noqa: E402
+from art_gyro_calibration.signals import POWER_ON_SIGNAL, compute_signals  # noqa: E402
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES  # noqa: E402
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR  # noqa: E402
 
@@ -190,8 +203,10 @@ def run_all(cases: list[Case], jobs: int) -> list[dict[str, Any]]:
 
 
 def detected(r: dict[str, Any]) -> bool:
-    """The loop reported the run's effect: its own signal for a term the first loop can express, else any
-    term or the lack-of-fit alarm."""
+    """The loop reported the run's effect.
+
+    Its own signal for a term the first loop can express, else any term or the lack-of-fit alarm.
+    """
     if r['effect'] in FOUND_BY_SIGNAL:
         return FOUND_BY_SIGNAL[r['effect']] in r['found']
     return bool(r['found']) or r['model_adequate'] is False
@@ -425,8 +440,8 @@ def comparison(summary: dict[str, Any], baseline: dict[str, Any], label: str) ->
 
 
 def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[str],
-             baseline: dict[str, Any] | None = None) -> str:
-    """doc/loop-validation.md."""
+             baseline: dict[str, Any] | None = None, item6: dict[str, Any] | None = None) -> str:
+    """doc/loop-validation.md (``item6``: the summaries of :func:`summarise_item6`)."""
     s = summary
     lines = [
         '# Loop validation: does a calibration make another run of the gyro better?', '',
@@ -502,10 +517,598 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
     lines += startup_check_lines(s)
     if baseline is not None:
         lines += comparison(summary, baseline['summary'], baseline['label'])
+    if item6 is not None:
+        lines += item6_lines(item6, meta)
     lines += ['', '## Figures', '']
     lines += [f'![{n}](figures/{n})' for n in figure_names]
     lines += ['', '## Findings', '', *findings(s)]
     return '\n'.join(lines) + '\n'
+
+
+# ---- issue 20 item 6: cold starts, nulls against the baseline, the form-free check on shapes -----------------
+
+# Self-heating of the gyro at power-on: (degC, time constant in minutes).
+SELF_HEATING_PROFILES = ((2.0, 10.0), (4.0, 25.0), (4.0, 10.0), (6.0, 5.0), (6.0, 25.0))
+# The cold-start section's effect sets (name -> simulator effects).
+COLD_EFFECT_SETS: dict[str, tuple[str, ...]] = {
+    'shupe': ('shupe_true_rate',), 'warmup': ('warmup',), 'both': ('shupe_true_rate', 'warmup'), 'none': ()}
+COLD_SHUPE_K = 0.6                      # deg/s per degC/s of the gyro's true temperature rate
+COLD_RAMP_C_PER_MIN = 0.5               # the chamber's ramps in the cold-start section (every effect set)
+COLD_WARMUP_DPH = 9.0                   # warm-up at power-on, decaying over EFFECTS['warmup']'s 20 minutes
+COLD_WARMUP_TAU_S = EFFECTS['warmup'][3]
+COLD_FIT_HOURS = 6.0
+COLD_SECOND_HOURS = 2.0
+TRUE_RATE_COLUMN = 'true_temperature_rate'
+# Targets of issue 20 item 6.
+MAX_COLD_ORACLE_RATIO = 2.0             # median written / oracle field error, per profile, for shupe, warmup, both
+SHAPE_FACTOR = 3.0                      # shapes sized at this many times the median materiality of null runs
+MIN_SHAPE_FIRE_RATE = 0.9
+MAX_NULL_FIRE_RATE = 0.05
+COLD_CALIBRATIONS = ('written', 'baseline', 'oracle', 'oracle_node')
+
+
+@dataclass(frozen=True)
+class ColdCase:
+    """A cold-start run: self-heating of ``heating_c`` degC over ``heating_tau_min``, an effect set, a seed."""
+
+    heating_c: float
+    heating_tau_min: float
+    effects: str
+    seed: int
+
+    def settings(self, hours: float = COLD_FIT_HOURS) -> SimulationSettings:
+        """Simulator settings of the fitted run (``hours`` long, from power-on)."""
+        names = COLD_EFFECT_SETS[self.effects]
+        sizes = {'shupe_true_rate': COLD_SHUPE_K, 'warmup': COLD_WARMUP_DPH / DEG_PER_H_PER_DPS}
+        return SimulationSettings(hours=hours, rate_hz=RATE_HZ, seed=self.seed, wander_dps=WANDER_DPS,
+                                  wander_tau_s=WANDER_TAU_S, rate_random_walk_dph_rthr=RATE_RANDOM_WALK_DPH_RTHR,
+                                  effects=names, effect_sizes={n: sizes[n] for n in names},
+                                  ramp_c_per_min=COLD_RAMP_C_PER_MIN, self_heating_c=self.heating_c,
+                                  self_heating_tau_s=60.0 * self.heating_tau_min)
+
+
+@dataclass(frozen=True)
+class ShapeCase:
+    """A fit log with a shape injected on a logged signal, sized at ``size_dph`` beyond what the polynomial takes."""
+
+    shape: str
+    hours: float
+    seed: int
+    size_dph: float
+
+    def settings(self) -> SimulationSettings:
+        """Simulator settings of the fitted run (no effect of the simulator's own)."""
+        return Case(None, 0.0, self.hours, self.seed).settings()
+
+
+def fit_written(run: SimulatedRun, truth: Calibration, seed: int) -> tuple[Any, Calibration]:
+    """``calibrate fit`` on ``run`` written as a CSV log: its :class:`pipeline.FitResult` and the file it writes.
+
+    The calibration comes back through the file (:func:`calibration.write_calibration`, then loaded), as a
+    node would load it.
+    """
+    with tempfile.TemporaryDirectory(prefix='loop-validation-') as tmp:
+        log_path, calibration_path = Path(tmp) / 'fit.csv', Path(tmp) / 'fit.yaml'
+        write_run(log_path, run)
+        loop = LoopOptions(serial_number=SERIAL, rate_scale_factor=truth.rate_scale_factor,
+                           temp_scale_factor=truth.temp_scale_factor, seed=seed)
+        fitted = fit_log(str(log_path), FitSettings(truth.polynomial.rows, truth.polynomial.columns, loop),
+                         str(calibration_path))
+        write_calibration(calibration_path, fitted.calibration, fitted.comment)
+        return fitted, load_calibration(calibration_path, expected_serial=SERIAL)
+
+
+def with_true_rate(log: GyroLog, settings: SimulationSettings, truth: Calibration) -> GyroLog:
+    """``log`` with the gyro's true temperature rate (noiseless, self-heating included) as an extra column."""
+    column = true_temperature_rate(log.t, gyro_temperature(log.t, truth, settings))
+    return GyroLog(log.t, log.rate_dps, log.temp_c, log.ref_rate, {**log.extras, TRUE_RATE_COLUMN: column})
+
+
+def cold_specs(effects: str, node_form: bool = False) -> list[TermSpec]:
+    """The true terms of an effect set (the true time constant of the warm-up).
+
+    ``node_form``: the Shupe term on the node's filtered temperature rate instead of the true one.
+    """
+    names = COLD_EFFECT_SETS[effects]
+    specs = []
+    if 'shupe_true_rate' in names:
+        specs.append(TermSpec('temperature_rate' if node_form else TRUE_RATE_COLUMN, 'power', (1,)))
+    if 'warmup' in names:
+        specs.append(TermSpec(POWER_ON_SIGNAL, 'exp_decay', (), COLD_WARMUP_TAU_S))
+    return specs
+
+
+def oracle_of(log: GyroLog, written: Calibration, specs: list[TermSpec], rows: int, columns: int) -> Calibration:
+    """``fit_model`` with ``specs`` on the fitted log's steady rows, in ``written``'s file (its clamp and filters)."""
+    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, written.filters)
+    assert log.ref_rate is not None
+    index = steady_segments(log.t, log.ref_rate, DEFAULT_SETTLE_S).rows()
+    fit = fit_model(signals, log.rate_dps - log.ref_rate, rows, columns, specs, index)
+    return replace(written, polynomial=fit.model.polynomial, terms=fit.model.terms)
+
+
+def _fit_facts(fitted: Any) -> dict[str, Any]:
+    """What ``calibrate fit`` reported and wrote, as plain data."""
+    report = fitted.report
+    adequacy = report.get('adequacy') or {}
+    return {'written_terms': [t.signal for t in fitted.calibration.terms],
+            'loop_terms': [e.signal for e in fitted.loop.effects],
+            'dropped_by_check': [] if fitted.startup is None else [d.term.signal for d in fitted.startup.dropped],
+            'verdict': (report.get('baseline') or {}).get('verdict'),
+            'materiality_dph': float(fitted.loop.materiality_dph),
+            'model_adequate': bool(report['model_adequate']),
+            'excess_dph': adequacy.get('excess_dph'), 'budget_dph': adequacy.get('budget_dph'),
+            'shapes_found': [s['signal'] for s in adequacy.get('signals', []) if s['found']],
+            'shapes': {s['signal']: [s['shape_dph'], s['score'], s['chance_score']]
+                       for s in adequacy.get('signals', [])}}
+
+
+def run_cold(case: ColdCase) -> dict[str, Any]:
+    """Fit a 6 h cold log with ``calibrate fit``, replay written, baseline and oracle on a cold 2 h second run."""
+    start = time.process_time()
+    truth = load_packaged_calibration(SERIAL)
+    rows, columns = truth.polynomial.rows, truth.polynomial.columns
+    settings = case.settings()
+    run = simulate_run(truth, settings)
+    fitted, written = fit_written(run, truth, case.seed)
+    log = with_true_rate(run.log(truth), settings, truth)
+    calibrations = {'written': written, 'baseline': truth,
+                    'oracle': oracle_of(log, written, cold_specs(case.effects), rows, columns),
+                    'oracle_node': oracle_of(log, written, cold_specs(case.effects, True), rows, columns)}
+    second_settings = same_gyro(case.settings(COLD_SECOND_HOURS), case.seed + 1_000_000)
+    second = with_true_rate(simulate_run(truth, second_settings).log(truth), second_settings, truth)
+    field = {name: replay_field(second, c, DEFAULT_SAMPLES, start=STARTS['cold']).to_dict()
+             for name, c in calibrations.items()}
+    return {'kind': 'cold', 'heating_c': case.heating_c, 'heating_tau_min': case.heating_tau_min,
+            'effects': case.effects, 'seed': case.seed, **_fit_facts(fitted), 'field': field,
+            'cpu_s': time.process_time() - start}
+
+
+def run_null6(case: Case) -> dict[str, Any]:
+    """A null fit log through ``calibrate fit``; the written file and the baseline on a cold and a warm second run."""
+    start = time.process_time()
+    truth = load_packaged_calibration(SERIAL)
+    fitted, written = fit_written(simulate_run(truth, case.settings()), truth, case.seed)
+    field = {}
+    for scenario, run in validation_runs(truth, case).items():
+        other = run.log(truth)
+        field[scenario] = {name: replay_field(other, c, DEFAULT_SAMPLES, start=STARTS[scenario]).to_dict()
+                           for name, c in (('written', written), ('baseline', truth))}
+    return {'kind': 'null', 'hours': case.hours, 'seed': case.seed, **_fit_facts(fitted), 'field': field,
+            'cpu_s': time.process_time() - start}
+
+
+def table_heading_deg(t: NDArray[np.float64], ref_rate: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The table's heading (deg) at each row: its rate integrated from the first row."""
+    dt = np.diff(t, prepend=t[0])
+    return np.cumsum(np.concatenate([[0.0], ref_rate[:-1]]) * dt)
+
+
+def _bump(x: NDArray[np.float64], centre: float, width: float) -> NDArray[np.float64]:
+    return np.exp(-0.5 * ((x - centre) / width) ** 2)
+
+
+# Shape -> the signal the form-free check must name. Each is a function of a logged signal, peak-to-peak 1:
+SHAPES: dict[str, str] = {
+    'heading_sawtooth': 'angle',     # a ramp over each turn, its jump at 180 deg (the rests stand near 0 deg)
+    'heading_bump': 'angle',         # a Gaussian bump at 180 deg, sigma 15 deg (about one 30 deg sector wide)
+    'temperature_bump': 'temperature',   # a Gaussian bump at 40 % of the log's range, sigma 1/24 of it
+    'temperature_step': 'temperature',   # a step at 60 % of the log's range
+    'temperature_ripple': 'temperature',  # a sine of two periods over the log's range
+    'rate_bump': 'rate',             # a Gaussian bump at +2 deg/s, sigma 0.5 deg/s (the table's +2, a little of +1)
+    'supply_bump': 'supply_v',       # a Gaussian bump at the log's 70th percentile of supply voltage, sigma 1/24
+}
+
+
+def shape_unit(shape: str, log: GyroLog) -> NDArray[np.float64]:
+    """The shape ``shape`` on ``log`` (unit peak-to-peak, before sizing), from the signals the log holds."""
+    assert log.ref_rate is not None
+    temp = log.temp_c
+    low, high = float(np.min(temp)), float(np.max(temp))
+    span = max(high - low, 1e-9)
+    if shape.startswith('heading'):
+        heading = table_heading_deg(log.t, log.ref_rate)
+        if shape == 'heading_sawtooth':
+            return np.mod(heading + 180.0, 360.0) / 360.0 - 0.5
+        return _bump(np.mod(heading, 360.0), 180.0, 15.0)
+    if shape == 'temperature_bump':
+        return _bump(temp, low + 0.4 * span, span / 24.0)
+    if shape == 'temperature_step':
+        return (temp > low + 0.6 * span).astype(float)
+    if shape == 'temperature_ripple':
+        return 0.5 * np.sin(2.0 * np.pi * (temp - low) / (span / 2.0))
+    if shape == 'rate_bump':
+        return _bump(log.ref_rate, 2.0, 0.5)
+    if shape == 'supply_bump':
+        supply = log.extras['supply_v']
+        p5, p70, p95 = np.percentile(supply, [5, 70, 95])
+        return _bump(supply, float(p70), float(p95 - p5) / 24.0)
+    raise ValueError(f'unknown shape {shape!r}; choose from {", ".join(SHAPES)}')
+
+
+def half_range(x: NDArray[np.float64]) -> float:
+    """Half the peak-to-peak of ``x``."""
+    return 0.5 * float(np.ptp(x)) if len(x) else 0.0
+
+
+def inexpressible(effect: NDArray[np.float64], log: GyroLog, rows: int, columns: int) -> NDArray[np.float64]:
+    """What the polynomial cannot take of ``effect``, on ``log``'s steady rows.
+
+    The residual after a least-squares fit of the polynomial's columns (the model of
+    ``calibrate fit`` without terms) on those rows.
+    """
+    assert log.ref_rate is not None
+    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras)
+    index = steady_segments(log.t, log.ref_rate, DEFAULT_SETTLE_S).rows()
+    return fit_model(signals, effect, rows, columns, (), index).residual
+
+
+def sized_shape(shape: str, log: GyroLog, size_dph: float, rows: int,
+                columns: int) -> tuple[NDArray[np.float64], dict[str, float]]:
+    """``shape`` on ``log`` in deg/s, sized at ``size_dph`` beyond what the polynomial expresses; and its sizes.
+
+    Scaled so that the part the polynomial cannot express (:func:`inexpressible`) has a half
+    range of ``size_dph``; the sizes (deg/h, over the steady rows): half range and rms as
+    injected and of that part.
+
+    The half range of the part a form cannot give is how the loop sizes a term's curvature
+    (``loop._maybe_square``); the rms says how much of a shape the polynomial takes (a step keeps its jump
+    whole, so its half range hardly changes, while the polynomial takes much of its rms).
+    """
+    unit = shape_unit(shape, log)
+    assert log.ref_rate is not None
+    index = steady_segments(log.t, log.ref_rate, DEFAULT_SETTLE_S).rows()
+    left = inexpressible(unit, log, rows, columns)
+    if half_range(left) <= 0.0:
+        raise ValueError(f'shape {shape}: the polynomial expresses all of it on this log')
+    scale = size_dph / DEG_PER_H_PER_DPS / half_range(left)
+    dph = scale * DEG_PER_H_PER_DPS
+    return scale * unit, {'size_dph': half_range(left) * dph, 'raw_size_dph': half_range(unit[index]) * dph,
+                          'size_rms_dph': float(np.std(left)) * dph, 'raw_rms_dph': float(np.std(unit[index])) * dph}
+
+
+def run_shape(case: ShapeCase) -> dict[str, Any]:
+    """Inject a shape into a null fit log (the sensor's output), fit it with ``calibrate fit``, read the alarm."""
+    start = time.process_time()
+    truth = load_packaged_calibration(SERIAL)
+    run = simulate_run(truth, case.settings())
+    log = run.log(truth)
+    effect, sizes = sized_shape(case.shape, log, case.size_dph, truth.polynomial.rows, truth.polynomial.columns)
+    # Counts as a float: rounding again would quantise the effect (one count is 11 deg/h).
+    columns = {**run.columns, 'raw_rate': run.columns['raw_rate'] + effect / truth.rate_scale_factor}
+    fitted, _ = fit_written(SimulatedRun(columns, run.truth), truth, case.seed)
+    facts = _fit_facts(fitted)
+    return {'kind': 'shape', 'shape': case.shape, 'hours': case.hours, 'seed': case.seed,
+            **sizes, **facts,
+            'found_terms': [e.term.signal for e in (*fitted.loop.effects, *fitted.loop.findings)],
+            'cpu_s': time.process_time() - start}
+
+
+def run_item6(task: tuple[str, Any]) -> dict[str, Any]:
+    """One run of item 6's sections: ('cold', ColdCase), ('null', Case) or ('shape', ShapeCase)."""
+    kind, case = task
+    return {'cold': run_cold, 'null': run_null6, 'shape': run_shape}[kind](case)
+
+
+def map_jobs(function: Any, tasks: list[Any], jobs: int) -> list[dict[str, Any]]:
+    """``function`` over ``tasks`` on ``jobs`` worker processes, in order."""
+    if jobs <= 1 or len(tasks) <= 1:
+        return [function(t) for t in tasks]
+    with multiprocessing.get_context('fork').Pool(jobs) as pool:
+        return pool.map(function, tasks, chunksize=1)
+
+
+def cold_cases(reps: int, profiles: tuple[tuple[float, float], ...] = SELF_HEATING_PROFILES,
+               seed0: int = 300_000) -> list[ColdCase]:
+    """Every profile x effect set, ``reps`` each, distinct seeds."""
+    cells = [(p, e) for p in profiles for e in COLD_EFFECT_SETS]
+    return [ColdCase(p[0], p[1], e, seed0 + 1000 * k + rep) for k, (p, e) in enumerate(cells) for rep in range(reps)]
+
+
+def null6_cases(runs: int, seed0: int = 200_000) -> list[Case]:
+    """Null fit logs, alternately 2 h and 6 h."""
+    return [Case(None, 0.0, HOURS[i % len(HOURS)], seed0 + i) for i in range(runs)]
+
+
+def median_materiality(nulls: list[dict[str, Any]]) -> dict[float, float]:
+    """Median materiality (deg/h) of the null runs per fit log length."""
+    out = {}
+    for hours in sorted({r['hours'] for r in nulls}):
+        out[hours] = float(np.median([r['materiality_dph'] for r in nulls if r['hours'] == hours]))
+    return out
+
+
+def shape_cases(reps: int, materiality: dict[float, float], factor: float = SHAPE_FACTOR,
+                seed0: int = 400_000) -> list[ShapeCase]:
+    """Every shape, ``reps`` runs alternately on 2 h and 6 h logs (lengths with a null materiality measured)."""
+    lengths = [h for h in HOURS if h in materiality]
+    return [ShapeCase(shape, lengths[rep % len(lengths)], seed0 + 1000 * k + rep,
+                      factor * materiality[lengths[rep % len(lengths)]])
+            for k, shape in enumerate(SHAPES) for rep in range(reps)]
+
+
+# ---- item 6 summaries (pure) ---------------------------------------------------------------------------------
+
+
+def _dph(r: dict[str, Any], name: str, scenario: str | None = None) -> float:
+    field = r['field'] if scenario is None else r['field'][scenario]
+    return float(field[name]['systematic_rms_dph'])
+
+
+def cold_summary(results: list[dict[str, Any]], max_ratio: float = MAX_COLD_ORACLE_RATIO,
+                 max_worse_dph: float = MAX_WORSENING_DPH) -> dict[str, Any]:
+    """Per profile x effect set: median field errors, median of each run's written / oracle, worst written - baseline.
+
+    Target: for every effect set but ``none``, the median ratio of each profile <= ``max_ratio``; for ``none``,
+    no run's written calibration worse than the baseline by more than ``max_worse_dph``.
+    """
+    cold = [r for r in results if r.get('kind') == 'cold']
+    cells = []
+    for profile in sorted({(r['heating_c'], r['heating_tau_min']) for r in cold}):
+        for effects in COLD_EFFECT_SETS:
+            group = [r for r in cold if (r['heating_c'], r['heating_tau_min']) == profile and r['effects'] == effects]
+            if not group:
+                continue
+            ratios = [_dph(r, 'written') / max(_dph(r, 'oracle'), 1e-12) for r in group]
+            worse = [_dph(r, 'written') - _dph(r, 'baseline') for r in group]
+            cell = {'heating_c': profile[0], 'heating_tau_min': profile[1], 'effects': effects, 'runs': len(group),
+                    'ratio_median': float(np.median(ratios)), 'worse_than_baseline_max_dph': float(np.max(worse)),
+                    'written_terms': Counter(', '.join(r['written_terms']) or 'none' for r in group).most_common(3),
+                    'loop_terms': Counter(', '.join(r.get('loop_terms', [])) or 'none' for r in group).most_common(3),
+                    'warmup_written': sum(POWER_ON_SIGNAL in r['written_terms'] for r in group),
+                    'shupe_written': sum('temperature_rate' in r['written_terms'] for r in group),
+                    **{f'{c}_dph': float(np.median([_dph(r, c) for r in group])) for c in COLD_CALIBRATIONS
+                       if all(c in r['field'] for r in group)}}
+            cell['met'] = (cell['worse_than_baseline_max_dph'] <= max_worse_dph if effects == 'none'
+                           else cell['ratio_median'] <= max_ratio)
+            cells.append(cell)
+    per_set = {}
+    for effects in COLD_EFFECT_SETS:
+        group = [c for c in cells if c['effects'] == effects]
+        if group:
+            per_set[effects] = all(c['met'] for c in group)
+    return {'runs': len(cold), 'cells': cells, 'targets': per_set, 'met': bool(per_set) and all(per_set.values())}
+
+
+def null6_summary(results: list[dict[str, Any]], max_worse_dph: float = MAX_WORSENING_DPH) -> dict[str, Any]:
+    """Written - baseline on the cold and warm second runs of null fit logs; the target: none worse by more."""
+    nulls = [r for r in results if r.get('kind') == 'null']
+    rows = []
+    for hours in sorted({r['hours'] for r in nulls}):
+        group = [r for r in nulls if r['hours'] == hours]
+        for scenario in SCENARIOS:
+            worse = [_dph(r, 'written', scenario) - _dph(r, 'baseline', scenario) for r in group]
+            rows.append({'hours': hours, 'scenario': scenario, 'runs': len(group),
+                         'written_dph': float(np.median([_dph(r, 'written', scenario) for r in group])),
+                         'baseline_dph': float(np.median([_dph(r, 'baseline', scenario) for r in group])),
+                         'worse_median_dph': float(np.median(worse)), 'worse_max_dph': float(np.max(worse)),
+                         'worse_count': int(sum(w > max_worse_dph for w in worse))})
+    worst = [(r['seed'], r['hours'], s, _dph(r, 'written', s) - _dph(r, 'baseline', s)) for r in nulls
+             for s in SCENARIOS]
+    worst = sorted((w for w in worst if w[3] > max_worse_dph), key=lambda w: -w[3])
+    return {'runs': len(nulls), 'rows': rows, 'worse': worst[:10],
+            'verdicts': Counter(r['verdict'] for r in nulls).most_common(),
+            'written_terms': Counter(s for r in nulls for s in r['written_terms']).most_common(),
+            'met': bool(nulls) and not worst}
+
+
+def shape_detected(r: dict[str, Any]) -> bool:
+    """The form-free check fired on a shape run and named the shape's signal."""
+    return (not r['model_adequate']) and SHAPES[r['shape']] in r['shapes_found']
+
+
+def shape_summary(results: list[dict[str, Any]], materiality: dict[float, float],
+                  min_rate: float = MIN_SHAPE_FIRE_RATE, max_null_rate: float = MAX_NULL_FIRE_RATE,
+                  study_nulls: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+    """Per shape: how often the alarm fired and named the shape's signal; how often it fired on null runs.
+
+    Targets: over all shape runs, detected (fired and named) in >= ``min_rate``; fired on <= ``max_null_rate``
+    of item 6's null runs (and of the study's own, ``study_nulls``, when given: its loop, the same alarm).
+    """
+    shapes = [r for r in results if r.get('kind') == 'shape']
+    nulls = [r for r in results if r.get('kind') == 'null']
+    rows = []
+    for shape in SHAPES:
+        group = [r for r in shapes if r['shape'] == shape]
+        if not group:
+            continue
+        rows.append({'shape': shape, 'signal': SHAPES[shape], 'runs': len(group),
+                     'size_dph': float(np.median([r['size_dph'] for r in group])),
+                     **{k: float(np.median([r[k] for r in group]))
+                        for k in ('raw_size_dph', 'size_rms_dph', 'raw_rms_dph')},
+                     'score': float(np.median([r['shapes'][SHAPES[shape]][1] for r in group if 'shapes' in r]
+                                              or [np.nan])),
+                     'chance': float(np.median([r['shapes'][SHAPES[shape]][2] for r in group if 'shapes' in r]
+                                               or [np.nan])),
+                     'fired': float(np.mean([not r['model_adequate'] for r in group])),
+                     'detected': float(np.mean([shape_detected(r) for r in group])),
+                     'named': Counter(s for r in group for s in r['shapes_found']).most_common(3),
+                     'terms': Counter(s for r in group for s in r['found_terms']).most_common(3)})
+    detected = float(np.mean([shape_detected(r) for r in shapes])) if shapes else float('nan')
+    fired_nulls = sum(not r['model_adequate'] for r in nulls)
+    null_rate = fired_nulls / len(nulls) if nulls else float('nan')
+    study = [r for r in (study_nulls or []) if r.get('model_adequate') is not None]
+    study_fired = sum(r['model_adequate'] is False for r in study)
+    study_rate = study_fired / len(study) if study else None
+    targets = {'shapes': bool(shapes) and detected >= min_rate,
+               'nulls': bool(nulls) and null_rate <= max_null_rate
+               and (study_rate is None or study_rate <= max_null_rate)}
+    return {'runs': len(shapes), 'rows': rows, 'detected': detected, 'factor': SHAPE_FACTOR,
+            'materiality_dph': {f'{h:g}': m for h, m in materiality.items()},
+            'null_runs': len(nulls), 'null_fired': fired_nulls, 'null_rate': null_rate,
+            'null_named': Counter(s for r in nulls for s in r['shapes_found']).most_common(),
+            'study_null_runs': len(study), 'study_null_fired': study_fired, 'study_null_rate': study_rate,
+            'targets': targets, 'met': all(targets.values())}
+
+
+def summarise_item6(item6: dict[str, Any], study_results: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+    """The three sections' summaries from item 6's saved results (``{'results': [...], 'materiality': {...}}``)."""
+    results = item6['results']
+    materiality = {float(h): m for h, m in item6['materiality'].items()}
+    study_nulls = [r for r in (study_results or []) if r.get('effect') is None and 'kind' not in r]
+    return {'cold': cold_summary(results), 'nulls': null6_summary(results),
+            'shapes': shape_summary(results, materiality, study_nulls=study_nulls)}
+
+
+def item6_figures(s: dict[str, Any], out_dir: Path) -> list[str]:
+    """Item 6's figure: cold-start ratios per profile, and per shape how often the check fired and named it."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
+    cells = s['cold']['cells']
+    profiles = sorted({(c['heating_c'], c['heating_tau_min']) for c in cells})
+    x = np.arange(len(profiles))
+    sets = [e for e in COLD_EFFECT_SETS if e != 'none']
+    for k, effects in enumerate(sets):
+        ratio = [next((c['ratio_median'] for c in cells if c['effects'] == effects
+                       and (c['heating_c'], c['heating_tau_min']) == p), np.nan) for p in profiles]
+        axes[0].bar(x + (k - 1) * 0.27, ratio, 0.27, label=effects)
+    axes[0].axhline(MAX_COLD_ORACLE_RATIO, color='k', ls=':', label=f'target {MAX_COLD_ORACLE_RATIO:g}x')
+    axes[0].set_xticks(x, [f'{c:g} degC / {m:g} min' for c, m in profiles], fontsize=8)
+    axes[0].set_xlabel('self-heating at power-on (size / time constant)')
+    axes[0].set_ylabel('median written / oracle field error (ratio)')
+    axes[0].set_title('cold second run, fit on 6 h from power-on')
+    axes[0].legend(fontsize=8)
+    rows = s['shapes']['rows']
+    y = np.arange(len(rows))
+    axes[1].barh(y + 0.2, [100 * r['fired'] for r in rows], 0.4, label='model_adequate false')
+    axes[1].barh(y - 0.2, [100 * r['detected'] for r in rows], 0.4, label='and the shape\'s signal named')
+    axes[1].axvline(100 * MIN_SHAPE_FIRE_RATE, color='k', ls=':', label=f'target {MIN_SHAPE_FIRE_RATE:.0%}')
+    axes[1].set_yticks(y, [r['shape'] for r in rows], fontsize=8)
+    axes[1].set_xlim(0, 100)
+    axes[1].set_xlabel(f'shape runs at {SHAPE_FACTOR:g}x the null materiality (%)')
+    axes[1].set_title('the form-free check on injected shapes')
+    axes[1].legend(fontsize=8, loc='upper center', bbox_to_anchor=(0.5, -0.13), ncol=3)
+    fig.tight_layout()
+    name = 'loop-item6.png'
+    fig.savefig(out_dir / name, dpi=110)
+    plt.close(fig)
+    return [name]
+
+
+# ---- item 6 document -----------------------------------------------------------------------------------------
+
+
+def _met(ok: bool) -> str:
+    return 'met' if ok else '**not met**'
+
+
+def item6_lines(s: dict[str, Any], meta: dict[str, Any]) -> list[str]:
+    """The three sections of issue 20 item 6 (cold starts, nulls against the baseline, shapes)."""
+    cold, nulls, shapes = s['cold'], s['nulls'], s['shapes']
+    lines = ['', '## Issue 20 item 6: what `calibrate fit` writes, on a second run of the gyro', '',
+             f'{meta.get("item6_runs", 0)} more runs ({meta.get("item6_cpu_s", 0.0):.0f} s of CPU). Each fit log '
+             'is written as a CSV and fitted by `pipeline.fit_log` (the loop, its start-up check and the baseline '
+             'comparison of `calibrate fit`, defaults, `--serial ' + SERIAL + '`); the calibration file it writes '
+             'is loaded back and replayed on another run of the same gyro (another seed) as the node applies it: '
+             f'static bias over the first {DEFAULT_SAMPLES} rows, bias included, systematic rms of the steady '
+             'segments\' mean errors (deg/h). The **baseline** is the packaged report calibration of the serial '
+             '(which is also the simulated gyro\'s true polynomial: no refit can beat its polynomial, only terms can '
+             'help).', '',
+             '| section | target | measured | |', '|---|---|---|---|']
+    bad_cells = [c for c in cold['cells'] if not c['met']]
+    lines.append(f'| cold start | median written / oracle <= {MAX_COLD_ORACLE_RATIO:g} per self-heating profile '
+                 f'for shupe, warmup, both; none: no run worse than the baseline by > {MAX_WORSENING_DPH:g} deg/h | '
+                 f'{len(bad_cells)} of {len(cold["cells"])} cells miss | {_met(cold["met"])} |')
+    lines.append(f'| nulls against the baseline | no null worse than the baseline by > {MAX_WORSENING_DPH:g} deg/h '
+                 f'(cold and warm second runs) | {len([1 for r in nulls["rows"] for _ in range(r["worse_count"])])} '
+                 f'of {2 * nulls["runs"]} second runs are | {_met(nulls["met"])} |')
+    lines.append(f'| form-free check, shapes | fires and names the signal on >= {MIN_SHAPE_FIRE_RATE:.0%} of shape '
+                 f'runs at {SHAPE_FACTOR:g}x materiality | {shapes["detected"]:.0%} of {shapes["runs"]} | '
+                 f'{_met(shapes["targets"]["shapes"])} |')
+    study = (f'; the study\'s own null runs: {shapes["study_null_fired"]} of {shapes["study_null_runs"]}'
+             if shapes['study_null_runs'] else '')
+    lines.append(f'| form-free check, nulls | fires on <= {MAX_NULL_FIRE_RATE:.0%} of null runs | '
+                 f'{shapes["null_fired"]} of {shapes["null_runs"]}{study} | {_met(shapes["targets"]["nulls"])} |')
+    lines += ['', '### Cold start over self-heating profiles', '',
+              f'Fit log {COLD_FIT_HOURS:g} h at {RATE_HZ:g} Hz from power-on; the chamber ramps at '
+              f'{COLD_RAMP_C_PER_MIN:g} degC/min in every effect set; the gyro warms itself by the profile\'s degC '
+              f'with its time constant after power-on. Effects: **shupe** = `shupe_true_rate` (k {COLD_SHUPE_K:g} '
+              f'deg/s per degC/s of the true temperature rate), **warmup** = {COLD_WARMUP_DPH:g} deg/h decaying over '
+              f'{COLD_WARMUP_TAU_S / 60:g} min, **both**, **none**; the wander and random walk of the null runs in '
+              f'every run. Second run: another seed, {COLD_SECOND_HOURS:g} h, cold (powered on at its start, the '
+              'same self-heating; the node told `powered_on_at_start`). **Oracle**: `fit_model` with the true '
+              'term(s) on the same fit log — the true temperature rate as a log column (the derivative of the '
+              'noiseless temperature, which no node signal gives) and the warm-up at its true 20 min — written in '
+              'the fitted file (its temperature clamp and filters). **oracle (node form)**: the same with the Shupe '
+              'term on the node\'s filtered `temperature_rate` (for reference; not a target). Medians over the runs '
+              'of the systematic rms with the bias on the cold second run (deg/h); ratio = median of each run\'s '
+              'written / oracle.', '',
+              '| self-heating | effects | runs | written | baseline | oracle | oracle (node form) | ratio | '
+              'worst written - baseline | found by the loop (runs) | written (runs) | |',
+              '|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|---|']
+    for c in cold['cells']:
+        terms = ', '.join(f'{t} ({k})' for t, k in c['written_terms'])
+        found = ', '.join(f'{t} ({k})' for t, k in c.get('loop_terms', []))
+        lines.append(f'| {c["heating_c"]:g} degC / {c["heating_tau_min"]:g} min | {c["effects"]} | {c["runs"]} | '
+                     f'{c["written_dph"]:.2f} | {c["baseline_dph"]:.2f} | {c["oracle_dph"]:.2f} | '
+                     f'{c.get("oracle_node_dph", float("nan")):.2f} | {c["ratio_median"]:.2f} | '
+                     f'{c["worse_than_baseline_max_dph"]:+.2f} | {found} | {terms} | {_met(c["met"])} |')
+    lines += [''] if bad_cells else []
+    for c in bad_cells:
+        lines.append(f'- {c["heating_c"]:g} degC / {c["heating_tau_min"]:g} min, {c["effects"]}: '
+                     + (f'a run {c["worse_than_baseline_max_dph"]:.2f} deg/h worse than the baseline.'
+                        if c['effects'] == 'none' else
+                        f'written {c["written_dph"]:.2f} against the oracle\'s {c["oracle_dph"]:.2f} deg/h (median '
+                        f'ratio {c["ratio_median"]:.2f}); the file held the warm-up in {c["warmup_written"]} and '
+                        f'the temperature rate in {c["shupe_written"]} of {c["runs"]} runs.'))
+    lines += ['', '### Null runs judged against the report\'s calibration', '',
+              'Null fit logs (no effect; the study\'s wander and random walk), 2 h and 6 h, through `calibrate fit`; '
+              'the written file and the baseline replayed on the cold and warm second runs of the power table '
+              '(cold: powered on at its start; warm: a node restarted 3 h after power-on at another heading). '
+              'Medians (deg/h) and written - baseline.', '',
+              '| fit log | second run | runs | written | baseline | written - baseline, median | worst | '
+              f'worse by > {MAX_WORSENING_DPH:g} deg/h |', '|---:|---|---:|---:|---:|---:|---:|---:|']
+    for r in nulls['rows']:
+        lines.append(f'| {r["hours"]:g} h | {r["scenario"]} | {r["runs"]} | {r["written_dph"]:.2f} | '
+                     f'{r["baseline_dph"]:.2f} | {r["worse_median_dph"]:+.2f} | {r["worse_max_dph"]:+.2f} | '
+                     f'{r["worse_count"]} |')
+    lines += ['', 'What `calibrate fit` wrote: polynomial '
+              + ', '.join(f'{v} ({k})' for v, k in nulls['verdicts'])
+              + '; terms ' + (', '.join(f'{t} ({k})' for t, k in nulls['written_terms']) or 'none') + '.']
+    if nulls['worse']:
+        lines.append('Worse than the baseline by more than the target (seed, fit log, second run, deg/h): '
+                     + '; '.join(f'{seed}, {h:g} h, {sc}, {w:+.2f}' for seed, h, sc, w in nulls['worse']) + '.')
+    mat = ', '.join(f'{h} h logs {m:.2f} deg/h' for h, m in shapes['materiality_dph'].items())
+    lines += ['', '### The form-free check on shapes no form of the model expresses', '',
+              f'Median materiality of the null runs above (the loop\'s, per log length): {mat}. Each shape is added '
+              f'to the gyro\'s output in a null fit log, sized so that **the part the polynomial cannot express** '
+              '(the shape\'s residual after a least-squares fit of the polynomial\'s columns on the log\'s steady '
+              f'rows) has a half range of {SHAPE_FACTOR:g}x that materiality (half the range of the part a form '
+              'cannot give is how the loop sizes a term\'s curvature). "As injected" is the whole shape. A '
+              'temperature step is partly a cubic in temperature: the polynomial takes much of its rms (the '
+              'table gives both), yet its jump stays whole, so its half range hardly changes. '
+              'Fired: `model_adequate` false; detected: fired and the shape\'s signal named in `adequacy.signals` '
+              '(found). Score / chance: the median over the runs of the check\'s score on the shape\'s own signal '
+              'and the level chance reaches (`adequacy.signals`; found needs score > chance and the shape beyond the '
+              'materiality). Shapes: a sawtooth over each turn of the heading (its jump at 180 deg), a bump at 180 deg '
+              'of heading (sigma 15 deg), a bump at 40 % of the log\'s temperature range (sigma 1/24 of it), a step '
+              'at 60 % of it, a ripple of two periods over it, a bump at +2 deg/s of rate (sigma 0.5 deg/s: the '
+              'table\'s +2 deg/s steps, a little of +1), a bump in supply voltage at its 70th percentile (an extra '
+              'column the check reads too). Runs alternate 2 h and 6 h logs.', '',
+              '| shape | signal | runs | size: half range, inexpressible part (deg/h) | half range as injected | '
+              'rms, inexpressible part | rms as injected | score / chance | fired | detected | named (runs) | '
+              'terms the loop found |', '|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|']
+    for r in shapes['rows']:
+        named = ', '.join(f'{n} ({k})' for n, k in r['named']) or 'nothing'
+        terms = ', '.join(f'{n} ({k})' for n, k in r['terms']) or 'none'
+        flag = '' if r['detected'] >= MIN_SHAPE_FIRE_RATE else ' (below 90 %)'
+        lines.append(f'| {r["shape"]} | {r["signal"]} | {r["runs"]} | {r["size_dph"]:.2f} | '
+                     f'{r["raw_size_dph"]:.2f} | {r["size_rms_dph"]:.2f} | {r["raw_rms_dph"]:.2f} | '
+                     f'{r["score"]:.1f} / {r["chance"]:.1f} | '
+                     f'{r["fired"]:.0%} | {r["detected"]:.0%}{flag} | {named} | {terms} |')
+    below = [r for r in shapes['rows'] if r['detected'] < MIN_SHAPE_FIRE_RATE]
+    lines += [''] if below else []
+    lines += [f'- {r["shape"]}: detected in {r["detected"]:.0%} of {r["runs"]} runs; the check\'s median score on '
+              f'{r["signal"]}, {r["score"]:.1f}, against the {r["chance"]:.1f} chance reaches.'
+              for r in below]
+    lines += ['', f'Null runs: the alarm fired on {shapes["null_fired"]} of {shapes["null_runs"]} (named: '
+              + (', '.join(f'{n} ({k})' for n, k in shapes['null_named']) or 'nothing') + ')'
+              + (f'; on {shapes["study_null_fired"]} of the study\'s {shapes["study_null_runs"]} null runs above'
+                 if shapes['study_null_runs'] else '') + '.']
+    return lines
 
 
 def _commit() -> str:
@@ -544,13 +1147,23 @@ def main() -> int:
     parser.add_argument('--note', help='a paragraph for the top of the document (what loop this measures)')
     parser.add_argument('--baseline', type=Path, help='saved results of another loop to compare with')
     parser.add_argument('--baseline-label', default='baseline', help='what the baseline measured')
+    parser.add_argument('--no-item6', action='store_true', help='skip the sections of issue 20 item 6')
+    parser.add_argument('--cold-reps', type=int, default=5, help='item 6: runs per self-heating profile x effects')
+    parser.add_argument('--item6-nulls', type=int, default=60, help='item 6: null fit logs (half 2 h, half 6 h)')
+    parser.add_argument('--shape-reps', type=int, default=6, help='item 6: most runs per injected shape')
+    parser.add_argument('--item6-budget-s', type=float, default=2400.0, help='item 6: CPU seconds for its runs')
     args = parser.parse_args()
     if args.from_results:
         saved = json.loads(args.from_results.read_text(encoding='utf-8'))
         meta = {**saved['meta'], **({'note': args.note} if args.note else {})}
-        return write(saved['results'], meta, args.doc, args.results, _baseline(args))
+        item6 = saved.get('item6')
+        return write(saved['results'], meta, args.doc, args.results, _baseline(args),
+                     None if item6 is None else {'results': item6['results'], 'materiality': item6['materiality']})
     if args.quick:
         args.null_runs, args.max_reps, args.budget_s = 6, 1, 120.0
+        args.cold_reps, args.item6_nulls, args.shape_reps, args.item6_budget_s = 1, 2, 1, 120.0
+        if args.results == REPO / 'build' / 'loop-validation.json':
+            args.results = REPO / 'build' / 'loop-validation-quick.json'
         if args.doc == REPO / 'doc' / 'loop-validation.md':
             args.doc = REPO / 'build' / 'loop-validation-quick.md'
     wall, commit = time.time(), _commit()   # the code that runs, whatever is committed meanwhile
@@ -569,7 +1182,12 @@ def main() -> int:
             'cpu_s': sum(r['cpu_s'] for r in results), 'wall_s': time.time() - wall, 'jobs': args.jobs,
             'rows': truth.polynomial.rows, 'columns': truth.polynomial.columns, 'reps': reps,
             'budget_s': args.budget_s, 'note': args.note}
-    return write(results, meta, args.doc, args.results, _baseline(args))
+    item6 = None
+    if not args.no_item6:
+        item6, meta6 = run_item6_sections(args)
+        meta.update(meta6)
+        meta['wall_s'] = time.time() - wall
+    return write(results, meta, args.doc, args.results, _baseline(args), item6)
 
 
 def _baseline(args: argparse.Namespace) -> dict[str, Any] | None:
@@ -580,17 +1198,53 @@ def _baseline(args: argparse.Namespace) -> dict[str, Any] | None:
 
 
 def write(results: list[dict[str, Any]], meta: dict[str, Any], doc: Path, results_path: Path,
-          baseline: dict[str, Any] | None = None) -> int:
-    """Summarise, save the raw results, draw the figures and write the document."""
+          baseline: dict[str, Any] | None = None, item6: dict[str, Any] | None = None) -> int:
+    """Summarise, save the raw results, draw the figures and write the document.
+
+    ``item6``: issue 20 item 6's raw results and null materiality (``{'results': ..., 'materiality': ...}``).
+    """
     summary = summarise(results)
+    summary6 = None if item6 is None else summarise_item6(item6, results)
+    saved: dict[str, Any] = {'meta': meta, 'summary': summary, 'results': results}
+    if item6 is not None:
+        saved['item6'] = {'materiality': item6['materiality'], 'summary': summary6, 'results': item6['results']}
     results_path.parent.mkdir(parents=True, exist_ok=True)
-    results_path.write_text(json.dumps({'meta': meta, 'summary': summary, 'results': results}, indent=1) + '\n',
-                            encoding='utf-8')
+    results_path.write_text(json.dumps(saved, indent=1) + '\n', encoding='utf-8')
     names = figures(summary, results, doc.parent / 'figures')
-    doc.write_text(document(summary, meta, names, baseline), encoding='utf-8')
+    if summary6 is not None:
+        names += item6_figures(summary6, doc.parent / 'figures')
+    doc.write_text(document(summary, meta, names, baseline, summary6), encoding='utf-8')
     print(f'{doc}: {summary["false_alarms"]} false alarms in {summary["null_runs"]} null runs; '
           f'targets {summary["targets"]}; results in {results_path}')
+    if summary6 is not None:
+        print(f'item 6: cold start {_met(summary6["cold"]["met"])}, nulls against the baseline '
+              f'{_met(summary6["nulls"]["met"])}, shapes {summary6["shapes"]["targets"]}')
     return 0
+
+
+def run_item6_sections(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Item 6's runs, sized by ``args``: the cold starts and null runs, then the shapes sized from the nulls.
+
+    The shapes get the repetitions ``args.item6_budget_s`` still affords (at most ``args.shape_reps``).
+    """
+    wall = time.time()
+    profiles = SELF_HEATING_PROFILES[2:3] if args.quick else SELF_HEATING_PROFILES
+    tasks: list[tuple[str, Any]] = [('null', c) for c in null6_cases(args.item6_nulls)]
+    tasks += [('cold', c) for c in cold_cases(args.cold_reps, profiles)]
+    first = map_jobs(run_item6, tasks, args.jobs)
+    nulls = [r for r in first if r['kind'] == 'null']
+    materiality = median_materiality(nulls)
+    spent = sum(r['cpu_s'] for r in first)
+    per_rep = len(SHAPES) * np.mean([r['cpu_s'] for r in nulls]) * 1.2 if nulls else 1.0
+    reps = int(max(1 if args.quick else 2, min(args.shape_reps, (args.item6_budget_s - spent) // per_rep)))
+    print(f'item 6: {len(tasks)} null and cold-start runs in {spent:.0f} s CPU; {reps} repetitions per shape',
+          flush=True)
+    shapes = map_jobs(run_item6, [('shape', c) for c in shape_cases(reps, materiality)], args.jobs)
+    results = first + shapes
+    meta = {'item6_runs': len(results), 'item6_cpu_s': sum(r['cpu_s'] for r in results),
+            'item6_wall_s': time.time() - wall, 'cold_reps': args.cold_reps, 'item6_nulls': args.item6_nulls,
+            'shape_reps': reps, 'item6_budget_s': args.item6_budget_s}
+    return {'results': results, 'materiality': {f'{h:g}': m for h, m in materiality.items()}}, meta
 
 
 if __name__ == '__main__':
