@@ -159,6 +159,9 @@ class LoopResult:
     adequacy: Adequacy | None = None
     findings: tuple[Effect, ...] = ()   # effects found, not written: not_written_reason (heading, extra column)
     start: RunStart = RunStart(powered_on_at_start=True)   # how the fitted log began, for replaying it
+    # The materiality of what the written model leaves (materiality_dph is of what the polynomial alone leaves,
+    # effects included): the chance against which the start-up check weighs term sets (replay.startup_check).
+    residual_materiality_dph: float = 0.0
 
 
 def _one_blas_thread(function: Callable[..., LoopResult]) -> Callable[..., LoopResult]:
@@ -279,7 +282,10 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
         adequacy=adequacy(binned, written, floor, bin_s, materiality, options), findings=tuple(heading),
-        start=RunStart(powered_on_at_start=options.from_power_on))
+        start=RunStart(powered_on_at_start=options.from_power_on),
+        residual_materiality_dph=materiality if options.still_instability_dps is not None else min(
+            materiality, noise_levels(binned, Screen(binned, written).residual() / binned.sqrt_counts, bin_s)
+            .materiality_dph))
 
 
 # A term whose round score is this many times the round's threshold (standardised chance scores: an

@@ -256,6 +256,27 @@ def test_one_physical_term_beats_the_correlated_terms_that_stand_in_for_it():
     assert scores['validated'] < scores['extended'] < scores['art']
 
 
+def test_a_warm_up_the_cold_start_needs_is_kept_beside_the_temperature_rate():
+    # Shupe (0.6 on the true temperature rate) and a 9 deg/h warm-up of 20 min, the gyro heating itself 2 degC
+    # over 10 min: the loop finds both. Pooled over the cold start and two restarts (where a warm-up is not
+    # applied) the temperature rate alone scored within the loop's materiality (2.37 deg/h, what the polynomial
+    # alone left) and was written: a cold second run then carried 7.0 deg/h, against 2.6 with both terms.
+    truth = load_packaged_calibration('NAVC3545')
+    settings = SimulationSettings(hours=6.0, rate_hz=10.0, seed=320001, wander_dps=3e-4, wander_tau_s=3600.0,
+                                  rate_random_walk_dph_rthr=0.5, effects=('shupe_true_rate', 'warmup'),
+                                  effect_sizes={'shupe_true_rate': 0.6, 'warmup': 9.0 / 3600.0}, ramp_c_per_min=0.5,
+                                  self_heating_c=2.0, self_heating_tau_s=600.0)
+    log = simulate_run(truth, settings).log(truth)
+    result = close_loop(log, 3, 4, LoopOptions(serial_number='NAVC3545', rate_scale_factor=truth.rate_scale_factor,
+                                               seed=320001))
+    assert [t.signal for t in result.extended.terms] == ['temperature_rate', POWER_ON_SIGNAL]
+    checked, check, _ = startup_check(result, log)
+    assert [t.signal for t in checked.extended.terms] == ['temperature_rate', POWER_ON_SIGNAL]
+    assert check.dropped == ()
+    # Weighed against the noise the terms leave (1.52 deg/h), the cold start's 2.49 deg/h tells them apart.
+    assert result.residual_materiality_dph < result.materiality_dph
+
+
 def test_a_start_up_check_keeps_what_the_restarts_are_better_with(calibration, tmp_path):
     # A Shupe effect found on a 2 h run: the restarts of the run are better with its term, which stays.
     run = simulate_run(calibration, SimulationSettings(hours=2.0, rate_hz=10.0, seed=4, effects=('shupe',)))
