@@ -28,6 +28,7 @@ from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.noise import allan_floor_dps
+from art_gyro_calibration.analysis.detection import DetectionLimit, detection_limits
 from art_gyro_calibration.analysis.trace import (DEFAULT_BLOCK_S, Binned, CandidateScore, Screen, ScreenOptions,
                                                  TraceResult, duration_s, held_out_residual, joined,
                                                  mirrored_spectrum, phase_surrogates, time_constant_bounds,
@@ -159,6 +160,7 @@ class LoopResult:
     adequacy: Adequacy | None = None
     findings: tuple[Effect, ...] = ()   # effects found, not written: not_written_reason (heading, extra column)
     start: RunStart = RunStart(powered_on_at_start=True)   # how the fitted log began, for replaying it
+    detection: tuple[DetectionLimit, ...] = ()   # per candidate of the last screen: what the log could not see
 
 
 def _one_blas_thread(function: Callable[..., LoopResult]) -> Callable[..., LoopResult]:
@@ -279,7 +281,9 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
         held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
         error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
         adequacy=adequacy(binned, written, floor, bin_s, materiality, options), findings=tuple(heading),
-        start=RunStart(powered_on_at_start=options.from_power_on))
+        start=RunStart(powered_on_at_start=options.from_power_on),
+        detection=detection_limits(binned, specs, rounds[-1], rows, columns, materiality, still, seed=options.seed)
+        if rounds else ())
 
 
 # A term whose round score is this many times the round's threshold (standardised chance scores: an
