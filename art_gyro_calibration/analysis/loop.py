@@ -28,6 +28,7 @@ from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.noise import allan_floor_dps
+from art_gyro_calibration.analysis.detection import DetectionLimit, detection_limits
 from art_gyro_calibration.analysis.trace import (DEFAULT_BLOCK_S, Binned, CandidateScore, Screen, ScreenOptions,
                                                  TraceResult, duration_s, held_out_residual, joined,
                                                  mirrored_spectrum, phase_surrogates, time_constant_bounds,
@@ -162,6 +163,7 @@ class LoopResult:
     # The materiality of what the written model leaves (materiality_dph is of what the polynomial alone leaves,
     # effects included): the chance against which the start-up check weighs term sets (replay.startup_check).
     residual_materiality_dph: float = 0.0
+    detection: tuple[DetectionLimit, ...] = ()   # per candidate of the last screen: what the log could not see
 
 
 def _one_blas_thread(function: Callable[..., LoopResult]) -> Callable[..., LoopResult]:
@@ -285,7 +287,9 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
         start=RunStart(powered_on_at_start=options.from_power_on),
         residual_materiality_dph=materiality if options.still_instability_dps is not None else min(
             materiality, noise_levels(binned, Screen(binned, written).residual() / binned.sqrt_counts, bin_s)
-            .materiality_dph))
+            .materiality_dph),
+        detection=detection_limits(binned, specs, rounds[-1], rows, columns, materiality, still, seed=options.seed)
+        if rounds else ())
 
 
 # A term whose round score is this many times the round's threshold (standardised chance scores: an

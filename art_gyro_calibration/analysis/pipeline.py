@@ -131,6 +131,8 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     loop = close_loop(log, settings.rows, settings.columns, loop_options)
     # The report and figures are the loop's; what the check drops is in its section, as --validate's drops are.
     report = build_report(log, loop, settings.bias_samples, source=str(log_path))
+    # Per candidate of the last screen, the smallest effect this log would have found (DetectionLimit.to_dict).
+    report['detection_limit_dph'] = {d.signal: d.to_dict() for d in loop.detection}
     if still is not None:
         report['still'] = still
     result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)

@@ -171,6 +171,7 @@ def markdown_summary(report: dict[str, Any]) -> str:
                           'the signal, beyond phase-randomised chance and the materiality) against: '
                       + ', '.join(f'**{x["signal"]}** ({x["shape_dph"]:.2f} deg/h, score {x["score"]:.1f} against '
                                   f'chance {x["chance_score"]:.1f})' for x in shapes) + '.']
+    lines += detection_markdown(report)
     lines += [line for warning in report.get('warnings', []) for line in ('', f'**Warning:** {warning}.')]
     lines += ['', 'Forms tried: ' + '; '.join(f'{name} ({what})' for name, what in report['forms_tried'].items()) + '.']
     if 'startup_check' in report:
@@ -192,6 +193,34 @@ def markdown_summary(report: dict[str, Any]) -> str:
         lines += ['', f'Written: {written["calibration"]}, {polynomial} with '
                       f'{", ".join(written["terms"]) or "no term"} beyond it.']
     return '\n'.join(lines) + '\n'
+
+
+def detection_markdown(report: dict[str, Any]) -> list[str]:
+    """REPORT.md's lines on what the log cannot see: the candidates whose detection limit is above the materiality."""
+    limits = report.get('detection_limit_dph')
+    if not limits:
+        return []
+    materiality = report['materiality_dph']
+    above = {name: d for name, d in limits.items() if d['limit_dph'] is None or d['limit_dph'] > materiality}
+    lines = ['', f'What this log cannot see: the smallest effect of each form tried that the last screen would have '
+                 f'found (worst case over the logged envelope, worst sign and shape); '
+                 f'{len(limits) - len(above)} of {len(limits)} are below the materiality '
+                 f'({materiality:.2f} deg/h).']
+    if not above:
+        return lines
+    lines += ['', 'Above it (a smaller effect of these would have gone unseen; the length of log that would bring '
+                  'each below, from how its limit falls on the log\'s first quarter and half):', '']
+    for name, d in above.items():
+        limit = 'no finite limit' if d['limit_dph'] is None else f'{d["limit_dph"]:.2f} deg/h'
+        shape = f' ({d["shape"]})' if d['shape'] else ''
+        scaling = '' if d['exponent'] is None else f'; limit ~ hours^{-d["exponent"]:.2f}'
+        if d['hours_to_materiality'] is not None:
+            needed = f'; about {d["hours_to_materiality"]:.3g} h of log would bring it below'
+        else:
+            needed = ''
+        note = f' ({d["note"]})' if d['note'] else ''
+        lines.append(f'- **{name}**{shape}: {limit}{scaling}{needed}{note}')
+    return lines
 
 
 def validation_section(validation: Validation, sources: Sequence[str]) -> dict[str, Any]:
