@@ -40,3 +40,22 @@ def test_null_logs_stay_quiet():
         assert {s.signal for s in shapes} >= {'rate', 'temperature', 'temperature_rate', 'time_since_power_on',
                                               'angle', 'rate_change', 'supply_v'}
         assert not any(s.found for s in shapes)
+
+
+def test_a_shape_is_weighed_against_the_materiality_read_without_it():
+    # A bump of 3 deg/h at +2 deg/s (sigma 0.5 deg/s) on a 6 h log with a slow bias wander: the shape is in
+    # the residual the loop reads its bias instability from (1.47 deg/h with it, 1.21 without).
+    cal = load_packaged_calibration('NAVC3545')
+    log = simulate_run(cal, SimulationSettings(hours=6.0, seed=405003, wander_dps=3e-4, wander_tau_s=3600.0,
+                                               rate_random_walk_dph_rthr=0.5)).log(cal)
+    log = replace(log, rate_dps=log.rate_dps + 3.0 * np.exp(-0.5 * ((log.ref_rate - 2.0) / 0.5) ** 2)
+                  / DEG_PER_H_PER_DPS)
+    result = close_loop(log, 3, 4, LoopOptions(serial_number='NAVC3545', rate_scale_factor=cal.rate_scale_factor,
+                                               seed=405003))
+    rate = {s.signal: s for s in result.adequacy.signals}['rate']
+    assert rate.score > rate.chance_score and rate.shape_dph < result.materiality_dph
+    assert rate.found and result.adequacy.model_adequate is False
+    # A materiality the user gives is not read again.
+    given = close_loop(log, 3, 4, LoopOptions(serial_number='NAVC3545', rate_scale_factor=cal.rate_scale_factor,
+                                              seed=405003, materiality_dph=result.materiality_dph))
+    assert not {s.signal: s for s in given.adequacy.signals}['rate'].found
