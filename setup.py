@@ -10,7 +10,8 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(include=[PACKAGE, PACKAGE + '.*']),
-    package_data={PACKAGE: ['py.typed']},   # PEP 561: the package's type hints are for its users too
+    # PEP 561: the package's type hints are for its users too; gyro_node's Fast DDS profile (ros/node.py).
+    package_data={PACKAGE: ['py.typed', 'ros/fastdds_profile.xml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),

@@ -1,10 +1,15 @@
 """Resident memory of a running ``gyro_node``, and what holds it.
 
-``python bench/bench_node_memory.py [--seconds S] [--runs N]``: each run starts ``gyro_node`` (as
-``gyro_node`` does: ``python -m art_gyro_calibration.ros.node``) against a simulated RD2100 at 10 Hz
+``python bench/bench_node_memory.py [--seconds S] [--runs N] [--subscriber]``: each run starts ``gyro_node``
+(as ``gyro_node`` does: ``python -m art_gyro_calibration.ros.node``) against a simulated RD2100 at 10 Hz
 with its start-up static bias, lets it run ``--seconds``, then reads the node's ``/proc/<pid>/status``
-(VmRSS, VmHWM) and ``smaps_rollup`` (anonymous and file-backed). ``--stages`` instead builds the node
-step by step in one interpreter and prints VmRSS after each step (imports, DDS participant, spinning).
+(VmRSS, VmHWM) and ``smaps_rollup`` (anonymous and file-backed). ``--subscriber`` also runs ``imu_echo``
+in the node's domain: its writers then have a reliable reader to send to and hear from, as on a robot.
+``--floor`` runs, in place of ``gyro_node``, a bare rclpy node with the same runtime imports (numpy, yaml,
+pyserial, rclpy, the messages), the same publishers, service, timers and executor, publishing an Imu and a
+Float64 at 10 Hz, and none of this package's code: what any Python node of this shape costs. ``--stages``
+instead builds the node step by step in one interpreter and prints VmRSS after each step (imports, DDS
+participant, spinning).
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ import art_gyro_calibration.ros.node as n
 out['+ art_gyro_calibration (node module)'] = rss()
 if sys.argv[1] == 'block':
     sys.modules.setdefault(n._ROSIDL_GENERATOR, None)   # as main() does
+    n.use_own_fastdds_profile()
 argv = ['gyro_node', '--ros-args', '-p', 'serial_number:=NAVC3545', '-p', 'port:=/nonexistent']
 rclpy.init(args=argv)
 out['+ rclpy.init'] = rss()
@@ -57,31 +63,77 @@ executor.shutdown()
 rclpy.try_shutdown()
 '''
 
+# --floor: gyro_node's ROS shape without this package (the code generator kept out as gyro_node's main() does).
+FLOOR = '''
+import sys
+sys.modules['rosidl_generator_py.generate_py_impl'] = None
+import numpy, yaml, serial
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import Imu
+from std_msgs.msg import Bool, Float64
+from std_srvs.srv import Trigger
+rclpy.init(args=sys.argv)
+node = Node('gyro_node')
+imu_pub = node.create_publisher(Imu, 'imu/data_raw', 10)
+temp_pub = node.create_publisher(Float64, 'imu/temperature', 10)
+node.create_publisher(Bool, 'imu/is_calibrated', QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                                                             reliability=ReliabilityPolicy.RELIABLE)).publish(Bool())
+diag_pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+node.create_service(Trigger, 'imu/static_bias', lambda request, response: response)
+imu, temp = Imu(), Float64()
+def frame():
+    imu.header.stamp = node.get_clock().now().to_msg()
+    imu_pub.publish(imu)
+    temp_pub.publish(temp)
+node.create_timer(0.1, frame)
+node.create_timer(1.0, lambda: diag_pub.publish(DiagnosticArray()), callback_group=MutuallyExclusiveCallbackGroup())
+node.create_timer(0.5, lambda: None)
+executor = MultiThreadedExecutor(num_threads=3)
+executor.add_node(node)
+try:
+    executor.spin()
+except (KeyboardInterrupt, ExternalShutdownException):
+    pass
+'''
+
 
 def _proc_kib(pid: int, name: str, key: str) -> float:
     text = Path(f'/proc/{pid}/{name}').read_text()
     return float(text.split(key + ':')[1].split()[0])
 
 
-def run_node(seconds: float) -> dict[str, float]:
-    """One node against a fake gyro: its memory after ``seconds``, in MiB."""
+def run_node(seconds: float, subscriber: bool = False, floor: bool = False) -> dict[str, float]:
+    """One node against a fake gyro (and an ``imu_echo`` if ``subscriber``): its memory after ``seconds``, in MiB.
+
+    ``floor``: the bare node of :data:`FLOOR` instead of ``gyro_node``.
+    """
     with tempfile.TemporaryDirectory() as tmp, FakeRd2100('NAVC3545', profile='0', seed=1) as fake:
         env = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        echo = (subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--every', '1000000'],
+                                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                if subscriber else None)
         with open(Path(tmp) / 'node.log', 'wb') as out:
-            proc = subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.ros.node', '--ros-args',
-                                     '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}'],
-                                    env=env, stdout=out, stderr=subprocess.STDOUT)
+            cmd = ([sys.executable, '-c', FLOOR] if floor else
+                   [sys.executable, '-m', 'art_gyro_calibration.ros.node', '--ros-args',
+                    '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}'])
+            proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT)
         try:
             time.sleep(seconds)
             assert proc.poll() is None, (Path(tmp) / 'node.log').read_text()
             log = (Path(tmp) / 'node.log').read_text()
-            assert 'static bias: StaticBiasDrift=' in log, log   # running: frames corrected, the bias taken
+            assert floor or 'static bias: StaticBiasDrift=' in log, log   # running: frames corrected, the bias taken
             mib = {key: _proc_kib(proc.pid, 'status', key) / 1024 for key in ('VmRSS', 'VmHWM')}
             mib.update({key: _proc_kib(proc.pid, 'smaps_rollup', key) / 1024
                         for key in ('Anonymous', 'Pss_File', 'Shared_Clean')})
         finally:
-            proc.send_signal(2)
-            proc.wait(30)
+            for child in filter(None, (proc, echo)):
+                child.send_signal(2)
+                child.wait(30)
     return mib
 
 
@@ -90,7 +142,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seconds', type=float, default=20.0)
     parser.add_argument('--runs', type=int, default=3)
-    parser.add_argument('--stages', action='store_true', help='VmRSS step by step, without and with the block')
+    parser.add_argument('--subscriber', action='store_true', help='an imu_echo subscribed to the node meanwhile')
+    parser.add_argument('--floor', action='store_true', help='a bare rclpy node of the same shape instead')
+    parser.add_argument('--stages', action='store_true',
+                        help="VmRSS step by step, without and with main()'s block and profile")
     args = parser.parse_args()
     if args.stages:
         for mode in ('no block', 'block'):
@@ -98,11 +153,13 @@ def main() -> int:
                                     text=True, check=True)
             print(mode + ': ' + result.stdout.splitlines()[0])
         return 0
-    runs = [run_node(args.seconds) for _ in range(args.runs)]
+    runs = [run_node(args.seconds, args.subscriber, args.floor) for _ in range(args.runs)]
     for key in runs[0]:
         values = sorted(r[key] for r in runs)
         print(f'{key}: {statistics.median(values):.1f} MiB median ({values[0]:.1f}-{values[-1]:.1f})')
-    print(f'({args.runs} runs of gyro_node at 10 Hz for {args.seconds:g} s)')
+    print(f'({args.runs} runs of ' + ('the bare node of --floor' if args.floor else 'gyro_node')
+          + f' at 10 Hz for {args.seconds:g} s'
+          + (', imu_echo subscribed)' if args.subscriber else ')'))
     return 0
 
 

@@ -55,6 +55,9 @@ def test_colcon_installs_the_ros_layout(install: Path) -> None:
     installed = sorted(p.name for p in (install / 'share' / PACKAGE / 'config').glob('*.yaml'))
     assert installed == sorted(p.name for p in (REPO / 'config').glob('*.yaml'))
     assert 'NAVC3545.yaml' in installed
+    # gyro_node's Fast DDS profile, next to the node module (art_gyro_calibration.ros.node.FASTDDS_PROFILE).
+    site = install / 'lib' / f'python{sys.version_info.major}.{sys.version_info.minor}' / 'site-packages'
+    assert (site / PACKAGE / 'ros' / 'fastdds_profile.xml').is_file()
 
 
 def test_installed_package_finds_its_calibrations_through_ament(install: Path, tmp_path: Path) -> None:

@@ -26,4 +26,4 @@ def test_the_ros_free_runtime_passes_mypy_strict() -> None:
 
 def test_the_package_says_it_is_typed() -> None:
     assert (PACKAGE / 'py.typed').is_file()
-    assert "package_data={PACKAGE: ['py.typed']}" in (REPO / 'setup.py').read_text()
+    assert "package_data={PACKAGE: ['py.typed'," in (REPO / 'setup.py').read_text()

@@ -113,6 +113,8 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
                                     'the reopen reported', proc, output)
         assert int(link['published']) > 0
         assert abs(rates_dps(listener.wait_imu(10, proc, output)).mean()) < 0.01
+    # Fast DDS parsed the node's own profile (it says XMLPARSER Error on stderr for a file it refuses).
+    assert 'XMLPARSER' not in output.read_text()
 
 
 def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) -> None:
@@ -392,6 +394,25 @@ def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, 
         (logged, steps[jump])
 
 
+def test_the_node_uses_its_fastdds_profile_only_if_the_user_has_none(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The shipped profile: Fast DDS 2's variable set to it; a user's variable or working-directory file wins."""
+    from art_gyro_calibration.ros.node import FASTDDS_PROFILE, use_own_fastdds_profile
+    assert FASTDDS_PROFILE.is_file() and '<preallocated_number>1<' in FASTDDS_PROFILE.read_text()
+    monkeypatch.chdir(tmp_path)
+    env: dict[str, str] = {'ROS_DOMAIN_ID': '7'}
+    assert use_own_fastdds_profile(env)
+    assert env == {'ROS_DOMAIN_ID': '7', 'FASTRTPS_DEFAULT_PROFILES_FILE': str(FASTDDS_PROFILE)}
+    for variable in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE'):
+        env = {variable: '/robot/profiles.xml'}
+        assert not use_own_fastdds_profile(env) and env == {variable: '/robot/profiles.xml'}
+    for name in ('DEFAULT_FASTRTPS_PROFILES.xml', 'DEFAULT_FASTDDS_PROFILES.xml'):
+        (tmp_path / name).write_text('<dds/>')
+        env = {}
+        assert not use_own_fastdds_profile(env) and env == {}
+        (tmp_path / name).unlink()
+
+
 def test_a_signal_between_two_waits_of_the_executor_is_a_clean_stop(monkeypatch: pytest.MonkeyPatch) -> None:
     """SIGINT shuts the context down; if the executor is between two waits, it raises RCLError, not a shutdown.
 
@@ -422,6 +443,8 @@ def test_a_signal_between_two_waits_of_the_executor_is_a_clean_stop(monkeypatch:
 
     monkeypatch.setattr(node_module, 'GyroNode', Stub)
     monkeypatch.setattr(node_module, 'MultiThreadedExecutor', SignalledExecutor)
+    # In this process main() would leave FASTRTPS_DEFAULT_PROFILES_FILE set for the tests after it.
+    monkeypatch.setattr(node_module, 'use_own_fastdds_profile', lambda: False)
     assert node_module.main(['gyro_node']) == 0
     assert closed == [True]
 
