@@ -30,7 +30,7 @@ from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.noise import allan_floor_dps
 from art_gyro_calibration.analysis.detection import DetectionLimit, detection_limits
 from art_gyro_calibration.analysis.trace import (DEFAULT_BLOCK_S, Binned, CandidateScore, Screen, ScreenOptions,
-                                                 TraceResult, duration_s, held_out_residual, joined,
+                                                 TraceResult, duration_s, held_out_inflation, held_out_residual, joined,
                                                  mirrored_spectrum, phase_surrogates, time_constant_bounds,
                                                  trace_residual)
 
@@ -421,7 +421,9 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
     one of a still record where one was measured (``options.still_instability_dps``).
     """
     residual = held_out_residual(binned, specs) / binned.sqrt_counts   # held-out bin means, deg/s
-    weights = binned.sqrt_counts ** 2
+    # A bin the other folds' fit predicts poorly (a rare rate: its leverage) weighs by its held-out variance.
+    inflation = held_out_inflation(binned, specs)
+    weights = binned.sqrt_counts ** 2 / inflation
     t = binned.bin_times()
     block = np.floor((t - t[0]) / ADEQUACY_BLOCK_S).astype(np.int64)
     counts = np.bincount(block, weights=weights)
@@ -436,7 +438,7 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
                            + noise.wander_dps ** 2))
     excess = float(np.sqrt(max(rms ** 2 - budget ** 2, 0.0)))
     adequate = not (rms > ADEQUACY_RATIO * budget and excess * DEG_PER_H_PER_DPS > materiality_dph)
-    shapes = signal_shapes(binned, residual, materiality_dph, bin_s, options)
+    shapes = signal_shapes(binned, residual, materiality_dph, bin_s, options, inflation)
     adequate = adequate and not any(shape.found for shape in shapes)
     return Adequacy(adequate, ADEQUACY_BLOCK_S, rms * DEG_PER_H_PER_DPS, budget * DEG_PER_H_PER_DPS,
                     excess * DEG_PER_H_PER_DPS, noise.instability_dps * DEG_PER_H_PER_DPS, shapes)
@@ -463,11 +465,13 @@ def _group_means(groups: NDArray[np.int64], weights: NDArray[np.float64],
 
 
 def signal_shapes(binned: Binned, residual: NDArray[np.float64], materiality_dph: float, bin_s: float,
-                  options: LoopOptions = LoopOptions()) -> tuple[SignalShape, ...]:
+                  options: LoopOptions = LoopOptions(),
+                  inflation: NDArray[np.float64] | None = None) -> tuple[SignalShape, ...]:
     """The held-out residual (bin means, deg/s) against each signal the loop knows, with no form assumed.
 
     Per signal, the residual's weighted means in :data:`SHAPE_GROUPS` groups of the signal's
-    value at each bin; the statistic is their weighted spread. Chance: ``options.draws``
+    value at each bin (weighted by the inverse of its held-out variance: ``inflation``, see
+    :func:`trace.held_out_inflation`); the statistic is their weighted spread. Chance: ``options.draws``
     phase-randomised copies of the residual (its own memory, as the loop's screen draws them),
     each signal's statistic divided by its median over the draws, and the
     ``1 - options.alpha`` quantile of the largest over the signals: one level for all.
@@ -484,7 +488,12 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], materiality_dph
     before = np.maximum(rows - 1, 0)
     names = [n for n in SHAPE_SIGNALS if n != 'time_since_power_on' or options.from_power_on]
     names += list(signals.extras)
-    weights = binned.sqrt_counts ** 2
+    # A held-out bin's residual carries the error of the fit made without it, as wide as its leverage
+    # (``inflation``): the one -100 deg/s step of a 2 h log, held out, left -182 deg/h in a null run (inflation
+    # 110, the rest about 1), a false alarm against the rate. Weighted by the inverse of their variance, and the
+    # chance copies drawn from the residual standardised by it and given it back, such bins weigh as they should.
+    spread_of = np.sqrt(inflation) if inflation is not None else np.ones(len(residual))
+    weights = binned.sqrt_counts ** 2 / spread_of ** 2
     groups = []
     for name in names:
         x = np.asarray(signals.get(name))[before if name in RATE_SIGNALS else rows]
@@ -497,7 +506,7 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], materiality_dph
     if not names or len(residual) < 4 * SHAPE_GROUPS:
         return ()
     rng = np.random.default_rng(options.seed)
-    spectrum = mirrored_spectrum(residual)
+    spectrum = mirrored_spectrum(residual / spread_of)
     share = weights / weights.sum()
     shares = [np.bincount(g, weights=share, minlength=SHAPE_GROUPS) for g in groups]
     spread = np.empty((len(names), options.draws + 1))
@@ -509,9 +518,10 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], materiality_dph
     while done < options.draws + 1:
         count = min(SHAPE_DRAW_BATCH, options.draws + 1 - done)
         if done == 0:
-            values = np.column_stack([residual, phase_surrogates(spectrum, count - 1, rng)[:len(residual)]])
+            values = np.column_stack([residual, phase_surrogates(spectrum, count - 1, rng)[:len(residual)]
+                                      * spread_of[:, None]])
         else:
-            values = phase_surrogates(spectrum, count, rng)[:len(residual)]
+            values = phase_surrogates(spectrum, count, rng)[:len(residual)] * spread_of[:, None]
         for i, g in enumerate(groups):
             means = _group_means(g, weights, values)
             spread[i, done:done + count] = shares[i] @ means ** 2

@@ -817,6 +817,23 @@ def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[n
     return out
 
 
+def held_out_inflation(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[np.float64]:
+    """Per bin, how much the fit on the other folds widens the spread of :func:`held_out_residual`: ``1 + h``.
+
+    ``h = x' G_k^-1 x``, the bin's (weighted) row against the Gram of the folds it was not in: the
+    variance of the held-out residual is the noise's times ``1 + h``. Most bins have ``h`` of a few
+    hundredths; a bin of the one -100 deg/s step in a fold of a short log, where the rate-cubed
+    terms rest on few rows, far more.
+    """
+    screen = Screen(rows, specs)
+    out = np.empty(len(screen.e))
+    gram = screen.gram.sum(axis=0)
+    for k in rows.folds:
+        x = screen.x[k]
+        out[k] = 1.0 + np.einsum('ij,ji->i', x, solve_normal(gram - x.T @ x, x.T))
+    return out
+
+
 def _best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
     """The best variant on all the data; its time constant, if it has one and ``refine``, by golden-section search."""
     sse = [screen.training_sse(v) for v in variants]

@@ -59,3 +59,17 @@ def test_a_shape_is_weighed_against_the_materiality_read_without_it():
     given = close_loop(log, 3, 4, LoopOptions(serial_number='NAVC3545', rate_scale_factor=cal.rate_scale_factor,
                                               seed=405003, materiality_dph=result.materiality_dph))
     assert not {s.signal: s for s in given.adequacy.signals}['rate'].found
+
+
+def test_the_held_out_spread_of_a_rare_rate_is_no_shape():
+    # A null 2 h log (the loop study's run 200040): its one -100 deg/s step, held out, rests on the other folds'
+    # few rows at that rate (its held-out spread 110 times the rest's) and left -182 deg/h there: taken as a shape
+    # of 24.9 deg/h against the rate, the model was called inadequate.
+    cal = load_packaged_calibration('NAVC3545')
+    log = simulate_run(cal, SimulationSettings(hours=2.0, seed=200040, wander_dps=3e-4, wander_tau_s=3600.0,
+                                               rate_random_walk_dph_rthr=0.5)).log(cal)
+    result = close_loop(log, 3, 4, LoopOptions(serial_number='NAVC3545', rate_scale_factor=cal.rate_scale_factor,
+                                               seed=200040))
+    rate = {s.signal: s for s in result.adequacy.signals}['rate']
+    assert not rate.found and rate.shape_dph < 2.0
+    assert result.adequacy.model_adequate
