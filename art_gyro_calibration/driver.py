@@ -81,9 +81,9 @@ class WireStamper:
     when frames queued during a stall arrive in one burst.
     """
 
-    __slots__ = ('byte_ns', 'frame_ns', 'period_ns', '_updates', '_last_steady', '_last_stamp', '_offset_ns',
-                 '_pending_ns', 'steps_ns', 'step_ns', '_frame_bytes', '_bytes', '_first_ns', 'baud', 'too_fast',
-                 'ahead')
+    __slots__ = ('byte_ns', 'frame_ns', 'period_ns', '_updates', '_last_steady', '_last_stamp', '_last_out',
+                 '_offset_ns', '_pending_ns', 'steps_ns', 'step_ns', '_frame_bytes', '_bytes', '_first_ns', 'baud',
+                 'too_fast', 'ahead')
 
     def __init__(self, baud: int, frame_bytes: int) -> None:
         self.byte_ns = BITS_PER_BYTE * 1_000_000_000 // baud
@@ -92,6 +92,7 @@ class WireStamper:
         self._updates = 0
         self._last_steady: int | None = None   # monotonic time of the last frame stamped
         self._last_stamp = 0
+        self._last_out = 0                     # the last steady time handed out
         self._offset_ns: int | None = None     # caller's clock minus the monotonic clock
         self._pending_ns: int | None = None    # an offset one read saw beyond a step, not yet confirmed
         self.steps_ns = 0               # sum of the clock steps re-anchored to
@@ -175,7 +176,11 @@ class WireStamper:
             if not self.step_ns and stamp <= self._last_stamp:   # jitter of a coarse clock: never back
                 stamp = self._last_stamp + 1
             self._last_stamp = stamp
-            out.append((stamp, stamp - self.steps_ns))
+            # The steady time never goes back either, a step's chunk included: the stamps before it may have
+            # been held up by a stale clock read (a /clock 50 ms late, then a step: the raw log went 20 ms back).
+            clean = max(stamp - self.steps_ns, self._last_out + 1)
+            self._last_out = clean
+            out.append((stamp, clean))
         return out
 
     def _byte_ns(self, monotonic_ns: int, chunk_bytes: int) -> float:

@@ -197,6 +197,26 @@ def test_a_clock_that_goes_back_and_forth_for_one_read_is_no_step():
     assert np.all(np.abs(steps - period) < 1000)
 
 
+def test_the_steady_time_never_goes_back_across_a_step_after_a_stale_clock_read():
+    """A /clock read 50 ms stale held the stamps up (never back); the step's chunk, not held, went 20 ms back.
+
+    The node logs each frame at its steady time: its raw log then had a row before the last (a sim-time test
+    on a loaded machine), which calibrate refuses.
+    """
+    period = 10_000_000
+    stamper = WireStamper(115200, 8)
+    wall = 1_700_000_000_000_000_000
+    out = _steady_gyro(stamper, lambda m: wall + m, period, 100)
+    mono = 100 * period
+    out += stamper.stamp(wall + mono - 50_000_000, mono, 8, [8])
+    out += _steady_gyro(stamper, lambda m: wall + 10_000_000_000 + m, period, 10, start_ns=mono + period)
+    assert stamper.steps_ns == 10_050_000_000   # measured from the stale read
+    steady = np.diff([t for _, t in out])
+    assert np.all(steady > 0)
+    # The 50 ms the stale read held the stamps up are taken back over the next frames, then the period again.
+    assert np.all(np.abs(steady[:99] - period) < 1000) and np.all(np.abs(steady[-4:] - period) < 1000)
+
+
 def test_driver_stamps_a_stalled_burst_by_the_period_and_reports_a_clock_step(recorder):
     """On a pty: the callback stalls for a second (the frames queue), the injected clock steps back 10 s."""
     offset = [0]
