@@ -7,9 +7,8 @@ over a whole log or chunk after chunk of one (``calibrate apply``). Both give
 samples :func:`plausible` refuses, clamp the temperature to the calibrated range if the
 calibration has one (the report's do not: their polynomial applies at every temperature), count
 the samples outside the range it is expected to hold, and refine a static bias the temperature-rate terms need
-refined (:class:`static_bias.Refinement`), and on a warm start the lagged-temperature terms.
-How the run started (:class:`RunStart`) decides whether a warm-up term applies, and whether
-the lags start right (at power-on the coil is at the sensor's temperature).
+refined (:class:`static_bias.Refinement`). How the run started (:class:`RunStart`) decides
+whether a warm-up term applies.
 
 Until the refinement is ready, the temperature-rate terms are held at their mean over the
 bias window: the static bias has taken the true Shupe error of the window (the causal
@@ -33,8 +32,7 @@ from art_gyro_calibration.calibration import (MAX_UNIT_RANGE_DPS, PLAUSIBLE_TEMP
 from art_gyro_calibration.frame import INT16_MAX, NOT_FINITE
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ErrorModel
-from art_gyro_calibration.signals import (DERIVED_SIGNALS, LAGGED_SIGNAL, Signals, SignalState, SignalTracker,
-                                          compute_signals)
+from art_gyro_calibration.signals import DERIVED_SIGNALS, Signals, SignalState, SignalTracker, compute_signals
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS, REFINE_SPAN_TAUS,
                                               BiasWindow, Refinement, StaticBias, StaticBiasCollector,
                                               static_bias)
@@ -105,7 +103,7 @@ class Compensator:
     """
 
     __slots__ = ('calibration', '_bias', '_model', '_tracker', '_rate_scale', '_temp_scale', '_range',
-                 '_held', '_lags', '_refinable', '_refinement', 'outside_range')
+                 '_refinable', '_refinement', 'outside_range')
 
     def __init__(self, calibration: Calibration, start: RunStart = RunStart()) -> None:
         check_signals_available(calibration)
@@ -116,16 +114,14 @@ class Compensator:
         self._temp_scale = calibration.temp_scale_factor
         # No range known: nothing is outside it.
         self._range = calibration.expected_range_c or (-math.inf, math.inf)
-        self._held = self._model.refinable
-        self._lags = self._model.unknown_lags(start.powered_on_at_start)
-        self._refinable = bool(self._held or self._lags)
+        self._refinable = bool(self._model.refinable)
         self._refinement: Refinement | None = None
         self._bias: StaticBias = NO_BIAS
         self.outside_range = 0
 
     @property
     def refinable(self) -> bool:
-        """Whether a static bias should keep its window: the model has terms a refinement refines."""
+        """Whether a static bias should keep its window: the model has temperature-rate terms."""
         return self._refinable
 
     @property
@@ -136,10 +132,8 @@ class Compensator:
     @bias.setter
     def bias(self, bias: StaticBias) -> None:
         self._bias = bias
-        tracker = self._tracker
-        self._refinement = None if bias.window is None or not self._refinable else Refinement(
-            bias, self._held, _refine_span_s(self.calibration), [(term, tracker.for_term(term)) for term in self._lags],
-            tracker.t0 if tracker.t0 is not None else tracker.t, self._model.term_value)
+        self._refinement = Refinement(bias, self._model.refinable, _refine_span_s(self.calibration)) \
+            if bias.window is not None and self._refinable else None
 
     def scale(self, raw_rate: int, raw_temp: int) -> tuple[float, float]:
         """Counts to (GyroRate deg/s, GyroTemp degC)."""
@@ -156,12 +150,9 @@ class Compensator:
         if refinement is not None:
             if t >= refinement.ready_at:
                 self._bias, self._refinement = refinement.refined(), None
-                for tau, shift, since in refinement.lag_shifts:
-                    tracker.shift_lag(tau, shift * math.exp(-(t - since) / tau))
             else:
                 refinement.add(t, temp_c)
-                others = self._model.error_one(tracker) - self._model.terms_error_one(tracker, self._held)
-                return refinement.held(others)
+                return refinement.held(self._model.error_one(tracker) - self._model.refinable_error_one(tracker))
         return self._model.error_one(tracker)
 
     def causal_dps(self) -> float:
@@ -169,7 +160,7 @@ class Compensator:
 
         Asked only while a collection runs: the hot path does not pay for it.
         """
-        return self._model.terms_error_one(self._tracker, self._held) if self._held else 0.0
+        return self._model.refinable_error_one(self._tracker) if self._refinable else 0.0
 
     def correct(self, rate_dps: float, error_dps: float) -> float:
         """``CompRate`` with the current static bias."""
@@ -246,17 +237,6 @@ def _refinable_error(model: ErrorModel, signals: Signals, rows: slice) -> NDArra
     return np.asarray(sum(model.term_error(t, signals)[rows] for t in model.refinable))
 
 
-def _shift_lags(model: ErrorModel, refinement: Refinement, signals: Signals, comp: NDArray[np.float64],
-                first: int) -> None:
-    """Move the lags a refinement corrected from row ``first`` on, and ``comp`` with them (as the node's tracker)."""
-    for tau, shift, since in refinement.lag_shifts:
-        terms = [t for t in model.terms if t.signal == LAGGED_SIGNAL and t.time_constant_s == tau]
-        rows = slice(first, None)
-        before = sum(model.term_error(t, signals)[rows] for t in terms)
-        signals.shift_lag(tau, first, shift * np.exp(-(signals.t[rows] - since) / tau))
-        comp[rows] += sum(model.term_error(t, signals)[rows] for t in terms) - before
-
-
 def _refine_span_s(calibration: Calibration) -> float:
     return REFINE_SPAN_TAUS * calibration.filters.temperature_rate_tau_s
 
@@ -300,7 +280,6 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
     else:
         start = after.start
     model = calibration.model
-    lags = model.unknown_lags(start.powered_on_at_start)
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, calibration.filters,
                               None if after is None else after.state, start.powered_on_at_start)
     comp = model.error(signals)
@@ -311,13 +290,11 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
         n = bias_samples
         bias = static_bias(log.rate_dps[:n], comp[:n], max_mean_dps, max_std_dps)
         refinement = None
-        if model.refinable or lags:
-            causal = _refinable_error(model, signals, slice(0, n)) if model.refinable else np.zeros(1)
+        if model.refinable:
+            causal = _refinable_error(model, signals, slice(0, n))
             bias = replace(bias, window=BiasWindow(log.t[:n].copy(), log.rate_dps[:n].copy(), log.temp_c[:n].copy(),
                                                    float(np.mean(causal))))
-            refinement = Refinement(bias, model.refinable, _refine_span_s(calibration),
-                                    [(t, float(signals.for_term(t)[n - 1])) for t in lags], float(log.t[0]),
-                                    model.term_value)
+            refinement = Refinement(bias, model.refinable, _refine_span_s(calibration))
         first = n   # the rows after the window feed the refinement
     else:
         bias, refinement, first = after.bias, after.refinement, 0
@@ -325,13 +302,11 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
         ready = first + int(np.searchsorted(log.t[first:], refinement.ready_at, side='left'))
         refinement.add_many(log.t[first:ready], log.temp_c[first:ready])
         held = slice(first, ready)
-        if ready > first and model.refinable:   # the temperature-rate terms held at their window mean until then
+        if ready > first:   # the temperature-rate terms held at their window mean until the refinement
             comp[held] = refinement.held(comp[held] - _refinable_error(model, signals, held))
     corrected = bias.correct(log.rate_dps, comp)
     if refinement is not None:
         if ready < len(log):
-            bias = refinement.refined()
-            _shift_lags(model, refinement, signals, comp, ready)
-            refinement = None
+            bias, refinement = refinement.refined(), None
             corrected[ready:] = bias.correct(log.rate_dps[ready:], comp[ready:])
     return Applied(comp, corrected, bias, kept, signals.end_state(), outside_range, refinement, start)

@@ -100,20 +100,8 @@ class ErrorModel:
 
     @property
     def refinable(self) -> tuple[Term, ...]:
-        """The temperature-rate terms: held at their window mean until a static bias refinement re-evaluates them."""
+        """The terms on the temperature rate, which a static bias refinement re-evaluates."""
         return tuple(t for t in self.terms if t.signal == _REFINABLE)
-
-    def unknown_lags(self, cold: bool) -> tuple[Term, ...]:
-        """The lagged-temperature terms whose lag a node starts wrong, which a static bias refinement corrects.
-
-        None on a ``cold`` start (at power-on the coil is at the sensor's temperature); on a
-        warm gyro the node starts each lag at the temperature of its first sample, not the coil's.
-        """
-        return () if cold else tuple(t for t in self.terms if t.signal == LAGGED_SIGNAL)
-
-    def term_value(self, term: Term, x: NDArray[np.float64], rate: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``term`` at values ``x`` of its signal (a temperature clamped as in :meth:`error`)."""
-        return term.evaluate(self._clamp(x) if term.signal in _TEMPERATURES else x, rate)
 
     def _clamp(self, temp: NDArray[np.float64]) -> NDArray[np.float64]:
         return temp if self.temperature_range_c is None else np.clip(temp, *self.temperature_range_c)
@@ -126,7 +114,8 @@ class ErrorModel:
 
     def term_error(self, term: Term, signals: Signals) -> NDArray[np.float64]:
         """One term's modelled error over a log."""
-        return self.term_value(term, signals.for_term(term), signals.rate)
+        x = signals.for_term(term)
+        return term.evaluate(self._clamp(x) if term.signal in _TEMPERATURES else x, signals.rate)
 
     def error(self, signals: Signals) -> NDArray[np.float64]:
         """Modelled error in deg/s of every sample of a log."""
@@ -137,13 +126,12 @@ class ErrorModel:
 
     def error_one(self, tracker: SignalTracker) -> float:
         """Modelled error of the sample ``tracker`` was last updated with."""
-        return self.polynomial.error_one(tracker.rate, self._clamp_one(tracker.temperature)) \
-            + self.terms_error_one(tracker, self.terms)
-
-    def terms_error_one(self, tracker: SignalTracker, terms: tuple[Term, ...]) -> float:
-        """The part of :meth:`error_one` that ``terms`` (some of the model's) make."""
-        comp = 0.0
-        for term in terms:
+        comp = self.polynomial.error_one(tracker.rate, self._clamp_one(tracker.temperature))
+        for term in self.terms:
             x = tracker.for_term(term)
             comp += term.evaluate_one(self._clamp_one(x) if term.signal in _TEMPERATURES else x, tracker.rate)
         return comp
+
+    def refinable_error_one(self, tracker: SignalTracker) -> float:
+        """The part of :meth:`error_one` the temperature-rate terms make."""
+        return sum(t.evaluate_one(tracker.for_term(t), tracker.rate) for t in self.refinable)

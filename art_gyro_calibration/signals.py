@@ -288,10 +288,6 @@ class Signals:
         """The rate the angle integrates."""
         return self.rate if self.angle_correction is None else self.rate - self.angle_correction.error(self)
 
-    def shift_lag(self, tau_s: float, first: int, shift_c: NDArray[np.float64]) -> None:
-        """Move the lagged temperature of time constant ``tau_s`` from row ``first`` on (a static bias refinement's)."""
-        self.lagged_temperature(tau_s)[first:] += shift_c
-
     def lag_levels(self) -> tuple[tuple[float, float], ...]:
         """(time constant, level after the last sample) of each lagged temperature computed so far."""
         return tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items()))
@@ -443,12 +439,6 @@ class SignalTracker:
         for lag in self._lags.values():
             lag.update(dt, temp_c)
         self.t, self.rate, self.temperature = t, rate_dps, temp_c
-
-    def shift_lag(self, tau_s: float, shift_c: float) -> None:
-        """Move the lagged temperature of time constant ``tau_s`` by ``shift_c`` (a static bias refinement's)."""
-        lag = self._lags[tau_s]
-        if lag.smooth is not None:
-            lag.smooth += shift_c
 
     def for_term(self, term: TermLike) -> float:
         """Current value of the signal ``term`` is evaluated on (its own lag for ``temperature_lag``)."""

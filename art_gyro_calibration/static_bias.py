@@ -12,17 +12,12 @@ static bias then absorbs the Shupe error of its window for the whole mission. So
 window is kept, and once the temperature has been followed for a few filter time
 constants (:class:`Refinement`) the rate of temperature over the window is estimated
 from both sides of it, and ``CalcStaticBiasDrift`` is recomputed with it, once.
-A lagged-temperature term (a coil lagging the sensor) meets the same problem on a warm
-gyro: the node starts the lag at the temperature of its first sample, not at the coil's.
-The refinement takes the coil as the lag of the temperature's trend held for long
-before (``T - tau dT/dt``), trusted as far as the node's own lag still holds its start,
-and moves the node's lag by the same amount.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, TypeVar
 
@@ -176,37 +171,18 @@ class Refinement:
     The temperature from the window's start over ``span_s`` is fitted with a quadratic in
     time; its slope at each window sample replaces what the causal filter read there, and
     ``CalcStaticBiasDrift`` moves by the change of the temperature-rate ``terms``' mean.
-    ``lags``: each lagged-temperature term whose lag the node started at its first sample's
-    temperature (:meth:`model.ErrorModel.unknown_lags`), with the lag's level at the
-    window's last sample. Over the window the node's lag ``L`` is taken as
-    ``L + w (T_fit - tau dT_fit/dt - L)``, ``w = exp(-(t - run_start_t) / tau)``: the steady
-    lag of the fitted trend, weighted by what is left of the node's start in its lag (none
-    for a bias taken long after it). :attr:`lag_shifts` then says how far to move each lag.
-    ``evaluate`` gives a term's value at values of its signal (the model's clamp).
     Samples come one at a time (:meth:`add`, the node) or as arrays (:meth:`add_many`);
     the refined bias applies from the first sample at or after :attr:`ready_at`.
     """
 
-    __slots__ = ('bias', 'terms', 'span_s', 'center', 'ready_at', 'sums', 'lags', 'run_start_t', 'evaluate',
-                 'lag_shifts')
+    __slots__ = ('bias', 'terms', 'span_s', 'center', 'ready_at', 'sums')
 
-    def __init__(self, bias: StaticBias, terms: Sequence[Term], span_s: float,
-                 lags: Sequence[tuple[Term, float]] = (), run_start_t: float = 0.0,
-                 evaluate: Callable[[Term, NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
-                 | None = None) -> None:
+    def __init__(self, bias: StaticBias, terms: Sequence[Term], span_s: float) -> None:
         if bias.window is None:
             raise ValueError('a refinement needs the static bias window')
-        if lags and evaluate is None:
-            raise ValueError('a refinement of lagged-temperature terms needs their evaluation')
         window = bias.window
         self.bias = bias
         self.terms = tuple(terms)
-        self.lags = tuple(lags)
-        self.run_start_t = run_start_t
-        self.evaluate = evaluate
-        # (time constant, shift at the window's last sample, its time) per lag, once refined: the shift at a
-        # later time t is shift * exp(-(t - time) / tau), as the lag's own filter carries it.
-        self.lag_shifts: tuple[tuple[float, float, float], ...] = ()
         self.span_s = span_s
         self.center = 0.5 * float(window.t[0] + window.t[-1])
         self.ready_at = float(window.t[0]) + span_s
@@ -253,40 +229,15 @@ class Refinement:
         normal = np.array([[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4]]])
         if s[0] < 3 or not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
             return replace(self.bias, window=None)
-        a, b, c = np.linalg.solve(normal, [s[5], s[6], s[7]])
+        _, b, c = np.linalg.solve(normal, [s[5], s[6], s[7]])
         window = self.bias.window
         assert window is not None
         u = (window.t - self.center) / self.span_s
         slope = (b + 2.0 * c * u) / self.span_s   # degC/s at each window sample
         refit = float(sum(np.mean(t.evaluate(slope, window.rate_dps)) for t in self.terms))
-        shifts: dict[float, tuple[float, float, float]] = {}   # one per lag: terms may share one
-        for term, level in self.lags:
-            assert self.evaluate is not None   # checked when made
-            tau = term.time_constant_s
-            node = _lag_before(window.t, window.temp_c, level, tau)
-            steady = a + b * u + c * u * u - tau * slope
-            shift = np.exp(-np.maximum(window.t - self.run_start_t, 0.0) / tau) * (steady - node)
-            refit += float(np.mean(self.evaluate(term, node + shift, window.rate_dps)
-                                   - self.evaluate(term, node, window.rate_dps)))
-            shifts[tau] = (tau, float(shift[-1]), float(window.t[-1]))
-        self.lag_shifts = tuple(shifts.values())
         delta = refit - window.causal_dps
         return replace(self.bias, calc_static_bias_drift_dps=self.bias.calc_static_bias_drift_dps + delta,
                        window=None, refined_dps=delta)
-
-
-def _lag_before(t: NDArray[np.float64], temp_c: NDArray[np.float64], level: float, tau_s: float) -> NDArray[np.float64]:
-    """The node's first-order lag of ``temp_c`` at each time ``t``, from its ``level`` at the last one, backwards.
-
-    The per-sample filter (``signals._Derivative``) steps ``L_k = L_{k-1} + a_k (T_k - L_{k-1})``
-    with ``a_k = 1 - exp(-dt_k / tau)``; so ``L_{k-1} = (L_k - a_k T_k) / (1 - a_k)``.
-    """
-    out = np.empty(len(t))
-    out[-1] = level
-    a = -np.expm1(-np.maximum(np.diff(t), 0.0) / tau_s)
-    for k in range(len(t) - 1, 0, -1):
-        out[k - 1] = (out[k] - a[k - 1] * temp_c[k]) / (1.0 - a[k - 1])
-    return out
 
 
 def _checked(mean: float, mean_error: float, std: float, n: int,

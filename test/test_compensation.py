@@ -148,39 +148,6 @@ def test_until_the_refinement_the_temperature_rate_terms_hold_their_window_value
                                applied.corrected_dps[BIAS_SAMPLES - 1:], rtol=0, atol=1e-9)
 
 
-def test_a_warm_start_refines_a_lag_the_node_started_at_the_sensors_temperature() -> None:
-    """A coil lagging the sensor by 10 min on a warm gyro whose temperature rises 0.5 degC/min.
-
-    The coil is 5 degC behind the sensor; the node starts its lag at the sensor's temperature,
-    and its static bias took the lag term's error over the window (0.0015 deg/s, 5.4 deg/h)
-    for the whole mission. Refined as the lag of the temperature's trend, and the node's lag
-    moved with it, the mission is right from the refinement on; a cold start (the coil at the
-    sensor's temperature) is left as it is.
-    """
-    tau, coefficient, ramp = 600.0, 3e-4, 0.5 / 60.0
-    t = np.arange(int(1.5 * 3600 * RATE_HZ)) / RATE_HZ
-    temp = 25.0 + ramp * t
-    true_rate = np.zeros(len(t))
-    cal = _calibration(Term('temperature_lag', 'power', (coefficient,), (1,), tau))
-    measured = measured_from_true(cal.polynomial, true_rate + coefficient * (temp - tau * ramp), temp)
-    log = GyroLog(t, measured, np.round(temp / 0.05) * 0.05)
-    applied = apply_calibration(log, cal, BIAS_SAMPLES)
-    for minutes in range(10, 90, 10):   # each 10 minutes after the refinement (at 6 min): was 0.3 to 5.5 deg/h
-        block = (t >= 60.0 * minutes) & (t < 60.0 * (minutes + 10))
-        assert np.mean(applied.corrected_dps[block]) * DPH == pytest.approx(0.0, abs=0.1)
-    assert applied.bias.refined_dps == pytest.approx(-coefficient * tau * ramp, rel=0.02)
-    np.testing.assert_allclose(_per_sample(cal, log, RunStart()), applied.corrected_dps[BIAS_SAMPLES - 1:],
-                               rtol=0, atol=1e-9)
-    # Chunk after chunk (calibrate apply on a long log), the refinement in the third: the same.
-    chunks, after = [], None
-    for first in range(0, len(t), 1500):
-        after = apply_calibration(log.slice(slice(first, first + 1500)), cal, BIAS_SAMPLES, after=after)
-        chunks.append(after.corrected_dps)
-    np.testing.assert_allclose(np.concatenate(chunks), applied.corrected_dps, rtol=0, atol=1e-12)
-    cold = apply_calibration(log, cal, BIAS_SAMPLES, start=RunStart(powered_on_at_start=True))
-    assert cold.bias.window is None and cold.bias.refined_dps == 0.0
-
-
 def test_temperatures_outside_the_calibrated_range_are_clamped_and_counted() -> None:
     """Outside a fitted file's temperature_range_c the model is evaluated at the range's edge; samples counted."""
     cal = dataclasses.replace(_calibration(Term('temperature_lag', 'power', (1e-3,), (1,), 60.0)),
@@ -189,14 +156,13 @@ def test_temperatures_outside_the_calibrated_range_are_clamped_and_counted() -> 
     t = np.arange(200) / RATE_HZ
     temp = np.where(t < 10, 30.0, high + 15.0)
     rate = np.full(len(t), 5.0)
-    cold = RunStart(powered_on_at_start=True)   # the lag starts right: nothing held for a refinement
-    comp = Compensator(cal, cold)
+    comp = Compensator(cal)
     errors = [comp.error(a, b, c) for a, b, c in zip(t, rate, temp)]
     assert comp.outside_range == int(np.sum(temp > high))
     edge = cal.polynomial.error(np.array([5.0]), np.array([high]))[0]
     lag_edge = 1e-3 * min(compute_signals(t, rate, temp).lagged_temperature(60.0)[-1], high)
     assert errors[-1] == pytest.approx(edge + lag_edge, abs=1e-12)
-    applied = apply_calibration(GyroLog(t, rate, temp), cal, 50, max_mean_dps=10.0, start=cold)   # turning at 5 deg/s
+    applied = apply_calibration(GyroLog(t, rate, temp), cal, 50, max_mean_dps=10.0)   # turning at 5 deg/s
     assert applied.outside_range == comp.outside_range
     np.testing.assert_allclose(applied.comp_dps, errors, rtol=0, atol=1e-12)
 

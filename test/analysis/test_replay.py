@@ -189,8 +189,7 @@ def _wandering(calibration, hours, seed, effects=()):
 def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     # Run 1397 of the loop study's null runs: no effect, but the loop fits a 90-minute coil lag to the
     # slow wander. From power-on it fits; a node restarted later starts its lag at the temperature of the
-    # moment, and the term shifts the static bias (warm restarts lost 2.0 and 14.1 deg/h with it;
-    # 8.5 and 6.4 with the refinement of a lag the node starts on a warm gyro).
+    # moment, and the term shifts the static bias (a warm restart lost 12.6 deg/h with it).
     truth = load_packaged_calibration('NAVC3545')
     run = _wandering(truth, 6.0, 1397)
     log = run.log(truth)
@@ -208,11 +207,11 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     assert extended > 2.0 * art
     # The check drops a term only when the restarts are better without it by more than the materiality (the
     # residual's Allan floor as calibrate allan fits it: 0.83 deg/h as the least measured value):
-    # asked for more than the 7.4 deg/h it costs the restarts, the same replay keeps it.
+    # asked for more than the 9.8 deg/h it costs, the same replay keeps it.
     assert 'a drop needs more than 0.76 deg/h' in dropped.reason
     runs = [run for _, run in own_restarts(log)]
-    assert validate(result, runs, kept_signals=(POWER_ON_SIGNAL,), margin_dps=7.0 / 3600.0).dropped
-    assert not validate(result, runs, kept_signals=(POWER_ON_SIGNAL,), margin_dps=8.0 / 3600.0).dropped
+    assert validate(result, runs, kept_signals=(POWER_ON_SIGNAL,), margin_dps=9.0 / 3600.0).dropped
+    assert not validate(result, runs, kept_signals=(POWER_ON_SIGNAL,), margin_dps=10.0 / 3600.0).dropped
     # calibrate fit reports the loop's term, and the check's drop, and writes the calibration without it.
     write_run(tmp_path / 'A.csv', run)
     out, report_path = tmp_path / 'CAL.yaml', tmp_path / 'REPORT.json'
