@@ -966,7 +966,7 @@ def item6_figures(s: dict[str, Any], out_dir: Path) -> list[str]:
                        and (c['heating_c'], c['heating_tau_min']) == p), np.nan) for p in profiles]
         axes[0].bar(x + (k - 1) * 0.27, ratio, 0.27, label=effects)
     axes[0].axhline(MAX_COLD_ORACLE_RATIO, color='k', ls=':', label=f'target {MAX_COLD_ORACLE_RATIO:g}x')
-    axes[0].set_xticks(x, [f'{c:g} degC / {m:g} min' for c, m in profiles], fontsize=8)
+    axes[0].set_xticks(x, [f'{c:g} degC\n{m:g} min' for c, m in profiles], fontsize=8)
     axes[0].set_xlabel('self-heating at power-on (size / time constant)')
     axes[0].set_ylabel('median written / oracle field error (ratio)')
     axes[0].set_title('cold second run, fit on 6 h from power-on')
