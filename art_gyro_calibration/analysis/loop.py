@@ -30,7 +30,7 @@ from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.noise import allan_floor_dps
 from art_gyro_calibration.analysis.detection import DetectionLimit, detection_limits
 from art_gyro_calibration.analysis.trace import (DEFAULT_BLOCK_S, Binned, CandidateScore, Screen, ScreenOptions,
-                                                 TraceResult, duration_s, held_out_inflation, held_out_residual, joined,
+                                                 TraceResult, duration_s, held_out_residual, joined,
                                                  mirrored_spectrum, phase_surrogates, time_constant_bounds,
                                                  trace_residual)
 
@@ -420,9 +420,9 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
     an effect that averages out over a block escapes the budget. The bias instability is the
     one of a still record where one was measured (``options.still_instability_dps``).
     """
-    residual = held_out_residual(binned, specs) / binned.sqrt_counts   # held-out bin means, deg/s
     # A bin the other folds' fit predicts poorly (a rare rate: its leverage) weighs by its held-out variance.
-    inflation = held_out_inflation(binned, specs)
+    residual, inflation = held_out_residual(binned, specs)
+    residual /= binned.sqrt_counts   # held-out bin means, deg/s
     weights = binned.sqrt_counts ** 2 / inflation
     t = binned.bin_times()
     block = np.floor((t - t[0]) / ADEQUACY_BLOCK_S).astype(np.int64)
@@ -438,7 +438,7 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
                            + noise.wander_dps ** 2))
     excess = float(np.sqrt(max(rms ** 2 - budget ** 2, 0.0)))
     adequate = not (rms > ADEQUACY_RATIO * budget and excess * DEG_PER_H_PER_DPS > materiality_dph)
-    shapes = signal_shapes(binned, residual, materiality_dph, bin_s, options, inflation)
+    shapes = signal_shapes(binned, residual, inflation, materiality_dph, bin_s, options)
     adequate = adequate and not any(shape.found for shape in shapes)
     return Adequacy(adequate, ADEQUACY_BLOCK_S, rms * DEG_PER_H_PER_DPS, budget * DEG_PER_H_PER_DPS,
                     excess * DEG_PER_H_PER_DPS, noise.instability_dps * DEG_PER_H_PER_DPS, shapes)
@@ -464,14 +464,14 @@ def _group_means(groups: NDArray[np.int64], weights: NDArray[np.float64],
     return out
 
 
-def signal_shapes(binned: Binned, residual: NDArray[np.float64], materiality_dph: float, bin_s: float,
-                  options: LoopOptions = LoopOptions(),
-                  inflation: NDArray[np.float64] | None = None) -> tuple[SignalShape, ...]:
+def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDArray[np.float64],
+                  materiality_dph: float, bin_s: float,
+                  options: LoopOptions = LoopOptions()) -> tuple[SignalShape, ...]:
     """The held-out residual (bin means, deg/s) against each signal the loop knows, with no form assumed.
 
     Per signal, the residual's weighted means in :data:`SHAPE_GROUPS` groups of the signal's
     value at each bin (weighted by the inverse of its held-out variance: ``inflation``, see
-    :func:`trace.held_out_inflation`); the statistic is their weighted spread. Chance: ``options.draws``
+    :func:`trace.held_out_residual`); the statistic is their weighted spread. Chance: ``options.draws``
     phase-randomised copies of the residual (its own memory, as the loop's screen draws them),
     each signal's statistic divided by its median over the draws, and the
     ``1 - options.alpha`` quantile of the largest over the signals: one level for all.
@@ -492,7 +492,7 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], materiality_dph
     # (``inflation``): the one -100 deg/s step of a 2 h log, held out, left -182 deg/h in a null run (inflation
     # 110, the rest about 1), a false alarm against the rate. Weighted by the inverse of their variance, and the
     # chance copies drawn from the residual standardised by it and given it back, such bins weigh as they should.
-    spread_of = np.sqrt(inflation) if inflation is not None else np.ones(len(residual))
+    spread_of = np.sqrt(inflation)
     weights = binned.sqrt_counts ** 2 / spread_of ** 2
     groups = []
     for name in names:

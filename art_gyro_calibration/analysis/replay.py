@@ -317,8 +317,8 @@ def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_
     """
     if not result.extended.terms:
         return result, None, []
-    runs = [(name, run, RunStart()) for name, run in
-            ((f'restarted at {start_s / 60.0:.0f} min', run) for start_s, run in own_restarts(log, bias_samples))]
+    runs = [(f'restarted at {start_s / 60.0:.0f} min', run, RunStart())
+            for start_s, run in own_restarts(log, bias_samples)]
     assert log.ref_rate is not None   # own_restarts refuses a log without it
     cold = (result.start.powered_on_at_start and len(log) > 2 * bias_samples
             and not np.any(log.ref_rate[:bias_samples]))

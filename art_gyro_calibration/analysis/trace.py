@@ -806,32 +806,25 @@ def _alike(screen: Screen, a: NDArray[np.float64], b: NDArray[np.float64]) -> fl
     return float(np.sum(explained * explained)) / total if total > 0.0 else 0.0
 
 
-def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[np.float64]:
-    """Per bin, what the polynomial + ``specs`` fitted on the other folds leaves (weighted as the bins are)."""
-    screen = Screen(rows, specs)
-    out = np.empty(len(screen.e))
-    gram = screen.gram.sum(axis=0)
-    for k in rows.folds:
-        beta = solve_normal(gram - screen.x[k].T @ screen.x[k], screen.x.T @ screen.e - screen.x[k].T @ screen.e[k])
-        out[k] = screen.e[k] - screen.x[k] @ beta
-    return out
+def held_out_residual(rows: Binned, specs: Sequence[TermSpec] = ()) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per bin, what the polynomial + ``specs`` fitted on the other folds leaves, and how much that widens its spread.
 
-
-def held_out_inflation(rows: Binned, specs: Sequence[TermSpec] = ()) -> NDArray[np.float64]:
-    """Per bin, how much the fit on the other folds widens the spread of :func:`held_out_residual`: ``1 + h``.
-
-    ``h = x' G_k^-1 x``, the bin's (weighted) row against the Gram of the folds it was not in: the
-    variance of the held-out residual is the noise's times ``1 + h``. Most bins have ``h`` of a few
-    hundredths; a bin of the one -100 deg/s step in a fold of a short log, where the rate-cubed
-    terms rest on few rows, far more.
+    The residual is weighted as the bins are; the widening is ``1 + h``, ``h = x' G_k^-1 x``, the
+    bin's (weighted) row against the Gram of the folds it was not in: the variance of the held-out
+    residual is the noise's times ``1 + h``. Most bins have ``h`` of a few hundredths; a bin of the
+    one -100 deg/s step in a fold of a short log, where the rate-cubed terms rest on few rows, far more.
     """
     screen = Screen(rows, specs)
     out = np.empty(len(screen.e))
+    inflation = np.empty(len(screen.e))
     gram = screen.gram.sum(axis=0)
     for k in rows.folds:
         x = screen.x[k]
-        out[k] = 1.0 + np.einsum('ij,ji->i', x, solve_normal(gram - x.T @ x, x.T))
-    return out
+        training = gram - x.T @ x
+        beta = solve_normal(training, screen.x.T @ screen.e - x.T @ screen.e[k])
+        out[k] = screen.e[k] - x @ beta
+        inflation[k] = 1.0 + np.einsum('ij,ji->i', x, solve_normal(training, x.T))
+    return out, inflation
 
 
 def _best_variant(screen: Screen, variants: Sequence[TermSpec], refine: bool = True) -> TermSpec:
