@@ -16,6 +16,12 @@ of it (dropped if, replayed the same way, they make the baseline worse by more t
 materiality). A slow bias wander of a short log, or a polynomial order too low for
 the gyro, is what makes a refit worse than the baseline. The terms keep their fit on the
 whole log in both (a warm-up lives in the first block alone): the polynomial is judged.
+
+Held out on the log, the refit is judged only at the log's temperatures. Beyond them it
+holds its value at the log's edge (its ``temperature_range_c``), where the baseline was
+calibrated (:func:`beyond_log`): a 2 h log over 16..25 degC wrote a refit that a second
+run from 10 degC found 53 deg/h worse than the baseline's 7.6 (doc/field-check.md). A
+refit that is worse there than the baseline by the materiality is not written either.
 """
 
 from __future__ import annotations
@@ -44,6 +50,41 @@ from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 FOLDS = 4
 # Verdicts.
 REFIT, BASELINE = 'refit', 'baseline'
+# Temperature step (degC) of the grid on which a refit is judged beyond the log's temperatures.
+BEYOND_STEP_C = 0.5
+
+
+@dataclass(frozen=True)
+class BeyondLog:
+    """The refit against the baseline where the baseline is calibrated and the log is not.
+
+    Beyond the log's temperatures the refit holds its value at the log's edge. Taking the
+    correction the log measured (refit less baseline at the edge) as holding on beyond it,
+    which is what the refit's clamp assumes, the refit errs there by how far the baseline
+    moves from the edge and the baseline by that correction. ``worse_dph`` is the most the
+    first exceeds the second over the logged table rates and the baseline's range beyond
+    the log (deg/h; at most 0: the refit is nowhere worse there), at ``at_temperature_c``
+    and ``at_rate_dps``.
+    """
+
+    log_range_c: tuple[float, float]
+    baseline_range_c: tuple[float, float]
+    worse_dph: float
+    at_temperature_c: float
+    at_rate_dps: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """REPORT.json's ``baseline.beyond_log``."""
+        return {'log_range_c': list(self.log_range_c), 'baseline_range_c': list(self.baseline_range_c),
+                'refit_worse_dph': self.worse_dph, 'at_temperature_c': self.at_temperature_c,
+                'at_rate_dps': self.at_rate_dps}
+
+    def describe(self) -> str:
+        """One clause for the verdict's message."""
+        (low, high), (b_low, b_high) = self.log_range_c, self.baseline_range_c
+        return (f'the log covers {low:g}..{high:g} degC of the baseline\'s {b_low:g}..{b_high:g} degC, and beyond it '
+                f'the refit, held at the log\'s edge, is worse than the baseline by up to {self.worse_dph:.2f} deg/h '
+                f'(at {self.at_temperature_c:g} degC and {self.at_rate_dps:g} deg/s)')
 
 
 @dataclass(frozen=True)
@@ -74,6 +115,7 @@ class BaselineCheck:
     runs: tuple[tuple[Run, FieldErrors, FieldErrors], ...]
     calibration: Calibration
     message: str
+    beyond: BeyondLog | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """REPORT.json's ``baseline``."""
@@ -89,9 +131,34 @@ class BaselineCheck:
             'written_polynomial': self.verdict,
             'written_terms': [t.signal for t in self.calibration.terms],
             'message': self.message,
+            'beyond_log': None if self.beyond is None else self.beyond.to_dict(),
             'runs': [{'run': run.name, 'refit': refit.to_dict(), 'baseline': base.to_dict()}
                      for run, refit, base in self.runs],
         }
+
+
+def beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64]) -> BeyondLog | None:
+    """The refit (clamped to the log's temperatures) against the baseline beyond them, at ``rates_dps`` and at rest.
+
+    None where there is no beyond: the refit is not clamped, the baseline gives no range
+    it holds over, or the log covers that range.
+    """
+    log_range, baseline_range = refit.temperature_range_c, baseline.expected_range_c
+    if log_range is None or baseline_range is None:
+        return None
+    (low, high), (b_low, b_high) = log_range, baseline_range
+    pieces = [np.linspace(a, b, max(int(np.ceil((b - a) / BEYOND_STEP_C)), 1) + 1)
+              for a, b in ((b_low, min(low, b_high)), (max(high, b_low), b_high)) if a < b]
+    if not pieces:
+        return None
+    temp, rate = np.meshgrid(np.concatenate(pieces), np.union1d(rates_dps, [0.0]), indexing='ij')
+    edge = np.clip(temp, low, high)
+    at_edge = baseline.polynomial.error(rate, edge)
+    moves = np.abs(baseline.polynomial.error(rate, temp) - at_edge)
+    correction = np.abs(refit.polynomial.error(rate, edge) - at_edge)
+    worse = (moves - correction) * DEG_PER_H_PER_DPS
+    i = np.unravel_index(int(np.argmax(worse)), worse.shape)
+    return BeyondLog(log_range, baseline_range, float(worse[i]), float(temp[i]), float(rate[i]))
 
 
 def check_baseline(baseline: Calibration, source: str, log_rate_scale: float, log_temp_scale: float) -> None:
@@ -216,10 +283,19 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     baseline_dph = field_score_dps(base_runs) * DEG_PER_H_PER_DPS
     materiality = result.materiality_dph
     pairs = tuple(zip(runs, refit_runs, base_runs))
+    beyond = beyond_log(written, baseline, result.segments.rate)
+    worse_beyond = beyond is not None and beyond.worse_dph > materiality
     if refit_dph + materiality < baseline_dph:
         message = (f'the refit is better than the baseline {source} held out on this log: {refit_dph:.2f} against '
-                   f'{baseline_dph:.2f} deg/h (materiality {materiality:.2f} deg/h); the refit is written')
-        return BaselineCheck(source, refit_dph, baseline_dph, None, materiality, REFIT, pairs, written, message)
+                   f'{baseline_dph:.2f} deg/h (materiality {materiality:.2f} deg/h)')
+        if not worse_beyond:
+            return BaselineCheck(source, refit_dph, baseline_dph, None, materiality, REFIT, pairs, written,
+                                 message + '; the refit is written', beyond)
+        assert beyond is not None
+        verdict = f'{message}, but {beyond.describe()}'
+    else:
+        verdict = (f'the refit polynomial is not better than the baseline {source} by the materiality held out on '
+                   f'this log ({refit_dph:.2f} against {baseline_dph:.2f} deg/h; materiality {materiality:.2f} deg/h)')
     on_top_dph = None
     calibration = replace(baseline, terms=(), filters=written.filters)
     kept_terms = ''
@@ -235,8 +311,6 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
             kept_terms = f'; the terms {", ".join(s.signal for s in specs)} fitted on top of it made it worse ' \
                          f'({on_top_dph:.2f} deg/h held out) and are not written'
     dropped = f' (its own terms {", ".join(t.signal for t in baseline.terms)} are not kept)' if baseline.terms else ''
-    message = (f'the refit polynomial is not better than the baseline {source} by the materiality held out on '
-               f'this log ({refit_dph:.2f} against {baseline_dph:.2f} deg/h; materiality {materiality:.2f} deg/h): '
-               f'the written file keeps the baseline polynomial{dropped}{kept_terms}')
+    message = f'{verdict}: the written file keeps the baseline polynomial{dropped}{kept_terms}'
     return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, BASELINE, pairs,
-                         calibration, message)
+                         calibration, message, beyond)

@@ -9,9 +9,11 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 
 from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration, write_calibration
 from art_gyro_calibration.compensation import RunStart
+from art_gyro_calibration.analysis.baseline import beyond_log
 from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.analysis.replay import replay_field
 from art_gyro_calibration.analysis.simulate import SimulationSettings, same_gyro, simulate_run, write_run
@@ -21,16 +23,31 @@ from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 SERIAL = 'NAVC3545'   # a 3 x 4 gyro
 
 
-def _fit(tmp_path, settings, *extra):
-    """Simulate ``settings``, fit it with calibrate fit, and give the written file, the report and a second run."""
+def _fit(tmp_path, settings, *extra, chamber_c=None):
+    """Simulate ``settings``, fit it with calibrate fit, and give the written file, the report and a second run.
+
+    ``chamber_c``: the fitted log's chamber range (default the packaged file's 10..50 degC); the
+    second run's is always the packaged one.
+    """
     cal = load_packaged_calibration(SERIAL)
     log = tmp_path / 'LOG.csv'
-    write_run(log, simulate_run(cal, settings))
+    chamber = cal if chamber_c is None else dataclasses.replace(cal, temperature_warn_range_c=chamber_c)
+    write_run(log, simulate_run(chamber, settings))
     assert main(['fit', str(log), '--serial', SERIAL, '--out', str(tmp_path / 'CAL.yaml'),
                  '--report', str(tmp_path / 'REPORT.json'), *extra]) == 0
     second = simulate_run(cal, same_gyro(settings, settings.seed + 100)).log(cal)
     report = json.loads((tmp_path / 'REPORT.json').read_text())
     return load_calibration(tmp_path / 'CAL.yaml', expected_serial=SERIAL), report, second
+
+
+def _stale_baseline(tmp_path):
+    """The gyro's file gone stale: its rate scale factor 300 ppm off (0.03 deg/s at 100 deg/s)."""
+    packaged = load_packaged_calibration(SERIAL)
+    coefficients = packaged.polynomial.coefficients.copy()
+    coefficients[-1, -2] += 3e-4
+    stale = tmp_path / 'stale.yaml'
+    write_calibration(stale, dataclasses.replace(packaged, polynomial=ArtPolynomial(coefficients)))
+    return stale
 
 
 def _field_dph(log, calibration):
@@ -67,17 +84,50 @@ def test_a_polynomial_too_small_for_the_gyro_shows_up_against_the_baseline(tmp_p
 
 
 def test_a_refit_better_than_a_stale_baseline_is_written(tmp_path):
-    # The gyro's file is stale: its rate scale factor is 300 ppm off (0.03 deg/s at 100 deg/s).
-    packaged = load_packaged_calibration(SERIAL)
-    coefficients = packaged.polynomial.coefficients.copy()
-    coefficients[-1, -2] += 3e-4
-    stale = tmp_path / 'stale.yaml'
-    write_calibration(stale, dataclasses.replace(packaged, polynomial=ArtPolynomial(coefficients)))
+    stale = _stale_baseline(tmp_path)
     written, report, second = _fit(tmp_path, SimulationSettings(hours=2.0, seed=1), '--rows', '3', '--columns', '4',
                                    '--baseline', str(stale))
     assert report['baseline']['verdict'] == 'refit' and report['baseline']['source'] == str(stale)
     assert report['baseline']['refit_field_dph'] + report['materiality_dph'] < report['baseline']['baseline_field_dph']
     assert _field_dph(second, written) < _field_dph(second, load_calibration(stale)) - 10.0
+    assert report['baseline']['beyond_log'] is None   # the log covers the baseline's 10..50 degC
+
+
+def test_a_refit_is_not_written_where_the_log_has_no_temperatures(tmp_path, capsys):
+    # The same stale file, fitted from a log over 20..32 degC alone: held out on it the refit is far
+    # better (4.4 against 33.1 deg/h), and was written; clamped at 20 and 32 degC, it was 115.8 deg/h
+    # on a second run over 10..50 degC, where the stale file is 33.2.
+    stale = _stale_baseline(tmp_path)
+    written, report, second = _fit(tmp_path, SimulationSettings(hours=2.0, seed=1), '--rows', '3', '--columns', '4',
+                                   '--baseline', str(stale), chamber_c=(20.0, 32.0))
+    section = report['baseline']
+    assert section['refit_field_dph'] + report['materiality_dph'] < section['baseline_field_dph']
+    assert section['verdict'] == 'baseline'
+    beyond = section['beyond_log']
+    assert beyond['log_range_c'] == [20.0, 32.0] and beyond['baseline_range_c'] == [10.0, 50.0]
+    assert beyond['refit_worse_dph'] > report['materiality_dph']
+    np.testing.assert_array_equal(written.polynomial.coefficients, load_calibration(stale).polynomial.coefficients)
+    assert _field_dph(second, written) <= _field_dph(second, load_calibration(stale)) + 0.5
+    assert 'the log covers 20..32 degC of the baseline\'s 10..50 degC' in capsys.readouterr().err
+
+
+def test_beyond_the_log_the_refit_is_judged_by_how_far_the_baseline_moves():
+    packaged = load_packaged_calibration(SERIAL)
+    rates = np.array([-100.0, 10.0, 100.0])
+    refit = dataclasses.replace(packaged, temperature_range_c=(20.0, 32.0))
+    # The refit equal to the baseline inside the log: it loses, beyond, all the baseline moves.
+    beyond = beyond_log(refit, packaged, rates)
+    temp = np.arange(10.0, 50.5, 0.5)
+    r, t = np.meshgrid(np.append(rates, 0.0), temp)
+    moves = np.abs(packaged.polynomial.error(r, t) - packaged.polynomial.error(r, np.clip(t, 20.0, 32.0)))
+    assert beyond.worse_dph == pytest.approx(moves.max() * DEG_PER_H_PER_DPS)
+    assert (beyond.log_range_c, beyond.baseline_range_c) == ((20.0, 32.0), (10.0, 50.0))
+    # A baseline that does not move with temperature costs the clamp nothing.
+    flat = dataclasses.replace(packaged, polynomial=ArtPolynomial(np.array([[1e-6, 0.0, 3e-4, 0.01]])))
+    assert beyond_log(dataclasses.replace(flat, temperature_range_c=(20.0, 32.0)), flat, rates).worse_dph == 0.0
+    # A log over the baseline's whole range, or a baseline with no range, has no beyond.
+    assert beyond_log(dataclasses.replace(packaged, temperature_range_c=(10.0, 50.0)), packaged, rates) is None
+    assert beyond_log(refit, dataclasses.replace(packaged, temperature_warn_range_c=None), rates) is None
 
 
 def test_a_baseline_with_other_scale_factors_is_refused(tmp_path, capsys):
