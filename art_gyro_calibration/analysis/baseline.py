@@ -22,7 +22,7 @@ whole log in both (a warm-up lives in the first block alone): the polynomial is 
 Held out on the log, the refit is judged only at the log's temperatures. Beyond them it
 holds its value at the log's edge (its ``temperature_range_c``), where the baseline was
 calibrated (:func:`beyond_log`): a 2 h log over 16..25 degC wrote a refit that a second
-run from 10 degC found 53 deg/h worse than the baseline's 7.6 (doc/field-check.md). A
+run from 10 degC found 53 deg/h worse than the baseline's 7.6 (field check at d5e7267). A
 refit that is worse there than the baseline by the materiality is not written either.
 """
 
@@ -305,7 +305,7 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
         base_error = ErrorModel(baseline.polynomial, (), baseline.temperature_range_c).error(result.signals)
         on_top = _on_top(result, baseline, base_error, specs, index)
         on_top_dph = field_score_dps(held_out(log, runs, fold, [on_top], bias_samples, settle_s)) * DEG_PER_H_PER_DPS
-        # The bar the refit polynomial faces, and more: the terms were fitted on these rows.
+        # The bar the refit polynomial faces; the terms were fitted on these rows, so this score is not held out.
         if on_top_dph + materiality < baseline_dph:
             calibration = on_top
             kept_terms = f'; the terms {", ".join(s.signal for s in specs)} are fitted on top of it ' \
