@@ -160,7 +160,7 @@ class Compensator:
         """Advance the signals to this sample and return comp, its modelled error."""
         tracker = self._tracker
         tracker.update(t, rate_dps, temp_c)
-        model = self._read_feeds(t) if self._feeds else self._model
+        model = self._read_feeds() if self._feeds else self._model
         low, high = self._range
         if not low <= temp_c <= high:
             self.outside_range += 1
@@ -173,8 +173,8 @@ class Compensator:
                 return refinement.held(model.error_one(tracker) - model.refinable_error_one(tracker))
         return model.error_one(tracker)
 
-    def _read_feeds(self, t: float) -> ErrorModel:
-        """Take each feed's latest value at ``t`` and set :attr:`current`; the model to use (theirs only once fed)."""
+    def _read_feeds(self) -> ErrorModel:
+        """Take each feed's latest value and set :attr:`current`; the model to use (their terms only once fed)."""
         values = self._tracker.extras
         current = True
         for feed in self._feeds:
@@ -184,7 +184,7 @@ class Compensator:
                 return self._unfed
             value, received = latest
             values[feed.name] = value
-            if not t - received <= feed.max_age_s:
+            if not feed.clock() - received <= feed.max_age_s:
                 current = False
         self.current = current
         return self._model

@@ -10,6 +10,7 @@ one ended in (:meth:`Signals.end_state`), and gives the same values as the whole
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -411,33 +412,40 @@ class SignalFeed:
     :meth:`put` runs on the thread that receives the value, :attr:`latest` is read per frame on
     another: one tuple swapped whole, so a frame never sees a value with another's time. A value
     that is not finite (a BatteryState's NaN, "unknown") is counted, never held: the last finite
-    value stays, and ages. ``max_age_s``: older than this at a frame, the value is stale.
+    value stays, and ages. Its age is on ``clock`` (s; a monotonic one: the frames' own times follow the
+    ROS clock, which may step or be simulated); older than ``max_age_s``, the value is stale.
     """
 
-    __slots__ = ('name', 'max_age_s', 'latest', 'received', 'not_finite')
+    __slots__ = ('name', 'max_age_s', 'clock', 'latest', 'received', 'not_finite')
 
-    def __init__(self, name: str, max_age_s: float) -> None:
+    def __init__(self, name: str, max_age_s: float, clock: Callable[[], float] = time.monotonic) -> None:
         if not (math.isfinite(max_age_s) and max_age_s > 0.0):
             raise ValueError(f'signal {name}: max_age_s must be a positive number of seconds, got {max_age_s!r}')
         self.name = name
         self.max_age_s = max_age_s
-        self.latest: tuple[float, float] | None = None   # (value, time received); None until the first
+        self.clock = clock
+        self.latest: tuple[float, float] | None = None   # (value, clock when received); None until the first
         self.received = 0       # finite values held
         self.not_finite = 0     # values refused as not finite
 
-    def put(self, value: float, t: float) -> bool:
-        """Hold ``value`` received at ``t`` (s, the frames' clock); False (counted) if it is not a finite number."""
+    def put(self, value: float) -> bool:
+        """Hold ``value``, received now; False (and counted) if it is not a finite number."""
         if not math.isfinite(value):
             self.not_finite += 1
             return False
-        self.latest = (value, t)
+        self.latest = (value, self.clock())
         self.received += 1
         return True
 
-    def current(self, t: float) -> bool:
-        """Whether a value is held and no older than ``max_age_s`` at ``t``."""
+    def problem(self) -> str:
+        """Why there is no current value now (none yet, or how old the last is); '' when there is one."""
         latest = self.latest
-        return latest is not None and t - latest[1] <= self.max_age_s
+        if latest is None:
+            return f'no {self.name} received yet'
+        age = self.clock() - latest[1]
+        if age <= self.max_age_s:
+            return ''
+        return f'the last {self.name} ({latest[0]:g}) is {age:.1f} s old (max_age_s {self.max_age_s:g})'
 
 
 class SignalTracker:

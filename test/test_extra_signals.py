@@ -34,13 +34,28 @@ def _take(corrector: FrameCorrector, collector: StaticBiasCollector) -> None:
     corrector.compensator.bias, corrector.collector = collector.result(), None
 
 
+class Clock:
+    """A clock the test sets."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
 def test_a_feed_holds_the_latest_finite_value_and_ages() -> None:
-    feed = SignalFeed('supply_v', 2.0)
-    assert feed.latest is None and not feed.current(0.0)
-    assert feed.put(24.0, 10.0) and feed.latest == (24.0, 10.0)
-    assert feed.current(12.0) and not feed.current(12.5)
+    clock = Clock()
+    feed = SignalFeed('supply_v', 2.0, clock)
+    assert feed.latest is None and feed.problem() == 'no supply_v received yet'
+    clock.now = 10.0
+    assert feed.put(24.0) and feed.latest == (24.0, 10.0)
+    clock.now = 12.0
+    assert feed.problem() == ''
+    clock.now = 12.5
+    assert feed.problem() == 'the last supply_v (24) is 2.5 s old (max_age_s 2)'
     # A BatteryState's NaN is "unknown": not a value; the last one stays and keeps ageing.
-    assert not feed.put(math.nan, 11.0) and not feed.put(math.inf, 11.0)
+    assert not feed.put(math.nan) and not feed.put(math.inf)
     assert feed.latest == (24.0, 10.0) and (feed.received, feed.not_finite) == (1, 2)
     with pytest.raises(ValueError, match='max_age_s must be a positive'):
         SignalFeed('supply_v', 0.0)
@@ -77,13 +92,15 @@ def test_the_frame_corrector_applies_the_fed_value_as_apply_applies_the_column()
     raw_rate = (np.arange(t.size) % 3 - 1).astype(int)
     raw_temp = np.full(t.size, 500)   # 25 degC
     supply = 24.0 + np.where(t < 10.0, 0.0, 2.0) + 0.01 * np.sin(t)
-    feed = SignalFeed('supply_v', 1.0)
+    clock = Clock()
+    feed = SignalFeed('supply_v', 1.0, clock)
     corrector = FrameCorrector(cal, feeds=(feed,))
     collector = StaticBiasCollector(n, max_mean_dps=10.0)   # the term adds 1.2 deg/s at 24 V: no constant against it
     corrector.collect(collector, lambda c: _take(corrector, c))
     published = []
     for ti, r, tc, v in zip(t, raw_rate, raw_temp, supply):
-        feed.put(v, ti)
+        clock.now = ti
+        feed.put(v)
         assert corrector.step(r, tc, ti) == '' and corrector.compensator.current
         published.append(corrector.rate_dps)
     rate, temp = raw_rate * cal.rate_scale_factor, raw_temp * cal.temp_scale_factor
@@ -96,7 +113,8 @@ def test_the_frame_corrector_applies_the_fed_value_as_apply_applies_the_column()
 
 def test_until_a_value_the_term_is_left_out_and_no_static_bias_is_taken_and_a_stale_one_is_flagged() -> None:
     cal = _calibration()
-    feed = SignalFeed('supply_v', 1.0)
+    clock = Clock()
+    feed = SignalFeed('supply_v', 1.0, clock)
     corrector = FrameCorrector(cal, feeds=(feed,))
     collector = StaticBiasCollector(5)
     done: list[StaticBiasCollector] = []
@@ -108,15 +126,17 @@ def test_until_a_value_the_term_is_left_out_and_no_static_bias_is_taken_and_a_st
         assert corrector.rate_dps == pytest.approx(without.correct(*((r := 1 * cal.rate_scale_factor),
                                                                      without.error(t, r, 25.0))), abs=1e-12)
     assert collector.count == 0 and not done
-    feed.put(24.0, 1.0)
+    clock.now = 1.0
+    feed.put(24.0)
     for i in range(10, 15):
         assert corrector.step(1, 500, i * 0.1) == '' and corrector.compensator.current
     assert collector.count == 5 and done == [collector]
     # Older than max_age_s: still applied (the best value there is), flagged; a NaN does not refresh it.
-    feed.put(math.nan, 2.5)
+    clock.now = 2.5
+    feed.put(math.nan)
     assert corrector.step(1, 500, 2.5) == '' and not corrector.compensator.current
     expected = without.correct(1 * cal.rate_scale_factor, cal.polynomial.error_one(1 * cal.rate_scale_factor, 25.0)
                                + COEFFICIENT * 24.0)
     assert corrector.rate_dps == pytest.approx(expected, abs=1e-12)
-    feed.put(24.0, 2.6)
+    feed.put(24.0)
     assert corrector.step(1, 500, 2.6) == '' and corrector.compensator.current
