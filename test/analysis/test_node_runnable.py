@@ -75,8 +75,10 @@ def test_a_node_signal_must_be_a_column_of_the_log(tmp_path, capsys):
     cal = load_packaged_calibration('NAVC4058')
     log = tmp_path / 'LOG.csv'
     write_run(log, simulate_run(cal, SimulationSettings(hours=0.5, seed=2)))
-    for signal, message in (('humidity', 'the log has no column humidity'), ('temperature', 'derived from the gyro')):
-        assert main(['fit', str(log), '--rows', '3', '--columns', '2', '--node-signal', signal,
+    for signal, more, message in (('humidity', [], 'the log has no column humidity'),
+                                  ('temperature', [], 'derived from the gyro'),
+                                  ('supply_v', ['--exclude', 'supply_v'], 'contradict each other')):
+        assert main(['fit', str(log), '--rows', '3', '--columns', '2', '--node-signal', signal, *more,
                      '--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'REPORT.json')]) != 0
         err = capsys.readouterr().err
         assert f'--node-signal {signal}' in err and message in err
