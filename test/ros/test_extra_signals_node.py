@@ -17,8 +17,9 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from rosproc import TIMEOUT_S, domain_id, node_with_listener, start_node, wait_until  # noqa: E402
+from rosproc import TIMEOUT_S, Listener, domain_id, node_with_listener, start_node, wait_until  # noqa: E402
 from sensor_msgs.msg import BatteryState  # noqa: E402
+from std_msgs.msg import Float64  # noqa: E402
 
 from art_gyro_calibration.calibration import load_packaged_calibration, write_calibration  # noqa: E402
 from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
@@ -121,6 +122,38 @@ def test_the_node_applies_a_fed_supply_voltage_and_flags_a_missing_or_stale_one(
             voltage[0] = NOMINAL_V
         wait_until(lambda: _yaw_variances(listener, proc, output) == {CALIBRATED_VARIANCE}, 'the flag cleared',
                    proc, output)
+
+
+def test_a_float64_topic_remapped_and_a_topic_of_another_type_named(tmp_path: Path, loopback: None) -> None:
+    """``type:=float64`` (std_msgs/Float64 data) on a remapped topic; a BatteryState there is named in the status."""
+    output = tmp_path / 'node.log'
+    calibration = _calibration(tmp_path / 'supply.yaml')
+    domain = domain_id()
+    with (FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=4) as fake,
+          node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={calibration}',
+                             '-p', f'port:={fake.path}', '-p', 'bias_samples:=20',
+                             '-p', 'extra_signals.supply_v.topic:=supply', '-r', 'supply:=/bus/voltage')
+          as (proc, listener)):
+        wrong = listener.node.create_publisher(BatteryState, '/bus/voltage', 10)
+        listener.node.create_timer(0.1, lambda: wrong.publish(BatteryState(voltage=NOMINAL_V)))
+        status = listener.wait_status('extra signal supply_v', lambda s: 'is published as' in s['message'],
+                                      'the other type named', proc, output)
+        assert status['level'] == ERROR and status['topic'] == '/bus/voltage' and status['type'] == 'float64'
+        assert ('/bus/voltage is published as sensor_msgs/msg/BatteryState: check extra_signals.supply_v.type'
+                in status['message']), status
+        # The right type beside it (another participant: one may not hold a topic name with two types).
+        other = Listener(domain)
+        try:
+            right = other.node.create_publisher(Float64, '/bus/voltage', 10)
+            other.node.create_timer(0.05, lambda: right.publish(Float64(data=NOMINAL_V)))
+            listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the static bias', proc, output)
+            status = listener.wait_status('extra signal supply_v', lambda s: s['level'] == b'\x00',
+                                          'a current value', proc, output)
+            assert status['value'] == '24'
+            assert abs(_mean_rate_dps(listener, proc, output)) < 0.01
+            assert _yaw_variances(listener, proc, output) == {CALIBRATED_VARIANCE}
+        finally:
+            other.close()
 
 
 @pytest.mark.parametrize('args, message', [
