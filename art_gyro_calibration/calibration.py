@@ -19,6 +19,8 @@ A file is ``/**: ros__parameters: {...}`` so that the node takes it with
   ``.rate_powers`` (power form), ``.time_constant_s`` (exp_decay form, and the lag of
   ``temperature_lag``); see :mod:`art_gyro_calibration.terms`. Terms the node would apply
   wrongly from some start are refused: a heading term, a warm-up counted from the run's start.
+  A term on a signal the gyro does not give (a log column such as a supply voltage) runs on the
+  node only when a topic feeds it (:func:`check_fed`).
 
 Any other key is refused (a misspelt ``extnded:`` would silently drop the fitted terms),
 and so is a model that overflows anywhere in the envelope it is used in (:func:`check_envelope`).
@@ -33,7 +35,7 @@ import os
 import re
 import stat
 import sys
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -602,3 +604,39 @@ def check_signals_available(calibration: Calibration, available: tuple[str, ...]
     if missing:
         raise CalibrationError(f'calibration {calibration.serial_number}: extended terms need '
                                f'signals {missing} that are not available here ({", ".join(available)})')
+
+
+# How a topic's message gives an extra signal's value (node parameter extra_signals.<signal>.type).
+EXTRA_SIGNAL_TYPES = {'float64': 'std_msgs/Float64 data', 'battery_state': 'sensor_msgs/BatteryState voltage'}
+
+
+def extra_signal_parameter(signal: str, field: str = 'topic') -> str:
+    """The node parameter that says where extra signal ``signal`` comes from (``topic``, ``type``, ``max_age_s``)."""
+    return f'extra_signals.{signal}.{field}'
+
+
+def extra_signals(calibration: Calibration) -> tuple[str, ...]:
+    """The signals the terms need that the gyro does not give: log columns (a supply voltage) the node must be fed."""
+    return tuple(t.signal for t in calibration.terms if t.signal not in SIGNALS)
+
+
+def node_parameters_needed(calibration: Calibration) -> dict[str, str]:
+    """The node parameters a calibration needs set beyond its own, with what each must say (none: {})."""
+    types = ' or '.join(EXTRA_SIGNAL_TYPES)
+    return {name: what for signal in extra_signals(calibration) for name, what in (
+        (extra_signal_parameter(signal), f'the topic that carries {signal} (relative names follow the namespace)'),
+        (extra_signal_parameter(signal, 'type'), f'its message: {types}'))}
+
+
+def check_fed(calibration: Calibration, fed: Collection[str], where: str) -> None:
+    """Refuse a calibration with a term on an extra signal that no topic feeds, naming the node parameter to set.
+
+    ``fed``: the extra signals the node receives. Without one, the node could not apply the term.
+    """
+    missing = [s for s in extra_signals(calibration) if s not in fed]
+    if missing:
+        raise CalibrationError(
+            f'{where}: extended terms need {", ".join(missing)}, which the gyro does not measure: set the node '
+            f'parameter {" and ".join(map(extra_signal_parameter, missing))} to the topic that carries it (and '
+            f'{extra_signal_parameter(missing[0], "type")}: {" or ".join(EXTRA_SIGNAL_TYPES)}), or use a calibration '
+            'without the term (calibrate fit writes one only with --node-signal)')

@@ -8,7 +8,10 @@ samples :func:`plausible` refuses, clamp the temperature to the calibrated range
 calibration has one (the report's do not: their polynomial applies at every temperature), count
 the samples outside the range it is expected to hold, and refine a static bias the temperature-rate terms need
 refined (:class:`static_bias.Refinement`). How the run started (:class:`RunStart`) decides
-whether a warm-up term applies.
+whether a warm-up term applies. Signals from outside the gyro (a supply voltage) come in by
+:class:`~art_gyro_calibration.signals.SignalFeed`: until each has had a value the terms on them
+are left out and no static bias is collected, and while one is stale the answer says so
+(:attr:`Compensator.current`).
 
 Until the refinement is ready, the temperature-rate terms are held at their mean over the
 bias window: the static bias has taken the true Shupe error of the window (the causal
@@ -28,11 +31,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.calibration import (MAX_UNIT_RANGE_DPS, PLAUSIBLE_TEMPERATURE_C, Calibration,
-                                              check_signals_available, unit_range_dps)
+                                              check_fed, check_signals_available, unit_range_dps)
 from art_gyro_calibration.frame import INT16_MAX, NOT_FINITE
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ErrorModel
-from art_gyro_calibration.signals import DERIVED_SIGNALS, Signals, SignalState, SignalTracker, compute_signals
+from art_gyro_calibration.signals import (DERIVED_SIGNALS, SignalFeed, Signals, SignalState, SignalTracker,
+                                          compute_signals)
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS, REFINE_SPAN_TAUS,
                                               BiasWindow, Refinement, StaticBias, StaticBiasCollector,
                                               static_bias)
@@ -100,16 +104,29 @@ class Compensator:
     ``outside_range`` counts the samples whose temperature was outside the calibration's
     :attr:`~Calibration.expected_range_c` (clamped only if it is a calibrated range); a
     refinement, once it happened, shows in ``bias.refined_dps`` (see ``bias``).
+
+    ``feeds``: the signals from outside the gyro the terms need (a calibration with a term on
+    one not fed is refused). Each sample takes their latest values; until every one has had a
+    value, the model without their terms is used. :attr:`current` says whether the last sample
+    had every feed's value no older than its limit (always True without feeds).
     """
 
     __slots__ = ('calibration', '_bias', '_model', '_tracker', '_rate_scale', '_temp_scale', '_range',
-                 '_refinable', '_refinement', 'outside_range')
+                 '_refinable', '_refinement', 'outside_range', '_feeds', '_unfed', 'current')
 
-    def __init__(self, calibration: Calibration, start: RunStart = RunStart()) -> None:
-        check_signals_available(calibration)
+    def __init__(self, calibration: Calibration, start: RunStart = RunStart(),
+                 feeds: tuple[SignalFeed, ...] = ()) -> None:
+        check_fed(calibration, [f.name for f in feeds], f'calibration {calibration.serial_number}')
         self.calibration = calibration
         self._model = calibration.model
-        self._tracker = SignalTracker(calibration.filters, self._model.lags, start.powered_on_at_start)
+        self._feeds = feeds
+        # Until every feed has had a value: the model without their terms (the rate is then uncorrected anyway:
+        # no static bias is collected before).
+        names = {f.name for f in feeds}
+        self._unfed = replace(self._model, terms=tuple(t for t in self._model.terms if t.signal not in names))
+        self.current = True
+        self._tracker = SignalTracker(calibration.filters, self._model.lags, start.powered_on_at_start,
+                                      tuple(names))
         self._rate_scale = calibration.rate_scale_factor
         self._temp_scale = calibration.temp_scale_factor
         # No range known: nothing is outside it.
@@ -143,6 +160,7 @@ class Compensator:
         """Advance the signals to this sample and return comp, its modelled error."""
         tracker = self._tracker
         tracker.update(t, rate_dps, temp_c)
+        model = self._read_feeds() if self._feeds else self._model
         low, high = self._range
         if not low <= temp_c <= high:
             self.outside_range += 1
@@ -152,8 +170,24 @@ class Compensator:
                 self._bias, self._refinement = refinement.refined(), None
             else:
                 refinement.add(t, temp_c)
-                return refinement.held(self._model.error_one(tracker) - self._model.refinable_error_one(tracker))
-        return self._model.error_one(tracker)
+                return refinement.held(model.error_one(tracker) - model.refinable_error_one(tracker))
+        return model.error_one(tracker)
+
+    def _read_feeds(self) -> ErrorModel:
+        """Take each feed's latest value and set :attr:`current`; the model to use (their terms only once fed)."""
+        values = self._tracker.extras
+        current = True
+        for feed in self._feeds:
+            latest = feed.latest
+            if latest is None:
+                self.current = False
+                return self._unfed
+            value, received = latest
+            values[feed.name] = value
+            if not feed.clock() - received <= feed.max_age_s:
+                current = False
+        self.current = current
+        return self._model
 
     def causal_dps(self) -> float:
         """The temperature-rate terms' part of the last error (a static bias collection keeps it; 0 without them).
@@ -173,15 +207,17 @@ class FrameCorrector:
     :meth:`step` answers '' for a frame to publish, whose values are then in ``rate_dps`` (the
     corrected rate) and ``temp_c``, or the reason it is dropped (:data:`IMPLAUSIBLE_TEMPERATURE`,
     :data:`CLIPPED`, :data:`BEYOND_RANGE`, :data:`NOT_FINITE`), counted in ``dropped``.
-    :meth:`collect` feeds the frames kept to a static
-    bias collection. Answers and values live on the object, not in new tuples: it runs at 1 kHz.
+    :meth:`collect` feeds the frames kept to a static bias collection, those only whose extra
+    signals (``feeds``, see :class:`Compensator`) are current: a bias taken without them (or with a stale value)
+    would not match the terms on them. Answers and values live on the object, not in new tuples: it runs at 1 kHz.
     """
 
     __slots__ = ('compensator', 'collector', '_collected', 'dropped', 'last_drop_error', 'rate_dps', 'temp_c',
                  '_clip_dps', '_range_dps')
 
-    def __init__(self, calibration: Calibration, start: RunStart = RunStart()) -> None:
-        self.compensator = Compensator(calibration, start)
+    def __init__(self, calibration: Calibration, start: RunStart = RunStart(),
+                 feeds: tuple[SignalFeed, ...] = ()) -> None:
+        self.compensator = Compensator(calibration, start, feeds)
         self.collector: StaticBiasCollector | None = None   # the collection fed, if one; None stops it
         self._collected: Callable[[StaticBiasCollector], None] = _nothing
         self.dropped = {IMPLAUSIBLE_TEMPERATURE: 0, CLIPPED: 0, BEYOND_RANGE: 0, NOT_FINITE: 0}
@@ -221,7 +257,8 @@ class FrameCorrector:
             self.dropped[NOT_FINITE] += 1
             return NOT_FINITE
         collector = self.collector
-        if collector is not None and collector.add(rate_dps, error_dps, t, temp_c, compensator.causal_dps()):
+        if (collector is not None and compensator.current
+                and collector.add(rate_dps, error_dps, t, temp_c, compensator.causal_dps())):
             self._collected(collector)
         self.rate_dps = compensator.correct(rate_dps, error_dps)   # with the bias this frame may have completed
         self.temp_c = temp_c

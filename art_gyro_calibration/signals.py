@@ -10,6 +10,7 @@ one ended in (:meth:`Signals.end_state`), and gives the same values as the whole
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -405,18 +406,62 @@ class _Derivative:
         self.value = (x - self.smooth) / self.tau_s
 
 
+class SignalFeed:
+    """An extra signal the node receives from outside the gyro (a supply voltage by topic): its latest value.
+
+    :meth:`put` runs on the thread that receives the value, :attr:`latest` is read per frame on
+    another: one tuple swapped whole, so a frame never sees a value with another's time. A value
+    that is not finite (a BatteryState's NaN, "unknown") is counted, never held: the last finite
+    value stays, and ages. Its age is on ``clock`` (s; a monotonic one: the frames' own times follow the
+    ROS clock, which may step or be simulated); older than ``max_age_s``, the value is stale.
+    """
+
+    __slots__ = ('name', 'max_age_s', 'clock', 'latest', 'received', 'not_finite')
+
+    def __init__(self, name: str, max_age_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        if not (math.isfinite(max_age_s) and max_age_s > 0.0):
+            raise ValueError(f'signal {name}: max_age_s must be a positive number of seconds, got {max_age_s!r}')
+        self.name = name
+        self.max_age_s = max_age_s
+        self.clock = clock
+        self.latest: tuple[float, float] | None = None   # (value, clock when received); None until the first
+        self.received = 0       # finite values held
+        self.not_finite = 0     # values refused as not finite
+
+    def put(self, value: float) -> bool:
+        """Hold ``value``, received now; False (and counted) if it is not a finite number."""
+        if not math.isfinite(value):
+            self.not_finite += 1
+            return False
+        self.latest = (value, self.clock())
+        self.received += 1
+        return True
+
+    def problem(self) -> str:
+        """Why there is no current value now (none yet, or how old the last is); '' when there is one."""
+        latest = self.latest
+        if latest is None:
+            return f'no {self.name} received yet'
+        age = self.clock() - latest[1]
+        if age <= self.max_age_s:
+            return ''
+        return f'the last {self.name} ({latest[0]:g}) is {age:.1f} s old (max_age_s {self.max_age_s:g})'
+
+
 class SignalTracker:
     """The derived signals of the latest sample, updated one sample at a time.
 
     ``lags``: the time constants of the lagged temperatures the model needs. The angle is
     not tracked: a heading term needs an absolute heading, which the node does not have.
+    ``extras``: the names of signals fed from outside (:class:`SignalFeed`), whose values the
+    caller sets in :attr:`extras` (NaN until it does).
     """
 
     __slots__ = ('t0', 't', 'rate', 'temperature', 'power_on_offset_s', '_temperature_rate', '_rate_change',
-                 '_lags')
+                 '_lags', 'extras')
 
     def __init__(self, filters: SignalFilters = SignalFilters(), lags: tuple[float, ...] = (),
-                 powered_on_at_start: bool = False) -> None:
+                 powered_on_at_start: bool = False, extras: tuple[str, ...] = ()) -> None:
         self.t0: float | None = None
         self.t = 0.0
         self.rate = 0.0
@@ -426,6 +471,7 @@ class SignalTracker:
         self._temperature_rate = _Derivative(filters.temperature_rate_tau_s)
         self._rate_change = _Derivative(filters.rate_change_tau_s)
         self._lags = {tau: _Derivative(tau) for tau in lags}
+        self.extras = dict.fromkeys(extras, math.nan)
 
     def update(self, t: float, rate_dps: float, temp_c: float) -> None:
         """Advance to a new sample at time ``t`` (s)."""
@@ -478,10 +524,13 @@ class SignalTracker:
         return self._rate_change.value
 
     def value(self, name: str) -> float:
-        """Current value of derived signal ``name`` (the attribute of its name)."""
+        """Current value of signal ``name``: a derived one (the attribute of its name) or an extra."""
         signal = SIGNALS.get(name)
+        if signal is None and name in self.extras:
+            return self.extras[name]
         if signal is None or not signal.per_sample or name == LAGGED_SIGNAL:
             raise KeyError(f'signal {name!r} is not available per sample; the node tracks '
-                           f'{", ".join(n for n, s in SIGNALS.items() if s.per_sample and n != LAGGED_SIGNAL)} '
-                           f'and {LAGGED_SIGNAL} (with a time constant)')
+                           f'{", ".join(n for n, s in SIGNALS.items() if s.per_sample and n != LAGGED_SIGNAL)}, '
+                           f'{LAGGED_SIGNAL} (with a time constant) and the extra signals it is fed '
+                           f'({", ".join(self.extras) or "none"})')
         return cast(float, getattr(self, name))

@@ -2,7 +2,7 @@
 
 - ``calibrate apply LOG.csv --calibration FILE --out OUT.csv [--bias-samples N]``
 - ``calibrate fit LOG.csv --rows R --columns C [--serial SN] --out CAL.yaml --report REPORT.json [--plots DIR]
-  [--validate OTHER_LOG ...]``
+  [--validate OTHER_LOG ...] [--node-signal COLUMN ...]``
 - ``calibrate replay OTHER_LOG.csv --calibration CAL.yaml [--start-s S] [--bias-samples N]``
 - ``calibrate simulate --serial SN --hours H --out LOG.csv [--effect NAME ...] [--self-heating-c DT]
   [--self-heating-tau-s TAU]``
@@ -86,7 +86,7 @@ def _fit(args: argparse.Namespace) -> int:
                            temp_scale_factor=scale.temp, settle_s=args.settle_s, max_effects=args.max_effects,
                            seed=args.seed, exclude=tuple(args.exclude), block_s=args.block_s,
                            materiality_dph=args.materiality, draws=args.draws, alpha=args.alpha,
-                           from_power_on=not args.not_from_power_on)
+                           from_power_on=not args.not_from_power_on, node_signals=tuple(args.node_signal))
         settings = FitSettings(args.rows, args.columns, loop, args.bias_samples, tuple(args.validate),
                                args.validate_powered_on_at_start, topics=_topics(args), still=args.still,
                                baseline=args.baseline)
@@ -321,6 +321,10 @@ def build_parser() -> argparse.ArgumentParser:
                         '(default: the bias instability of what the ART polynomial leaves)')
     p.add_argument('--exclude', action='append', default=[], metavar='SIGNAL',
                    help='never use this signal or log column as an effect (e.g. one the node will not have); repeat')
+    p.add_argument('--node-signal', action='append', default=[], metavar='COLUMN',
+                   help='a log column (e.g. supply_v) the robot will feed gyro_node by topic: an effect on it is '
+                        'written, not only reported, and the report names the node parameters to set '
+                        '(extra_signals.COLUMN.topic, .type); repeat')
     p.add_argument('--block-s', type=float, default=DEFAULT_BLOCK_S,
                    help='shortest held-out block of time (s); each screen lengthens it to the correlation time '
                         'of what the model leaves (default %(default)s)')

@@ -40,7 +40,8 @@ RATE_SIGNALS = (*(name for name, s in SIGNALS.items() if s.from_rate), 'rate_x_t
 # Effects of the heading (a signal the node does not track): found and reported, never written into a calibration.
 HEADING_SIGNALS = tuple(name for name, s in SIGNALS.items() if not s.per_sample)
 # What the node computes at run time: an effect on any other signal (the heading, an extra log column such as a
-# supply voltage) is a finding, never written, so calibrate fit never writes a file the node refuses.
+# supply voltage) is a finding, never written, so calibrate fit never writes a file the node refuses; a log column
+# the robot feeds the node by topic (LoopOptions.node_signals, calibrate fit --node-signal) is written.
 NODE_SIGNALS = tuple(name for name, s in SIGNALS.items() if s.per_sample)
 
 
@@ -49,7 +50,8 @@ def not_written_reason(signal: str) -> str:
     if signal in HEADING_SIGNALS:
         return 'the node has no absolute heading to apply it with'
     return (f'the node has no {signal} at run time (a column of the log, not a signal the node tracks): a file with '
-            'it would be refused, so the error it explains stays uncorrected on the robot; log the robot\'s '
+            'it would be refused, so the error it explains stays uncorrected on the robot; if the robot can give '
+            f'the node {signal} by topic, fit with --node-signal {signal} to write it; else log the robot\'s '
             f'{signal} to judge its size there, or fit with --exclude {signal} to say it is known')
 
 
@@ -74,6 +76,8 @@ class LoopOptions(ScreenOptions):
     starts at the gyro's power-on (a warm-up is a candidate only then).
     ``still_instability_dps``: the bias instability measured on a record at rest
     (``calibrate fit --still``), for the materiality and the noise budget instead of the residual's.
+    ``node_signals``: log columns the robot will feed the node by topic (a supply voltage): an
+    effect on one is written, not a finding.
     """
 
     serial_number: str = DEFAULT_SERIAL
@@ -87,6 +91,7 @@ class LoopOptions(ScreenOptions):
     block_s: float = DEFAULT_BLOCK_S
     from_power_on: bool = True
     still_instability_dps: float | None = None
+    node_signals: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -196,6 +201,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
             raise LogError(f'column {name} is not a finite number at row {bad[0] + 1}')
+    runnable = NODE_SIGNALS + node_signals(options, tuple(log.extras))
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters,
                               powered_on_at_start=options.from_power_on)
     error = log.rate_dps - log.ref_rate
@@ -270,8 +276,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
     effects = [Effect(term, score, rms_without, held_out_all)
                for term, score, rms_without in zip(final.model.terms, scores, without)]
     # A heading (or extra column's) effect helped fit the rest; the file gets the model refitted without it.
-    heading = [e for e in effects if e.term.signal not in NODE_SIGNALS]
-    written = [spec for spec in specs if spec.signal in NODE_SIGNALS]
+    heading = [e for e in effects if e.term.signal not in runnable]
+    written = [spec for spec in specs if spec.signal in runnable]
     if heading:
         final = fit_model(signals, error, rows, columns, written, index, ranges=binned.ranges)
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
@@ -290,6 +296,19 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
             .materiality_dph),
         detection=detection_limits(binned, specs, rounds[-1], rows, columns, materiality, still, seed=options.seed)
         if rounds else ())
+
+
+def node_signals(options: LoopOptions, columns: tuple[str, ...]) -> tuple[str, ...]:
+    """``options.node_signals``, each checked: a column of the log (``columns``), not excluded, not derived."""
+    for name in options.node_signals:
+        if name in SIGNALS:
+            raise ValueError(f'--node-signal {name}: {name} is derived from the gyro, not a log column fed by topic')
+        if name not in columns:
+            raise LogError(f'--node-signal {name}: the log has no column {name} '
+                           f'(its extra columns: {", ".join(columns) or "none"})')
+        if name in options.exclude:
+            raise ValueError(f'--node-signal {name} and --exclude {name} contradict each other')
+    return options.node_signals
 
 
 # A term whose round score is this many times the round's threshold (standardised chance scores: an

@@ -16,7 +16,7 @@ from typing import Any
 
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
                                               CalibrationError, find_calibration_file, load_calibration,
-                                              unit_range_dps)
+                                              node_parameters_needed, unit_range_dps)
 from art_gyro_calibration.compensation import RunStart, usable_rates
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
@@ -178,8 +178,14 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
         report['warnings'] = [warning]
         warn(warning)
     # The effects above are the loop's; the checks may have dropped some: say what the file holds.
+    needed = node_parameters_needed(calibration)   # a term on a --node-signal column: the node must be fed it
     report['written'] = {'calibration': calibration_path, 'terms': [t.signal for t in calibration.terms]}
     comment = f'Fitted by calibrate fit from {log_path}: {polynomial}, effects beyond it: {found}.'
+    if needed:
+        report['written']['node_parameters'] = needed
+        warn(f'{calibration_path} has terms on signals the gyro does not measure: gyro_node refuses it unless '
+             + '; '.join(f'{name} is set ({what})' for name, what in needed.items()))
+        comment += f' gyro_node needs {" and ".join(needed)} set.'
     return FitResult(log, loop, startup, validation, calibration, comment, report,
                      baseline if isinstance(baseline, BaselineCheck) else None)
 

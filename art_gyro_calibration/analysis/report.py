@@ -192,6 +192,10 @@ def markdown_summary(report: dict[str, Any]) -> str:
                       else 'the ART polynomial refitted')
         lines += ['', f'Written: {written["calibration"]}, {polynomial} with '
                       f'{", ".join(written["terms"]) or "no term"} beyond it.']
+        needed = written.get('node_parameters', {})
+        if needed:
+            lines += ['', 'gyro_node refuses this calibration unless these parameters are set:', '']
+            lines += [f'- `{name}`: {what}' for name, what in needed.items()]
     return '\n'.join(lines) + '\n'
 
 

@@ -7,7 +7,9 @@ is one: else the rate stays uncorrected); publishing goes on meanwhile with the 
 A collection the node's stop cuts short is not a refusal: it ends without a word, and only the
 calls waiting for it are told why. The reply is deferred, not waited for:
 the callback returns at once and the executor thread is free. A collection that gets no
-frame for :data:`COLLECTION_STALL_S`, or that the shutdown cuts short, ends with the reason.
+frame for :data:`COLLECTION_STALL_S`, or that the shutdown cuts short, ends with the reason. Frames
+come to a collection only while the signals from outside the gyro the calibration needs are current
+(:class:`~art_gyro_calibration.compensation.FrameCorrector`): it waits for them, and a call says why it stalled.
 """
 
 from __future__ import annotations
@@ -69,13 +71,16 @@ class StaticBiasService:
     """The service on ``node``: feeds collections to ``corrector`` and sets its bias from them."""
 
     def __init__(self, node: Node, settings: Settings, corrector: FrameCorrector, closing: threading.Event,
-                 link_error: Callable[[], str], on_bias: Callable[[], None] = lambda: None) -> None:
-        """``link_error`` says why the gyro sends nothing, for a collection that stalls.
+                 link_error: Callable[[], str], on_bias: Callable[[], None] = lambda: None,
+                 signal_problems: Callable[[], str] = str) -> None:
+        """The service on ``node``; the callbacks say why a collection stalls, and hear of each bias.
 
-        ``on_bias`` is called (on the reader thread, before the frame that completed the collection
-        is published) each time a bias is put in force.
+        ``link_error`` says why the gyro sends nothing, ``signal_problems`` which extra signals are not
+        current ('' when all are): for a collection that stalls. ``on_bias`` is called (on the reader
+        thread, before the frame that completed the collection is published) each time a bias is put in force.
         """
         self._node = node
+        self.signal_problems = signal_problems
         self._on_bias = on_bias
         self._settings = settings
         self._corrector = corrector
@@ -187,8 +192,11 @@ class StaticBiasService:
             self._end(collection, None, 'the node is shutting down', stopping=True)
             self._send_replies()
         elif collection.waiting and time.monotonic() - collection.last_sample > COLLECTION_STALL_S:
-            self._end(collection, None, f'no frame from the gyro for {COLLECTION_STALL_S:.0f} s '
-                                        f'(link: {self._link_error() or "no data"})')
+            waiting = self.signal_problems()
+            self._end(collection, None,
+                      f'no frame to take for {COLLECTION_STALL_S:.0f} s: {waiting}' if waiting else
+                      f'no frame from the gyro for {COLLECTION_STALL_S:.0f} s '
+                      f'(link: {self._link_error() or "no data"})')
 
     def state(self) -> BiasState:
         """The static bias in use and where its collection stands, read together."""

@@ -1,4 +1,4 @@
-"""The node's ``/diagnostics`` (1 Hz): link, static bias, temperature and, when logging, the raw log.
+"""The node's ``/diagnostics`` (1 Hz): link, static bias, temperature, each extra signal, the raw log if logging.
 
 A glitch between two reports (frames lost, dropped, outside the calibrated range) must show
 in the next one, not only in a running total: each such count is told "since the last
@@ -16,6 +16,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock
 from rclpy.publisher import Publisher
 from rclpy.timer import Timer
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, PLAUSIBLE_TEMPERATURE_C, FrameCorrector
@@ -24,8 +25,9 @@ from art_gyro_calibration.frame import NOT_FINITE
 from art_gyro_calibration.kvh_fog import AXIS_INVALID, RATE_TOLERANCE
 from art_gyro_calibration.protocols import KVH_FOG
 from art_gyro_calibration.ros.bias_service import StaticBiasService
-from art_gyro_calibration.ros.parameters import Settings
+from art_gyro_calibration.ros.parameters import ExtraSignal, Settings
 from art_gyro_calibration.ros.raw_log import LOG_RETRY_S, RawLog
+from art_gyro_calibration.signals import SignalFeed
 
 DIAGNOSTICS_PERIOD_S = 1.0
 RATE_MISMATCH_CONSOLE_PERIOD_S = 60.0   # the console repeats a wrong kvh_fog.output_rate_hz this often
@@ -42,6 +44,9 @@ class DiagnosedNode(Protocol):
     raw_log: RawLog
     published: int
     last_temp_c: float
+    extra_signals: tuple[ExtraSignal, ...]
+    feeds: tuple[SignalFeed, ...]       # one per extra signal
+    extra_topics: tuple[str, ...]       # their resolved topic names
 
     def get_clock(self) -> Clock:
         """The node's clock: the stamp of each report."""
@@ -54,6 +59,9 @@ class DiagnosedNode(Protocol):
 
     def create_timer(self, *args: Any, **kwargs: Any) -> Timer:
         """The 1 Hz timer of the reports."""
+
+    def get_publishers_info_by_topic(self, topic_name: str) -> list[TopicEndpointInfo]:
+        """Who publishes an extra signal's topic, and its type (a wrong extra_signals.<signal>.type)."""
 
 
 class SinceLastReport:
@@ -83,6 +91,7 @@ class Diagnostics:
         self._invalid = SinceLastReport()             # kvh_fog: frames the gyro flagged invalid
         self._outside_range = SinceLastReport()       # frames outside the expected range (Compensator.outside_range)
         self._implausible = SinceLastReport()
+        self._not_finite = [SinceLastReport() for _ in node.feeds]   # per extra signal: values refused
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
         node.create_timer(DIAGNOSTICS_PERIOD_S, self._publish, callback_group=MutuallyExclusiveCallbackGroup())
 
@@ -90,7 +99,9 @@ class Diagnostics:
         node = self._node
         msg = DiagnosticArray()
         msg.header.stamp = node.get_clock().now().to_msg()
-        msg.status = [self._link_status(), self._bias_status(), self._temperature_status()]
+        msg.status = [self._link_status(), self._bias_status(), self._temperature_status(),
+                      *map(self._extra_signal_status, node.extra_signals, node.feeds, node.extra_topics,
+                           self._not_finite)]
         if node.settings.log_path:
             node.raw_log.check_file()
             msg.status.append(self._log_status())
@@ -186,7 +197,9 @@ class Diagnostics:
             'last_refusal': refusal}
         if state == 'collecting':
             progress = f'{collected}/{node.settings.bias_samples}'
-            return self._status('static bias', DiagnosticStatus.OK, f'collecting ({progress})', values)
+            waiting = node.bias_service.signal_problems()   # frames are taken only with every extra signal current
+            return self._status('static bias', DiagnosticStatus.OK,
+                                f'collecting ({progress})' + (f', waiting: {waiting}' if waiting else ''), values)
         if state == 'ok':
             return self._status('static bias', DiagnosticStatus.OK, bias.describe(), values)
         if state == 'refused':
@@ -195,6 +208,39 @@ class Diagnostics:
                                 values)
         return self._status('static bias', DiagnosticStatus.WARN,
                             'none: call imu/static_bias with the gyro still', values)
+
+    def _extra_signal_status(self, extra: ExtraSignal, feed: SignalFeed, topic: str,
+                             not_finite: SinceLastReport) -> DiagnosticStatus:
+        """A signal from outside the gyro: ERROR while it has no current value (the rate is flagged meanwhile)."""
+        latest = feed.latest
+        values = {'topic': topic, 'type': extra.type, 'value': 'none' if latest is None else f'{latest[0]:g}',
+                  'age_s': 'none' if latest is None else f'{feed.clock() - latest[1]:.1f}',
+                  'max_age_s': extra.max_age_s, 'received': feed.received, 'not_finite': feed.not_finite}
+        refused = not_finite.take(feed.not_finite)
+        problem = feed.problem()
+        name = f'extra signal {extra.signal}'
+        if problem:
+            effect = ('its terms are left out and no static bias is taken until one arrives' if latest is None
+                      else 'the last value is applied')
+            hint = self._other_type(extra, topic) if latest is None else ''
+            return self._status(name, DiagnosticStatus.ERROR,
+                                f'{problem} on {topic}: {effect}; the rate is flagged uncorrected (covariance)' + hint
+                                + (f'; {refused} values not finite since the last report' if refused else ''),
+                                values)
+        if refused:
+            return self._status(name, DiagnosticStatus.WARN, f'{values["value"]} (the last finite value); {refused} '
+                                'values not finite since the last report, ignored', values)
+        return self._status(name, DiagnosticStatus.OK, str(values['value']), values)
+
+    def _other_type(self, extra: ExtraSignal, topic: str) -> str:
+        """What a topic that sends nothing the node can read carries instead, if it has publishers of another type."""
+        node = self._node
+        expected = 'sensor_msgs/msg/BatteryState' if extra.type == 'battery_state' else 'std_msgs/msg/Float64'
+        types = {info.topic_type for info in node.get_publishers_info_by_topic(topic)} - {expected}
+        if not types:
+            return ''
+        return (f'; {topic} is published as {", ".join(sorted(types))}: check extra_signals.{extra.signal}.type '
+                f'(it is {extra.type}, {expected})')
 
     def _temperature_status(self) -> DiagnosticStatus:
         node = self._node

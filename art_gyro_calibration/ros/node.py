@@ -21,8 +21,16 @@ Topics (relative names, so they follow the node's namespace and remappings):
 - ``imu/uncalibrated`` (sensor_msgs/Imu), only with ``publish_uncalibrated``: the rate with only the
   scale factor applied (no polynomial, no static bias), rad/s, at the same stamps: what a
   recorded bag needs for ``calibrate fit`` and ``calibrate allan``.
-- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): link, static bias, temperature, raw log
-  (:mod:`.diagnostics`).
+- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): link, static bias, temperature, raw log,
+  each extra signal (:mod:`.diagnostics`).
+
+Subscribed: for each signal a calibration term needs that the gyro does not measure (a supply
+voltage, fitted with ``calibrate fit --node-signal``), ``extra_signals.<signal>.topic``
+(std_msgs/Float64 ``data`` or sensor_msgs/BatteryState ``voltage``, best effort, so that it matches
+any publisher). Each frame takes the latest finite value. Until one has arrived, the terms on these
+signals are left out and no static bias is collected (the start-up one waits for it); while a value
+is older than ``extra_signals.<signal>.max_age_s`` it is still applied, the last known. Either way
+the rate is flagged: covariance[8] is :data:`UNCORRECTED_YAW_VARIANCE` and the signal's status an ERROR.
 
 Service ``imu/static_bias`` (std_srvs/Trigger): collect a new static bias (:mod:`.bias_service`).
 The raw log: :mod:`.raw_log`. Parameters are strict (:mod:`.parameters`): an unknown name, a value
@@ -46,7 +54,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import Imu
+from sensor_msgs.msg import BatteryState, Imu
 from rclpy.qos import DurabilityPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float64
 
@@ -58,9 +66,10 @@ from art_gyro_calibration.kvh_fog import STANDARD_GRAVITY, KvhSample
 from art_gyro_calibration.protocols import KVH_FOG
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
-from art_gyro_calibration.ros.parameters import (IMU_TOPIC, NODE_NAME, NodeParameters, ParameterError,
-                                                 check_params_files, usage)
+from art_gyro_calibration.ros.parameters import (IMU_TOPIC, NODE_NAME, ExtraSignal, NodeParameters, ParameterError,
+                                                 check_params_files, extra_signal_parameter, usage)
 from art_gyro_calibration.ros.raw_log import RawLog
+from art_gyro_calibration.signals import SignalFeed
 
 # Variance (rad/s)^2 given to the x and y rates, which a single-axis gyro does not measure:
 # large enough that any filter fusing them ignores them, finite so that it stays usable.
@@ -77,6 +86,8 @@ IMU_QOS_OVERRIDES = QoSOverridingOptions(policy_kinds=(QoSPolicyKind.RELIABILITY
 LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
 # An out-of-range temperature is said on the console at most this often.
 TEMPERATURE_WARNING_PERIOD_S = 60.0
+# An extra signal's topic: only the latest value matters; best effort matches reliable and best-effort publishers.
+EXTRA_SIGNAL_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 class GyroNode(Node):
@@ -87,7 +98,9 @@ class GyroNode(Node):
         parameters = NodeParameters(self, argv)
         self.settings, self.kvh_fog = parameters.settings, parameters.kvh_fog
         self.calibration, self.calibration_source = parameters.calibration, parameters.calibration_source
-        self.corrector = FrameCorrector(self.calibration, RunStart(self.settings.powered_on_at_start))
+        self.extra_signals = parameters.extra_signals
+        self.feeds = tuple(SignalFeed(e.signal, e.max_age_s) for e in self.extra_signals)   # aged on time.monotonic
+        self.corrector = FrameCorrector(self.calibration, RunStart(self.settings.powered_on_at_start), self.feeds)
         self._closing = threading.Event()
         self.published = 0
         self.last_temp_c = math.nan   # of the last frame published
@@ -116,6 +129,7 @@ class GyroNode(Node):
         self._temperature = Float64()
         self._uncalibrated: Imu | None = None   # imu/uncalibrated's message, when publish_uncalibrated
         self._rate_scale = self.calibration.rate_scale_factor
+        self._yaw_variance = self.settings.yaw_rate_stddev ** 2
         # Reliable, volatile, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
         try:
             self._imu_pub = self.create_publisher(Imu, IMU_TOPIC, 10, qos_overriding_options=IMU_QOS_OVERRIDES)
@@ -129,8 +143,13 @@ class GyroNode(Node):
         if self.settings.publish_uncalibrated:
             self._uncalibrated = copy.deepcopy(self._imu)   # the same frame and covariances
             self._uncalibrated_pub = self.create_publisher(Imu, 'imu/uncalibrated', 10)
+        self.extra_topics = tuple(self._subscribe(extra, feed) for extra, feed in zip(self.extra_signals, self.feeds))
+        for extra in parameters.unused_extra_signals:
+            self.get_logger().warning(f'parameters extra_signals.{extra.signal}.*: the calibration has no term on '
+                                      f'{extra.signal}; {extra.topic} is not subscribed')
         self.bias_service = StaticBiasService(self, self.settings, self.corrector, self._closing,
-                                              lambda: self.driver.stats.last_error, self._on_bias)
+                                              lambda: self.driver.stats.last_error, self._on_bias,
+                                              self.extra_signal_problems)
         self._diagnostics = Diagnostics(self)
 
         if self.settings.static_bias_on_startup:
@@ -173,6 +192,9 @@ class GyroNode(Node):
         imu.angular_velocity.z = math.radians(corrector.rate_dps)
         if self._axes and isinstance(sample, KvhSample):
             self._fill_imu(imu, sample)
+        if self.feeds:   # an extra signal missing or stale: flagged as before a static bias
+            imu.angular_velocity_covariance[8] = (self._yaw_variance if self.is_calibrated and
+                                                  corrector.compensator.current else UNCORRECTED_YAW_VARIANCE)
         self._imu_pub.publish(imu)
         uncalibrated = self._uncalibrated
         if uncalibrated is not None:   # the rate as the compensator scales it, before any correction
@@ -194,8 +216,36 @@ class GyroNode(Node):
         """A static bias is in force (reader thread, before the frame that completed it is published)."""
         if not self.is_calibrated:   # a bias replaces a bias: the state changes once
             self.is_calibrated = True
-            self._imu.angular_velocity_covariance[8] = self.settings.yaw_rate_stddev ** 2
+            self._imu.angular_velocity_covariance[8] = self._yaw_variance
             self._calibrated_pub.publish(Bool(data=True))
+
+    # --- signals from outside the gyro ---------------------------------------------------------
+
+    def _subscribe(self, extra: ExtraSignal, feed: SignalFeed) -> str:
+        """Feed ``feed`` from its topic (on the executor); the topic's resolved name."""
+        if extra.type == 'battery_state':
+            kind: type = BatteryState
+
+            def received(message: BatteryState) -> None:
+                feed.put(message.voltage)
+        else:
+            kind = Float64
+
+            def received(message: Float64) -> None:
+                feed.put(message.data)
+        try:
+            subscription = self.create_subscription(kind, extra.topic, received, EXTRA_SIGNAL_QOS)
+        except Exception as e:   # rclpy raises several types for a bad topic name
+            raise ParameterError(f'parameter {extra_signal_parameter(extra.signal)}: {e}') from None
+        self.get_logger().info(f'{extra.signal} from {subscription.topic_name} ({extra.type}): the calibration\'s '
+                               f'term on it is applied with the latest value, flagged when older than '
+                               f'{extra.max_age_s:g} s')
+        return subscription.topic_name
+
+    def extra_signal_problems(self) -> str:
+        """Why the extra signals are not all current now ('' when they are), for a static bias that waits."""
+        problems = ((feed.problem(), topic) for feed, topic in zip(self.feeds, self.extra_topics))
+        return '; '.join(f'{problem} on {topic}' for problem, topic in problems if problem)
 
     def _fill_imu(self, imu: Imu, sample: KvhSample) -> None:
         """The x and y rates and the accelerations of a kvh_fog IMU in REP 103 axes (z is the calibrated yaw)."""

@@ -17,12 +17,14 @@ from typing import Any, NamedTuple
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 
-from art_gyro_calibration.calibration import (CALIBRATION_KEYS, Calibration, CalibrationError, closest,
+from art_gyro_calibration.calibration import (CALIBRATION_KEYS, EXTRA_SIGNAL_TYPES, SIGNAL_PATTERN, Calibration,
+                                              CalibrationError, check_fed, closest, extra_signal_parameter,
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
                                               load_calibration, read_yaml, resolve_calibration_url)
 from art_gyro_calibration.driver import BAUDS
 from art_gyro_calibration.kvh_fog import KVH_DEFAULT_BAUD, KvhFogConfig
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
+from art_gyro_calibration.signals import SIGNALS
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES
 
 NODE_NAME = 'gyro_node'
@@ -100,8 +102,84 @@ KVH_FOG_PARAMETERS.update({
 KVH_FOG_RANGES = {'kvh_fog.rate_stddev': Range(1e-7, 1.0), 'kvh_fog.acceleration_stddev': Range(1e-6, 100.0)}
 
 
+# --- signals from outside the gyro ---------------------------------------------------------------
+# Per signal a calibration's terms need that the gyro does not measure (a log column such as supply_v, fitted with
+# calibrate fit --node-signal): extra_signals.<signal>.<field>: (default, description[, range]).
+EXTRA_SIGNAL_FIELDS: dict[str, tuple[Any, ...]] = {
+    'topic': ('', 'Topic that carries the signal (relative names follow the namespace and remappings); required for '
+                  'each signal a calibration term needs that the gyro does not measure (such as supply_v).'),
+    'type': ('float64', 'Its message: ' + ', '.join(f'{k} ({v})' for k, v in EXTRA_SIGNAL_TYPES.items())
+             + '. A value that is not finite (BatteryState\'s NaN, unknown) is not a value.',
+             tuple(EXTRA_SIGNAL_TYPES)),
+    'max_age_s': (5.0, 'A value older than this (s) at a frame is stale: still applied (the last known), but the '
+                       'rate is flagged: covariance[8] as before a static bias, an ERROR in /diagnostics.',
+                  Range(0.01, 86400.0)),
+}
+
+
 class ParameterError(ValueError):
     """A node parameter that cannot be used, named in the message."""
+
+
+@dataclass(frozen=True)
+class ExtraSignal:
+    """Where the node gets one signal from outside the gyro: ``extra_signals.<signal>.*``, checked."""
+
+    signal: str
+    topic: str
+    type: str
+    max_age_s: float
+
+
+def extra_signal_name(name: str) -> tuple[str, str] | None:
+    """(signal, field) of an ``extra_signals.<signal>.<field>`` parameter name, else None."""
+    parts = name.split('.')
+    if len(parts) == 3 and parts[0] == 'extra_signals' and parts[2] in EXTRA_SIGNAL_FIELDS \
+            and SIGNAL_PATTERN.match(parts[1]):
+        return parts[1], parts[2]
+    return None
+
+
+def extra_signal_settings(values: Mapping[str, Any], calibration: Calibration,
+                          source: str) -> tuple[tuple[ExtraSignal, ...], tuple[ExtraSignal, ...]]:
+    """The ``extra_signals.*`` parameters given (``values``, by name) checked against the calibration from ``source``.
+
+    Returns (the signals its terms need, in their order; those given that no term needs). A term on a
+    signal without a topic is refused naming the parameter to set, as is a derived signal or a bad value.
+    """
+    given: dict[str, dict[str, Any]] = {}
+    for name, value in values.items():
+        parsed = extra_signal_name(name)
+        if parsed is None:
+            continue
+        signal, field = parsed
+        if signal in SIGNALS:
+            raise ParameterError(f'parameter {name}: {signal} is derived from the gyro\'s frames, not fed by a topic')
+        given.setdefault(signal, {})[field] = _coerce(name, value, EXTRA_SIGNAL_FIELDS[field][0])
+    try:
+        check_fed(calibration, [s for s, fields in given.items() if fields.get('topic', '').strip()],
+                  f'the calibration of {calibration.serial_number} from {source}')
+    except CalibrationError as e:
+        raise ParameterError(str(e)) from None
+    signals = []
+    for signal, fields in given.items():
+        topic = fields.get('topic', '')
+        if not topic.strip():
+            raise ParameterError(f'parameter {extra_signal_parameter(signal)} must name the topic of {signal} '
+                                 f'(other extra_signals.{signal}.* parameters are given)')
+        kind = fields.get('type', EXTRA_SIGNAL_FIELDS['type'][0])
+        if kind not in EXTRA_SIGNAL_TYPES:
+            name = extra_signal_parameter(signal, 'type')
+            raise ParameterError(f'parameter {name} must be {describe_constraint(name)}, got {kind!r}')
+        max_age_s = fields.get('max_age_s', EXTRA_SIGNAL_FIELDS['max_age_s'][0])
+        name = extra_signal_parameter(signal, 'max_age_s')
+        low, high = _constraint(name)
+        if not (math.isfinite(max_age_s) and low <= max_age_s <= high):
+            raise ParameterError(f'parameter {name} must be in {describe_constraint(name)}, got {max_age_s!r}')
+        signals.append(ExtraSignal(signal, topic, kind, max_age_s))
+    needed = [t.signal for t in calibration.terms]
+    return (tuple(sorted((e for e in signals if e.signal in needed), key=lambda e: needed.index(e.signal))),
+            tuple(e for e in signals if e.signal not in needed))
 
 
 def check_kvh_fog_calibration(calibration: Calibration, source: str) -> None:
@@ -134,8 +212,14 @@ class Settings:
     publish_uncalibrated: bool = False
 
 
+def _entry(name: str) -> tuple[Any, ...]:
+    """(default, description[, constraint]) of a node parameter or of an ``extra_signals.<signal>.<field>``."""
+    parsed = extra_signal_name(name)
+    return EXTRA_SIGNAL_FIELDS[parsed[1]] if parsed is not None else PARAMETERS[name]
+
+
 def _constraint(name: str) -> Any:
-    entry = PARAMETERS[name]
+    entry = _entry(name)
     return entry[2] if len(entry) > 2 else None
 
 
@@ -167,7 +251,7 @@ def check_settings(values: dict[str, Any]) -> Settings:
 
 def descriptor(name: str) -> ParameterDescriptor:
     """Read-only descriptor of a node parameter, with its range where it is a number."""
-    default, description = PARAMETERS[name][:2]
+    default, description = _entry(name)[:2]
     d = ParameterDescriptor(description=description, read_only=True)
     constraint = _constraint(name)
     if isinstance(constraint, Range) and isinstance(default, int):
@@ -210,11 +294,19 @@ def usage(summary: str) -> str:
         allowed = f', {bounds.low:g}..{bounds.high:g}' if bounds else ''
         lines.append(f'  {name} ({type(default).__name__}, default {default!r}{allowed})')
         lines.append(f'      {description}')
+    lines += ['', 'signals from outside the gyro: for each <signal> a calibration term needs that the gyro does not '
+              'measure (a supply voltage; calibrate fit --node-signal), where it comes from:']
+    for field, (default, description, *_) in EXTRA_SIGNAL_FIELDS.items():
+        name = extra_signal_parameter('<signal>', field)
+        allowed = describe_constraint(extra_signal_parameter('signal', field))
+        lines.append(f'  {name} ({type(default).__name__}, default {default!r}{", " + allowed if allowed else ""})')
+        lines.append(f'      {description}')
     lines += ['', 'calibration parameters (from the calibration file, read-only): '
               + ', '.join(sorted(CALIBRATION_KEYS)) + ', extended.<signal>.*',
               f'QoS of {IMU_TOPIC} (default reliable, depth 10): qos_overrides./<namespace>/{IMU_TOPIC}.publisher.'
               '{reliability,history,depth,durability}',
-              'topics: imu/data_raw (sensor_msgs/Imu), imu/temperature (std_msgs/Float64), /diagnostics; '
+              'topics: imu/data_raw (sensor_msgs/Imu), imu/temperature (std_msgs/Float64), /diagnostics, and in: '
+              'each extra_signals.<signal>.topic; '
               'service: imu/static_bias (std_srvs/Trigger)']
     return '\n'.join(lines)
 
@@ -280,7 +372,7 @@ class NodeParameters:
         # Known now: the node's own, a calibration's, rclpy's (use_sim_time); QoS overrides once the publisher is made.
         self.check_known_names(lambda name: name in PARAMETERS or name in KVH_FOG_PARAMETERS
                                or is_calibration_key(name) or node.has_parameter(name)
-                               or name.startswith('qos_overrides.'))
+                               or name.startswith('qos_overrides.') or extra_signal_name(name) is not None)
         values = {name: self._override(name, entry[0]) for name, entry in PARAMETERS.items()}
         if values['protocol'] == KVH_FOG and 'baud' not in node._parameter_overrides:
             values['baud'] = KVH_DEFAULT_BAUD   # the unit's factory rate, not an RD2100's
@@ -299,6 +391,13 @@ class NodeParameters:
         self.calibration, self.calibration_source = self._load_calibration()
         if self.settings.protocol == KVH_FOG:
             check_kvh_fog_calibration(self.calibration, self.calibration_source)
+        self.extra_signals, self.unused_extra_signals = extra_signal_settings(
+            {name: p.value for name, p in node._parameter_overrides.items() if extra_signal_name(name)},
+            self.calibration, self.calibration_source)
+        for extra in self.extra_signals + self.unused_extra_signals:
+            for field in EXTRA_SIGNAL_FIELDS:
+                name = extra_signal_parameter(extra.signal, field)
+                node.declare_parameter(name, getattr(extra, field), descriptor(name), ignore_override=True)
 
     def _where(self, name: str) -> str:
         """Which params file gave a parameter (the last one, as rcl applies them), else the command line."""
@@ -308,6 +407,9 @@ class NodeParameters:
     def check_known_names(self, known: Callable[[str], bool]) -> None:
         """Refuse a parameter given to the node that nothing reads, naming the closest valid name."""
         names = set(PARAMETERS) | set(KVH_FOG_PARAMETERS) | set(CALIBRATION_KEYS) | set(self._node._parameters)
+        # A misspelt field of an extra signal: the valid fields of the signals named.
+        names |= {extra_signal_parameter(name.split('.')[1], field) for name in self._node._parameter_overrides
+                  if name.startswith('extra_signals.') and name.count('.') == 2 for field in EXTRA_SIGNAL_FIELDS}
         for name in self._node._parameter_overrides:
             if not known(name):
                 raise ParameterError(f'unknown parameter {name!r} (from {self._where(name)}){closest(name, names)}')

@@ -2,6 +2,7 @@
 
 ``qos_overrides./imu/data_raw.publisher.durability`` was documented and refused ("unknown parameter").
 The names come from the README itself, so a name documented later is checked too (it needs a sample value here).
+A row for each extra signal (``extra_signals.<signal>.topic``) is checked as ``supply_v``'s.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from rclpy.parameter import parameter_value_to_python  # noqa: E402
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy  # noqa: E402
 from rosproc import REPO, TIMEOUT_S, domain_id, node_with_listener, wait_until  # noqa: E402
 
-from art_gyro_calibration.ros.parameters import KVH_FOG_PARAMETERS, PARAMETERS  # noqa: E402
+from art_gyro_calibration.ros.parameters import EXTRA_SIGNAL_FIELDS, KVH_FOG_PARAMETERS, PARAMETERS  # noqa: E402
 
 QOS = 'qos_overrides./imu/data_raw.publisher.'
 # A valid value for every documented name, other than its default where it has one (so its effect shows).
@@ -36,7 +37,11 @@ SAMPLES: dict[str, Any] = {
     'kvh_fog.timestamp_source': 'unit_clock', 'kvh_fog.rate_stddev': 0.002, 'kvh_fog.acceleration_stddev': 0.1,
     QOS + 'reliability': 'best_effort', QOS + 'history': 'keep_last', QOS + 'depth': 5,
     QOS + 'durability': 'transient_local',
+    # NAVC3545 has no supply term: declared with these values, not subscribed (a console warning).
+    'extra_signals.supply_v.topic': 'power/battery', 'extra_signals.supply_v.type': 'battery_state',
+    'extra_signals.supply_v.max_age_s': 2.0,
 }
+EXTRA = 'extra_signals.supply_v.'   # what a README row of extra_signals.<signal>.* stands for
 
 
 def readme_parameters() -> set[str]:
@@ -60,7 +65,7 @@ def readme_parameters() -> set[str]:
             names.update(prefix + p for p in re.findall(r'`(\w+)`', cells[-1]) if p in ('reliability', 'history',
                                                                                         'depth', 'durability'))
         else:
-            names.add(cells[0])
+            names.add(cells[0].replace('extra_signals.<signal>.', EXTRA))
     return names
 
 
@@ -76,7 +81,8 @@ def help_parameters() -> set[str]:
 
 def test_the_readme_and_help_name_every_parameter_and_only_those() -> None:
     documented = readme_parameters()
-    assert documented == set(PARAMETERS) | set(KVH_FOG_PARAMETERS) | {n for n in SAMPLES if n.startswith(QOS)}
+    assert documented == (set(PARAMETERS) | set(KVH_FOG_PARAMETERS) | {n for n in SAMPLES if n.startswith(QOS)}
+                          | {EXTRA + field for field in EXTRA_SIGNAL_FIELDS})
     assert help_parameters() <= documented and set(PARAMETERS) <= help_parameters()
 
 
