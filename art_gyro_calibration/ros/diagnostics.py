@@ -25,7 +25,7 @@ from art_gyro_calibration.frame import NOT_FINITE
 from art_gyro_calibration.kvh_fog import AXIS_INVALID, RATE_TOLERANCE
 from art_gyro_calibration.protocols import KVH_FOG
 from art_gyro_calibration.ros.bias_service import StaticBiasService
-from art_gyro_calibration.ros.parameters import ExtraSignal, Settings
+from art_gyro_calibration.ros.parameters import EXTRA_SIGNAL_MESSAGES, ExtraSignal, Settings, ros_type_name
 from art_gyro_calibration.ros.raw_log import LOG_RETRY_S, RawLog
 from art_gyro_calibration.signals import SignalFeed
 
@@ -235,7 +235,7 @@ class Diagnostics:
     def _other_type(self, extra: ExtraSignal, topic: str) -> str:
         """What a topic that sends nothing the node can read carries instead, if it has publishers of another type."""
         node = self._node
-        expected = 'sensor_msgs/msg/BatteryState' if extra.type == 'battery_state' else 'std_msgs/msg/Float64'
+        expected = ros_type_name(EXTRA_SIGNAL_MESSAGES[extra.type][0])
         types = {info.topic_type for info in node.get_publishers_info_by_topic(topic)} - {expected}
         if not types:
             return ''

@@ -48,13 +48,14 @@ import sys
 import threading
 from collections.abc import MutableMapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import BatteryState, Imu
+from sensor_msgs.msg import Imu
 from rclpy.qos import DurabilityPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float64
 
@@ -66,8 +67,9 @@ from art_gyro_calibration.kvh_fog import STANDARD_GRAVITY, KvhSample
 from art_gyro_calibration.protocols import KVH_FOG
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
-from art_gyro_calibration.ros.parameters import (IMU_TOPIC, NODE_NAME, ExtraSignal, NodeParameters, ParameterError,
-                                                 check_params_files, extra_signal_parameter, usage)
+from art_gyro_calibration.ros.parameters import (EXTRA_SIGNAL_MESSAGES, IMU_TOPIC, NODE_NAME, ExtraSignal,
+                                                 NodeParameters, ParameterError, check_params_files,
+                                                 extra_signal_parameter, usage)
 from art_gyro_calibration.ros.raw_log import RawLog
 from art_gyro_calibration.signals import SignalFeed
 
@@ -223,16 +225,10 @@ class GyroNode(Node):
 
     def _subscribe(self, extra: ExtraSignal, feed: SignalFeed) -> str:
         """Feed ``feed`` from its topic (on the executor); the topic's resolved name."""
-        if extra.type == 'battery_state':
-            kind: type = BatteryState
+        kind, field = EXTRA_SIGNAL_MESSAGES[extra.type]
 
-            def received(message: BatteryState) -> None:
-                feed.put(message.voltage)
-        else:
-            kind = Float64
-
-            def received(message: Float64) -> None:
-                feed.put(message.data)
+        def received(message: Any) -> None:
+            feed.put(getattr(message, field))
         try:
             subscription = self.create_subscription(kind, extra.topic, received, EXTRA_SIGNAL_QOS)
         except Exception as e:   # rclpy raises several types for a bad topic name

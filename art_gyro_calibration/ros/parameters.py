@@ -16,6 +16,8 @@ from typing import Any, NamedTuple
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
+from sensor_msgs.msg import BatteryState
+from std_msgs.msg import Float64
 
 from art_gyro_calibration.calibration import (CALIBRATION_KEYS, EXTRA_SIGNAL_TYPES, SIGNAL_PATTERN, Calibration,
                                               CalibrationError, check_fed, closest, extra_signal_parameter,
@@ -115,6 +117,16 @@ EXTRA_SIGNAL_FIELDS: dict[str, tuple[Any, ...]] = {
                        'rate is flagged: covariance[8] as before a static bias, an ERROR in /diagnostics.',
                   Range(0.01, 86400.0)),
 }
+
+
+# How each extra_signals.<signal>.type is read: its message and the field that holds the value.
+EXTRA_SIGNAL_MESSAGES: dict[str, tuple[type, str]] = {
+    'float64': (Float64, 'data'), 'battery_state': (BatteryState, 'voltage')}
+
+
+def ros_type_name(message: type) -> str:
+    """A message class's type as the ROS graph names it (``sensor_msgs/msg/BatteryState``)."""
+    return f'{message.__module__.split(".")[0]}/msg/{message.__name__}'
 
 
 class ParameterError(ValueError):
