@@ -194,3 +194,17 @@ def test_unknown_shape(lv: ModuleType, short_log: GyroLog) -> None:
     """A shape not in SHAPES is refused by name."""
     with pytest.raises(ValueError, match='unknown shape'):
         lv.shape_unit('triangle', short_log)
+
+
+def test_the_detector_told_the_shape_finds_it_and_not_its_absence(lv: ModuleType, short_log: GyroLog) -> None:
+    """A heading sawtooth of 2 deg/h beyond the polynomial on half an hour: the projection on it beats chance."""
+    truth = load_packaged_calibration(lv.SERIAL)
+    rows, columns = truth.polynomial.rows, truth.polynomial.columns
+    effect, _ = lv.sized_shape('heading_sawtooth', short_log, 2.0, rows, columns)
+    shaped = GyroLog(short_log.t, short_log.rate_dps + effect, short_log.temp_c, short_log.ref_rate,
+                     short_log.extras)
+    score, chance = lv.oracle_shape_score(shaped, effect, rows, columns, seed=1)
+    assert score > 2.0 * chance
+    # The same log without the shape: the projection is chance's.
+    score, chance = lv.oracle_shape_score(short_log, effect, rows, columns, seed=1)
+    assert score < chance

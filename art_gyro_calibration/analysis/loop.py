@@ -113,11 +113,11 @@ class Effect:
 class SignalShape:
     """What the held-out residual does against one signal, with no form assumed (binned means).
 
-    ``shape_dph``: half the peak-to-peak of the residual's means in :data:`SHAPE_GROUPS` groups of
-    the signal (heading: 30-degree sectors of the heading modulo 360); ``score`` the spread of
-    those means over its median by chance, ``chance_score`` the level chance reaches for the
-    strongest of all signals (phase-randomised residuals). ``found``: beyond both chance and
-    the materiality.
+    ``shape_dph``: half the peak-to-peak of the residual's means in groups of the signal
+    (:func:`signal_groups`; heading: 30-degree sectors of the heading modulo 360); ``score`` how
+    far those means stand out against phase-randomised residuals (:func:`shape_scores`),
+    ``chance_score`` the level chance reaches for the strongest of all signals. ``found``:
+    beyond both chance and the materiality.
     """
 
     signal: str
@@ -465,17 +465,89 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
 
 # Groups of a signal's values (equal counts of bins; the heading: sectors of 360 / SHAPE_GROUPS degrees).
 SHAPE_GROUPS = 12
+# A signal that holds at most SHAPE_LEVELS levels (a rate table's steps) is grouped by level instead: equal counts
+# put +1 and +2 deg/s in one group, and a shape at one of them was halved (found in 3 of 6 runs at 3x the
+# materiality). Levels are split where the sorted values leap by more than LEVEL_GAP of their range: a rate
+# table's steps are 1 deg/s apart in 200, its noise a few thousandths; a ramped temperature or a supply voltage
+# leaps nowhere near that.
+SHAPE_LEVELS = 32
+LEVEL_GAP = 1e-3
+LEVEL_WIDTH = 0.5   # and each level spans less than this share of the leaps beside it
+SHAPE_BINS = 24     # other signals: groups of equal width over their central values
+TAIL_SHARE = 0.01   # the share of the values at either end beyond those
+# A level sized in a shape holds at least this share of the weight: a few bins (a restart's turn) are one moment
+# of the wander, not a shape.
+MIN_LEVEL_SHARE = 0.5 / SHAPE_LEVELS
 # The signals the form-free check looks at beside every extra log column; the heading modulo 360 degrees.
 # Chance copies of the residual grouped at a time.
 SHAPE_DRAW_BATCH = 25
+# Each statistic is scaled by this quantile of its chance copies: by their median, the spread over few groups (a
+# long tail) set the level chance reaches for all, and a temperature bump on a 6 h log, 1.8 times the 95 % of its
+# own copies, was not found.
+SHAPE_SCALE_QUANTILE = 0.9
 SHAPE_SIGNALS = ('rate', 'temperature', 'temperature_rate', 'time_since_power_on', 'angle', 'rate_change')
+
+
+def signal_groups(x: NDArray[np.float64], circular: bool = False) -> NDArray[np.int64]:
+    """The group of each value of a signal, for the form-free check.
+
+    Its level if it holds a few (:data:`SHAPE_LEVELS`: a rate table's steps); else
+    :data:`SHAPE_BINS` groups of equal width over its central values, a group of fewer than
+    :data:`MIN_LEVEL_SHARE` of the values joined to the next; equal counts if that leaves fewer
+    than :data:`SHAPE_GROUPS`. ``circular``: a heading in degrees, in sectors of its value modulo 360.
+    """
+    if circular:
+        return np.floor(np.mod(x, 360.0) / (360.0 / SHAPE_GROUPS)).astype(np.int64) % SHAPE_GROUPS
+    order = np.sort(x)
+    leaps = np.flatnonzero(np.diff(order) > LEVEL_GAP * (order[-1] - order[0]))
+    if 0 < len(leaps) < SHAPE_LEVELS:
+        # Levels, if each is narrow beside the leaps to its neighbours (a continuous signal may leap in a few
+        # places; the measured rate's levels widen with the rate, by the gyro's scale factor over temperature).
+        widths = order[np.append(leaps, -1)] - order[np.insert(leaps + 1, 0, 0)]
+        gaps = np.concatenate([[np.inf], order[leaps + 1] - order[leaps], [np.inf]])
+        if np.all(widths < LEVEL_WIDTH * np.minimum(gaps[:-1], gaps[1:])):
+            return np.searchsorted(0.5 * (order[leaps] + order[leaps + 1]), x).astype(np.int64)
+    # Equal widths over the central values (the tails join the end groups), a narrow group joined to the next:
+    # equal counts gave the chamber's holds ten groups and a ramp two, and a bump on the ramp was diluted.
+    low, high = np.quantile(x, [TAIL_SHARE, 1.0 - TAIL_SHARE])
+    g = np.searchsorted(np.linspace(low, high, SHAPE_BINS + 1)[1:-1], x, side='right')
+    counts = np.bincount(g, minlength=SHAPE_BINS)
+    merged = np.empty(SHAPE_BINS, dtype=np.int64)
+    group, held = 0, 0
+    for b in range(SHAPE_BINS):
+        merged[b] = group
+        held += counts[b]
+        if held >= MIN_LEVEL_SHARE * len(x) and counts[b + 1:].sum() >= MIN_LEVEL_SHARE * len(x):
+            group, held = group + 1, 0
+    if group + 1 >= SHAPE_GROUPS:
+        return merged[g]
+    # A peaked signal (the rate change: most bins at rest) leaves few groups of equal width: a spread over few
+    # groups has a long tail by chance, which raised the level chance reaches for every signal.
+    edges = np.quantile(x, np.linspace(0.0, 1.0, SHAPE_GROUPS + 1)[1:-1])
+    return np.searchsorted(edges, x, side='right').astype(np.int64)
+
+
+def shape_scores(means: NDArray[np.float64], shares: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A signal's score for the residual and each chance copy (columns of ``means``, group means, residual first).
+
+    The larger of two statistics, each over its :data:`SHAPE_SCALE_QUANTILE` among the copies:
+    the weighted spread of the group means (a shape across the signal's range) and the largest
+    group mean over its own spread among the copies (a shape in one group: a temperature bump on
+    a 6 h log, the loop study's run 402001, stood out by this one alone).
+    """
+    kept = shares >= MIN_LEVEL_SHARE   # a level of a few bins (a restart's turn) is one moment, not a shape
+    spread = shares[kept] @ means[kept] ** 2
+    own_spread = np.sqrt(np.mean(means[kept, 1:] ** 2, axis=1))
+    peak = np.max(np.abs(means[kept]) / np.maximum(own_spread, 1e-300)[:, None], axis=0)
+    return np.maximum(spread / max(float(np.quantile(spread[1:], SHAPE_SCALE_QUANTILE)), 1e-300),
+                      peak / max(float(np.quantile(peak[1:], SHAPE_SCALE_QUANTILE)), 1e-300))
 
 
 def _group_means(groups: NDArray[np.int64], weights: NDArray[np.float64],
                  values: NDArray[np.float64]) -> NDArray[np.float64]:
     """Weighted means of ``values`` (columns) per group, less the overall mean, shape (groups, columns)."""
-    total = np.bincount(groups, weights=weights, minlength=SHAPE_GROUPS)
-    out = np.stack([np.bincount(groups, weights=weights * v, minlength=SHAPE_GROUPS) for v in values.T], axis=1)
+    total = np.bincount(groups, weights=weights)
+    out = np.stack([np.bincount(groups, weights=weights * v, minlength=len(total)) for v in values.T], axis=1)
     out /= np.maximum(total, 1e-300)[:, None]
     overall = (weights @ values) / weights.sum()
     out -= overall
@@ -490,7 +562,7 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDAr
 
     Per signal, the residual's weighted means in :data:`SHAPE_GROUPS` groups of the signal's
     value at each bin (weighted by the inverse of its held-out variance: ``inflation``, see
-    :func:`trace.held_out_residual`); the statistic is their weighted spread. Chance: ``options.draws``
+    :func:`trace.held_out_residual`); the statistic is :func:`shape_scores`. Chance: ``options.draws``
     phase-randomised copies of the residual (its own memory, as the loop's screen draws them),
     each signal's statistic divided by its median over the draws, and the
     ``1 - options.alpha`` quantile of the largest over the signals: one level for all.
@@ -513,24 +585,15 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDAr
     # chance copies drawn from the residual standardised by it and given it back, such bins weigh as they should.
     spread_of = np.sqrt(inflation)
     weights = binned.sqrt_counts ** 2 / spread_of ** 2
-    groups = []
-    for name in names:
-        x = np.asarray(signals.get(name))[before if name in RATE_SIGNALS else rows]
-        if name == 'angle':
-            g = np.floor(np.mod(x, 360.0) / (360.0 / SHAPE_GROUPS)).astype(np.int64) % SHAPE_GROUPS
-        else:
-            edges = np.quantile(x, np.linspace(0.0, 1.0, SHAPE_GROUPS + 1)[1:-1])
-            g = np.searchsorted(edges, x, side='right').astype(np.int64)
-        groups.append(g)
     if not names or len(residual) < 4 * SHAPE_GROUPS:
         return ()
+    groups = [signal_groups(np.asarray(signals.get(name))[before if name in RATE_SIGNALS else rows], name == 'angle')
+              for name in names]
     rng = np.random.default_rng(options.seed)
     spectrum = mirrored_spectrum(residual / spread_of)
     share = weights / weights.sum()
-    shares = [np.bincount(g, weights=share, minlength=SHAPE_GROUPS) for g in groups]
-    spread = np.empty((len(names), options.draws + 1))
-    shape_dph = np.empty(len(names))
-    own = np.empty((len(names), SHAPE_GROUPS))   # the residual's group means per signal
+    shares = [np.bincount(g, weights=share) for g in groups]
+    means = [np.empty((len(w), options.draws + 1)) for w in shares]   # per signal: group means, residual first
     # The residual, then its chance copies a batch at a time (the same draws as all at once): a 24 h log's
     # 200 copies would hold 140 MiB.
     done = 0
@@ -542,14 +605,11 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDAr
         else:
             values = phase_surrogates(spectrum, count, rng)[:len(residual)] * spread_of[:, None]
         for i, g in enumerate(groups):
-            means = _group_means(g, weights, values)
-            spread[i, done:done + count] = shares[i] @ means ** 2
-            if done == 0:
-                own[i] = means[:, 0]
-                shape_dph[i] = 0.5 * np.ptp(means[shares[i] > 0.0, 0]) * DEG_PER_H_PER_DPS
+            means[i][:, done:done + count] = _group_means(g, weights, values)
         done += count
-    typical = np.maximum(np.median(spread[:, 1:], axis=1), 1e-300)
-    scores = spread / typical[:, None]
+    scores = np.stack([shape_scores(m, w) for m, w in zip(means, shares)])
+    own = [m[:, 0] for m in means]
+    shape_dph = np.array([0.5 * np.ptp(m[w >= MIN_LEVEL_SHARE]) for m, w in zip(own, shares)]) * DEG_PER_H_PER_DPS
     chance = float(np.quantile(scores[:, 1:].max(axis=0), 1.0 - options.alpha))
     signals.forget()   # the derived signals read here are as long as the log
     measured = options.materiality_dph is None and options.still_instability_dps is None
