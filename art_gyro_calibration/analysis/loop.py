@@ -463,11 +463,12 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
                     excess * DEG_PER_H_PER_DPS, noise.instability_dps * DEG_PER_H_PER_DPS, shapes)
 
 
-# Groups of a signal's values (equal counts of bins; the heading: sectors of 360 / SHAPE_GROUPS degrees).
+# The heading's sectors are 360 / SHAPE_GROUPS degrees; other signals are grouped by level, else by equal widths,
+# else (fewer groups than this) by equal counts (signal_groups).
 SHAPE_GROUPS = 12
-# A signal that holds at most SHAPE_LEVELS levels (a rate table's steps) is grouped by level instead: equal counts
-# put +1 and +2 deg/s in one group, and a shape at one of them was halved (found in 3 of 6 runs at 3x the
-# materiality). Levels are split where the sorted values leap by more than LEVEL_GAP of their range: a rate
+# A signal that holds at most SHAPE_LEVELS levels (a rate table's steps) is grouped by level: equal counts split
+# +2 deg/s between a group with +1 and one with +5 on a 2 h log, and a bump there scored 2.75 against the 2.84
+# chance reached. Levels are split where the sorted values leap by more than LEVEL_GAP of their range: a rate
 # table's steps are 1 deg/s apart in 200, its noise a few thousandths; a ramped temperature or a supply voltage
 # leaps nowhere near that.
 SHAPE_LEVELS = 32
@@ -475,16 +476,16 @@ LEVEL_GAP = 1e-3
 LEVEL_WIDTH = 0.5   # and each level spans less than this share of the leaps beside it
 SHAPE_BINS = 24     # other signals: groups of equal width over their central values
 TAIL_SHARE = 0.01   # the share of the values at either end beyond those
-# A level sized in a shape holds at least this share of the weight: a few bins (a restart's turn) are one moment
-# of the wander, not a shape.
+# A group of less than this share of the weight is left out of the statistics and the size: a few bins (a
+# restart's turn) are one moment of the wander, not a shape (one at 18.8 deg/h alarmed a null 2 h log).
 MIN_LEVEL_SHARE = 0.5 / SHAPE_LEVELS
-# The signals the form-free check looks at beside every extra log column; the heading modulo 360 degrees.
-# Chance copies of the residual grouped at a time.
-SHAPE_DRAW_BATCH = 25
 # Each statistic is scaled by this quantile of its chance copies: by their median, the spread over few groups (a
 # long tail) set the level chance reaches for all, and a temperature bump on a 6 h log, 1.8 times the 95 % of its
 # own copies, was not found.
 SHAPE_SCALE_QUANTILE = 0.9
+# Chance copies of the residual grouped at a time.
+SHAPE_DRAW_BATCH = 25
+# The signals the form-free check looks at beside every extra log column; the heading modulo 360 degrees.
 SHAPE_SIGNALS = ('rate', 'temperature', 'temperature_rate', 'time_since_power_on', 'angle', 'rate_change')
 
 
@@ -560,12 +561,12 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDAr
                   options: LoopOptions = LoopOptions()) -> tuple[SignalShape, ...]:
     """The held-out residual (bin means, deg/s) against each signal the loop knows, with no form assumed.
 
-    Per signal, the residual's weighted means in :data:`SHAPE_GROUPS` groups of the signal's
-    value at each bin (weighted by the inverse of its held-out variance: ``inflation``, see
-    :func:`trace.held_out_residual`); the statistic is :func:`shape_scores`. Chance: ``options.draws``
+    Per signal, the residual's weighted means in groups of the signal's value at each bin
+    (:func:`signal_groups`; weighted by the inverse of its held-out variance: ``inflation``, see
+    :func:`trace.held_out_residual`); the score is :func:`shape_scores`. Chance: ``options.draws``
     phase-randomised copies of the residual (its own memory, as the loop's screen draws them),
-    each signal's statistic divided by its median over the draws, and the
-    ``1 - options.alpha`` quantile of the largest over the signals: one level for all.
+    scored alike, and the ``1 - options.alpha`` quantile of the largest score over the
+    signals: one level for all.
     A shape beyond chance is weighed against the materiality read from the residual without it
     (unless the materiality was given, or measured on a still record): the shape is in the
     residual the loop read its bias instability from, and raised it against itself (a bump of
