@@ -46,12 +46,12 @@ def test_null_logs_stay_quiet():
 
 
 def test_a_shape_is_weighed_against_the_materiality_read_without_it():
-    # A bump of 1.5 deg/h at +2 deg/s (sigma 0.5 deg/s) on a 6 h log with a slow bias wander: the shape is in
-    # the residual the loop reads its bias instability from (its size 1.05 deg/h, the materiality 1.07 with it).
+    # A bump of 1.4 deg/h at +2 deg/s (sigma 0.5 deg/s) on a 6 h log with a slow bias wander: the shape is in
+    # the residual the loop reads its bias instability from (its size 1.00 deg/h, the materiality 1.05 with it).
     cal = load_packaged_calibration('NAVC3545')
     log = simulate_run(cal, SimulationSettings(hours=6.0, seed=405003, wander_dps=3e-4, wander_tau_s=3600.0,
                                                rate_random_walk_dph_rthr=0.5)).log(cal)
-    log = replace(log, rate_dps=log.rate_dps + 1.5 * np.exp(-0.5 * ((log.ref_rate - 2.0) / 0.5) ** 2)
+    log = replace(log, rate_dps=log.rate_dps + 1.4 * np.exp(-0.5 * ((log.ref_rate - 2.0) / 0.5) ** 2)
                   / DEG_PER_H_PER_DPS)
     result = close_loop(log, 3, 4, LoopOptions(serial_number='NAVC3545', rate_scale_factor=cal.rate_scale_factor,
                                                seed=405003))
@@ -93,7 +93,7 @@ def test_a_bump_at_one_table_rate_of_a_short_log_is_found():
     result = close_loop(log, 3, 4, LoopOptions(serial_number='NAVC3545', rate_scale_factor=cal.rate_scale_factor,
                                                seed=405000))
     rate = {s.signal: s for s in result.adequacy.signals}['rate']
-    assert rate.found and rate.score > 1.5 * rate.chance_score
+    assert rate.found and rate.score > 1.3 * rate.chance_score   # 1.60 times
     assert 1.5 < rate.shape_dph < 3.5   # half of the 4 deg/h peak, and the noise of a 2 h log's few visits
     assert result.adequacy.model_adequate is False
 
