@@ -67,18 +67,24 @@ def test_concurrent_calls_from_several_processes_join_one_collection(tmp_path: P
                                     env=node_env(domain), cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)
                    for i in range(processes)]
-        for c in clients:
-            assert c.stdout.readline() == 'ready\n', c.stderr.read()
-        started = time.monotonic()
-        for c in clients:
-            c.stdin.write('go\n')
-            c.stdin.flush()
-        listener.wait_status('static bias', lambda s: s['state'] == 'collecting', 'the collection', proc, output)
-        replies = []
-        for c in clients:
-            out, err = c.communicate(timeout=TIMEOUT_S * 3)
-            assert c.returncode == 0, err
-            replies += [json.loads(line) for line in out.splitlines()]
+        try:
+            for c in clients:
+                assert c.stdout.readline() == 'ready\n', c.stderr.read()
+            started = time.monotonic()
+            for c in clients:
+                c.stdin.write('go\n')
+                c.stdin.flush()
+            listener.wait_status('static bias', lambda s: s['state'] == 'collecting', 'the collection', proc, output)
+            replies = []
+            for c in clients:
+                out, err = c.communicate(timeout=TIMEOUT_S * 3)
+                assert c.returncode == 0, err
+                replies += [json.loads(line) for line in out.splitlines()]
+        finally:   # a failure or an interrupt must not leave callers running (an orphan spun for 40 min once)
+            for c in clients:
+                if c.poll() is None:
+                    c.kill()
+                    c.communicate()
         elapsed = time.monotonic() - started
         assert len(replies) == processes * calls and replies.count(None) == 0, \
             f'{replies.count(None)} of {len(replies)} calls got no reply'
