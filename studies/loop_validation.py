@@ -782,8 +782,8 @@ def oracle_shape_score(log: GyroLog, shape: NDArray[np.float64], rows: int, colu
     assert log.ref_rate is not None
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras)
     index = steady_segments(log.t, log.ref_rate, DEFAULT_SETTLE_S).rows()
-    residual = fit_model(signals, log.rate_dps - log.ref_rate, rows, columns, (), index).residual
-    left = inexpressible(shape, log, rows, columns)
+    residual, left = (fit_model(signals, y, rows, columns, (), index).residual
+                      for y in (log.rate_dps - log.ref_rate, shape))   # the latter is inexpressible(shape, log)
     second = np.unique(np.floor(log.t[index]).astype(np.int64), return_inverse=True)[1]
     counts = np.bincount(second)
     r, x = (np.bincount(second, weights=v) / counts for v in (residual, left))
