@@ -539,13 +539,21 @@ def phase_surrogates(spectrum: NDArray[np.complex128], count: int, rng: np.rando
     A slow bias wander keeps its slowness (its spectrum), but loses any alignment with a
     candidate: the null of "the candidate explains nothing", with the residual's own memory.
     """
-    n2 = 2 * (len(spectrum) - 1)
-    out = np.empty((n2 // 2, count))
+    return phase_surrogates_alike([spectrum], count, rng)[0]
+
+
+def phase_surrogates_alike(spectra: Sequence[NDArray[np.complex128]], count: int,
+                           rng: np.random.Generator) -> list[NDArray[np.float64]]:
+    """:func:`phase_surrogates` of each of ``spectra`` (one length), all with the same random phases."""
+    n2 = 2 * (len(spectra[0]) - 1)
+    out = [np.empty((n2 // 2, count)) for _ in spectra]
     for j in range(count):   # one draw at a time: the complex temporaries are one series long, not ``count``
-        phases = rng.uniform(0.0, 2.0 * np.pi, len(spectrum))
+        phases = rng.uniform(0.0, 2.0 * np.pi, len(spectra[0]))
         phases[0] = 0.0
         phases[-1] = 0.0   # the Nyquist term of the (even) mirrored length stays real
-        out[:, j] = np.fft.irfft(spectrum * np.exp(1j * phases), n2)[:n2 // 2]
+        turn = np.exp(1j * phases)
+        for series, spectrum in zip(out, spectra):
+            series[:, j] = np.fft.irfft(spectrum * turn, n2)[:n2 // 2]
     return out
 
 
