@@ -32,8 +32,12 @@ DEFAULT_SAMPLES = 100
 DEFAULT_MAX_MEAN_DPS = 0.1
 DEFAULT_MAX_STD_DPS = 0.05
 # A refinement fits the temperature over this many temperature-rate filter time constants from
-# the window's start: long enough to see a slope through 0.05 degC counts, short enough for a quadratic.
+# the window's start (long enough to see a slope through 0.05 degC counts) with a polynomial in time of this
+# degree. A quadratic read the slope of a self-heating of 6 degC with a 5 min time constant 9 % low at the
+# window: 3.7 deg/h of a Shupe effect of 0.6 deg/s per degC/s, in the bias for the whole mission; a cubic 1 %,
+# its noise 0.05 deg/h (0.05 degC counts).
 REFINE_SPAN_TAUS = 3.0
+REFINE_DEGREE = 3
 
 # One sample (the node) or a whole log (apply_calibration).
 Rate = TypeVar('Rate', float, NDArray[np.float64])
@@ -168,8 +172,8 @@ class StaticBiasCollector:
 class Refinement:
     """Refines a static bias once the temperature around its window is known (see the module's docstring).
 
-    The temperature from the window's start over ``span_s`` is fitted with a quadratic in
-    time; its slope at each window sample replaces what the causal filter read there, and
+    The temperature from the window's start over ``span_s`` is fitted with a polynomial in
+    time (:data:`REFINE_DEGREE`); its slope at each window sample replaces what the causal filter read there, and
     ``CalcStaticBiasDrift`` moves by the change of the temperature-rate ``terms``' mean.
     Samples come one at a time (:meth:`add`, the node) or as arrays (:meth:`add_many`);
     the refined bias applies from the first sample at or after :attr:`ready_at`.
@@ -186,30 +190,27 @@ class Refinement:
         self.span_s = span_s
         self.center = 0.5 * float(window.t[0] + window.t[-1])
         self.ready_at = float(window.t[0]) + span_s
-        # Sums of u^0..u^4 and T u^0..u^2, u = (t - center) / span: the normal equations of the quadratic.
-        self.sums = [0.0] * 8
+        # Sums of u^0..u^2d and T u^0..u^d, u = (t - center) / span: the normal equations of the polynomial.
+        self.sums = [0.0] * (3 * REFINE_DEGREE + 2)
         self.add_many(window.t, window.temp_c)
 
     def add(self, t: float, temp_c: float) -> None:
         """One more sample of the temperature (before :attr:`ready_at`)."""
         u = (t - self.center) / self.span_s
-        u2 = u * u
         s = self.sums
-        s[0] += 1.0
-        s[1] += u
-        s[2] += u2
-        s[3] += u2 * u
-        s[4] += u2 * u2
-        s[5] += temp_c
-        s[6] += temp_c * u
-        s[7] += temp_c * u2
+        power = 1.0
+        for k in range(2 * REFINE_DEGREE + 1):
+            s[k] += power
+            if k <= REFINE_DEGREE:
+                s[2 * REFINE_DEGREE + 1 + k] += temp_c * power
+            power *= u
 
     def add_many(self, t: NDArray[np.float64], temp_c: NDArray[np.float64]) -> None:
         """Many samples at once (all before :attr:`ready_at`)."""
         u = (np.asarray(t, dtype=float) - self.center) / self.span_s
         temp = np.asarray(temp_c, dtype=float)
-        powers = [np.ones_like(u), u, u * u, u * u * u, u ** 4]
-        for i, column in enumerate(powers + [temp, temp * u, temp * u * u]):
+        powers = [u ** k for k in range(2 * REFINE_DEGREE + 1)]
+        for i, column in enumerate(powers + [temp * p for p in powers[:REFINE_DEGREE + 1]]):
             self.sums[i] += float(column.sum())
 
     def held(self, others_dps: Rate) -> Rate:
@@ -225,15 +226,17 @@ class Refinement:
 
     def refined(self) -> StaticBias:
         """The static bias with ``CalcStaticBiasDrift`` recomputed; unchanged if the fit is not determined."""
+        d = REFINE_DEGREE
         s = self.sums
-        normal = np.array([[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4]]])
-        if s[0] < 3 or not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
+        normal = np.array([[s[i + j] for j in range(d + 1)] for i in range(d + 1)])
+        if s[0] < d + 1 or not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
             return replace(self.bias, window=None)
-        _, b, c = np.linalg.solve(normal, [s[5], s[6], s[7]])
+        coefficients = np.linalg.solve(normal, s[2 * d + 1:])
         window = self.bias.window
         assert window is not None
         u = (window.t - self.center) / self.span_s
-        slope = (b + 2.0 * c * u) / self.span_s   # degC/s at each window sample
+        derivative = np.polynomial.polynomial.polyder(coefficients)
+        slope = np.asarray(np.polynomial.polynomial.polyval(u, derivative), dtype=np.float64) / self.span_s   # degC/s
         refit = float(sum(np.mean(t.evaluate(slope, window.rate_dps)) for t in self.terms))
         delta = refit - window.causal_dps
         return replace(self.bias, calc_static_bias_drift_dps=self.bias.calc_static_bias_drift_dps + delta,

@@ -127,6 +127,24 @@ def test_the_static_bias_is_refined_once_the_temperature_rate_is_known() -> None
     np.testing.assert_allclose(np.concatenate(parts), applied.corrected_dps, rtol=0, atol=1e-9)
 
 
+def test_a_fast_self_heating_is_refined_without_a_lasting_bias() -> None:
+    """6 degC with a 5-minute time constant (the loop study's fastest profile; issue 20, item 1).
+
+    A quadratic over the refinement's 6 minutes read the window's temperature rate 9 % low: the
+    node carried -3.7 deg/h of the 0.6 deg/s per degC/s Shupe effect for the whole mission.
+    """
+    t = np.arange(int(3600 * RATE_HZ)) / RATE_HZ
+    temp = 20.0 + 6.0 * (1.0 - np.exp(-t / 300.0))
+    art = _calibration()
+    measured = measured_from_true(art.polynomial, 0.6 * 6.0 / 300.0 * np.exp(-t / 300.0), temp)
+    log = GyroLog(t, measured, np.round(temp / 0.05) * 0.05)
+    cal = _calibration(Term('temperature_rate', 'power', (0.6,), (1,)))
+    applied = apply_calibration(log, cal, BIAS_SAMPLES, start=RunStart(powered_on_at_start=True))
+    assert abs(applied.corrected_dps[t > 1800.0].mean()) * DPH < 1.0   # -0.45 deg/h
+    np.testing.assert_allclose(_per_sample(cal, log, RunStart(powered_on_at_start=True)),
+                               applied.corrected_dps[BIAS_SAMPLES - 1:], rtol=0, atol=1e-9)
+
+
 def test_until_the_refinement_the_temperature_rate_terms_hold_their_window_value() -> None:
     """The minutes between the bias window and its refinement carry no Shupe error twice (issue 20, item 1).
 
