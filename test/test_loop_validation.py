@@ -88,8 +88,8 @@ def test_median_materiality_per_length(lv: ModuleType) -> None:
     assert lv.median_materiality(runs) == {2.0: pytest.approx(1.0), 6.0: pytest.approx(3.0)}
 
 
-def _shape(shape: str, adequate: bool, found: list[str]) -> dict[str, Any]:
-    return {'kind': 'shape', 'shape': shape, 'hours': 2.0, 'seed': 0, 'size_dph': 1.5, 'raw_size_dph': 1.5,
+def _shape(shape: str, adequate: bool, found: list[str], hours: float = 6.0) -> dict[str, Any]:
+    return {'kind': 'shape', 'shape': shape, 'hours': hours, 'seed': 0, 'size_dph': 1.5, 'raw_size_dph': 1.5,
             'size_rms_dph': 0.5, 'raw_rms_dph': 0.7, 'model_adequate': adequate, 'shapes_found': found,
             'found_terms': []}
 
@@ -114,6 +114,17 @@ def test_shape_summary_targets(lv: ModuleType) -> None:
     # The study's own null runs count too: 1 of 10 there fails the null target.
     study = [{'effect': None, 'model_adequate': k > 0} for k in range(10)]
     assert not lv.shape_summary(shapes + nulls[1:], {2.0: 0.5}, study_nulls=study)['targets']['nulls']
+
+
+def test_the_shape_target_is_on_long_fit_logs(lv: ModuleType) -> None:
+    """Issue 20 item 5: 2 h logs have no power target; shapes missed there are reported, not judged."""
+    long = [_shape('rate_bump', False, ['rate'])] * 9 + [_shape('rate_bump', True, [])]
+    short = [_shape('rate_bump', True, [], hours=2.0)] * 10
+    s = lv.shape_summary(long + short, {2.0: 0.5, 6.0: 0.5})
+    assert s['detected'] == pytest.approx(0.45) and s['detected_long'] == pytest.approx(0.9)
+    assert s['targets']['shapes'] and s['rows'][0]['detected_by_hours'] == {'2': 0.0, '6': pytest.approx(0.9)}
+    assert not lv.shape_summary(long[1:] + short, {2.0: 0.5, 6.0: 0.5})['targets']['shapes']
+    assert not lv.shape_summary(short, {2.0: 0.5})['targets']['shapes']
 
 
 def test_the_document_marks_unmet_targets(lv: ModuleType) -> None:
@@ -208,3 +219,10 @@ def test_the_detector_told_the_shape_finds_it_and_not_its_absence(lv: ModuleType
     # The same log without the shape: the projection is chance's.
     score, chance = lv.oracle_shape_score(short_log, effect, rows, columns, seed=1)
     assert score < chance
+
+
+def test_the_power_target_covers_long_fit_logs_from_a_quarter_magnitude(lv: ModuleType) -> None:
+    """Issue 20 item 5: a cell of a 2 h fit log, or below magnitude 0.25, is reported but not judged."""
+    assert lv.targeted_cell({'magnitude': 0.25, 'hours': 6.0})
+    assert not lv.targeted_cell({'magnitude': 1.0, 'hours': 2.0})
+    assert not lv.targeted_cell({'magnitude': 0.1, 'hours': 6.0})
