@@ -1220,7 +1220,7 @@ def main() -> int:
     parser.add_argument('--no-item6', action='store_true', help='skip the sections of issue 20 item 6')
     parser.add_argument('--cold-reps', type=int, default=5, help='item 6: runs per self-heating profile x effects')
     parser.add_argument('--item6-nulls', type=int, default=60, help='item 6: null fit logs (half 2 h, half 6 h)')
-    parser.add_argument('--shape-reps', type=int, default=6, help='item 6: most runs per injected shape')
+    parser.add_argument('--shape-reps', type=int, default=20, help='item 6: most runs per injected shape')
     parser.add_argument('--item6-budget-s', type=float, default=2400.0, help='item 6: CPU seconds for its runs')
     args = parser.parse_args()
     if args.from_results:
