@@ -557,15 +557,15 @@ def cross_fitted(groups: NDArray[np.int64], t: NDArray[np.float64], weights: NDA
 def shape_scores(means: NDArray[np.float64], shares: NDArray[np.float64]) -> NDArray[np.float64]:
     """A signal's score for the residual and each chance copy (columns of ``means``, group means, residual first).
 
+    ``means`` and ``shares``: of the groups :func:`signal_shapes` keeps (:data:`MIN_LEVEL_SHARE`).
     The larger of two statistics, each over its :data:`SHAPE_SCALE_QUANTILE` among the copies:
     the weighted spread of the group means (a shape across the signal's range) and the largest
     group mean over its own spread among the copies (a shape in one group: a temperature bump on
     a 6 h log, the loop study's run 402001, stood out by this one alone).
     """
-    kept = shares >= MIN_LEVEL_SHARE   # a level of a few bins (a restart's turn) is one moment, not a shape
-    spread = shares[kept] @ means[kept] ** 2
-    own_spread = np.sqrt(np.mean(means[kept, 1:] ** 2, axis=1))
-    peak = np.max(np.abs(means[kept]) / np.maximum(own_spread, 1e-300)[:, None], axis=0)
+    spread = shares @ means ** 2
+    own_spread = np.sqrt(np.mean(means[:, 1:] ** 2, axis=1))
+    peak = np.max(np.abs(means) / np.maximum(own_spread, 1e-300)[:, None], axis=0)
     return np.maximum(spread / max(float(np.quantile(spread[1:], SHAPE_SCALE_QUANTILE)), 1e-300),
                       peak / max(float(np.quantile(peak[1:], SHAPE_SCALE_QUANTILE)), 1e-300))
 
@@ -638,8 +638,9 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDAr
         count = min(batch, options.draws - done)
         for g, m, values in zip(groups, means, phase_surrogates_alike(spectra, count, rng)):
             m[:, 1 + done:1 + done + count] = _group_means(g, weights, values[:len(residual)] * spread_of[:, None])
-    scores = np.stack([shape_scores(m, w) for m, w in zip(means, shares)])
-    shape_dph = np.array([0.5 * np.ptp(m[w >= MIN_LEVEL_SHARE]) for m, w in zip(own, shares)]) * DEG_PER_H_PER_DPS
+    kept = [w >= MIN_LEVEL_SHARE for w in shares]   # a level of a few bins (a restart's turn) is one moment
+    scores = np.stack([shape_scores(m[k], w[k]) for m, w, k in zip(means, shares, kept)])
+    shape_dph = np.array([0.5 * np.ptp(m[k]) for m, k in zip(own, kept)]) * DEG_PER_H_PER_DPS
     chance = float(np.quantile(scores[:, 1:].max(axis=0), 1.0 - options.alpha))
     signals.forget()   # the derived signals read here are as long as the log
     measured = options.materiality_dph is None and options.still_instability_dps is None
