@@ -13,11 +13,12 @@ whether a warm-up term applies. Signals from outside the gyro (a supply voltage)
 are left out and no static bias is collected, and while one is stale the answer says so
 (:attr:`Compensator.current`).
 
-Until the refinement is ready, the temperature-rate terms are held at their mean over the
-bias window: the static bias has taken the true Shupe error of the window (the causal
-filter read about 0 there), so letting the filter's rise through its first minutes into
-the output would subtract that error a second time (up to 23 deg/h for minutes after a
-cold start with self-heating, measured).
+Until the refinement is ready, the temperature-rate terms are not evaluated on the filter: the
+static bias has taken the true Shupe error of the window (the causal filter read about 0 there),
+so letting the filter's rise through its first minutes into the output would subtract that error
+a second time (up to 23 deg/h for minutes after a cold start with self-heating, measured). They
+hold their window mean for a minute, then follow the refinement's provisional fit
+(:meth:`static_bias.Refinement.error_one`): how far its slope moved since the window.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ErrorModel
 from art_gyro_calibration.signals import (DERIVED_SIGNALS, SignalFeed, Signals, SignalState, SignalTracker,
                                           compute_signals)
-from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS, REFINE_SPAN_TAUS,
+from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS,
                                               BiasWindow, Refinement, StaticBias, StaticBiasCollector,
                                               static_bias)
 
@@ -149,7 +150,7 @@ class Compensator:
     @bias.setter
     def bias(self, bias: StaticBias) -> None:
         self._bias = bias
-        self._refinement = Refinement(bias, self._model.refinable, _refine_span_s(self.calibration)) \
+        self._refinement = Refinement(bias, self._model.refinable, self.calibration.filters.temperature_rate_tau_s) \
             if bias.window is not None and self._refinable else None
 
     def scale(self, raw_rate: int, raw_temp: int) -> tuple[float, float]:
@@ -169,8 +170,8 @@ class Compensator:
             if t >= refinement.ready_at:
                 self._bias, self._refinement = refinement.refined(), None
             else:
-                refinement.add(t, temp_c)
-                return refinement.held(model.error_one(tracker) - model.refinable_error_one(tracker))
+                return refinement.error_one(t, temp_c, rate_dps,
+                                            model.error_one(tracker) - model.refinable_error_one(tracker))
         return model.error_one(tracker)
 
     def _read_feeds(self) -> ErrorModel:
@@ -274,10 +275,6 @@ def _refinable_error(model: ErrorModel, signals: Signals, rows: slice) -> NDArra
     return np.asarray(sum(model.term_error(t, signals)[rows] for t in model.refinable))
 
 
-def _refine_span_s(calibration: Calibration) -> float:
-    return REFINE_SPAN_TAUS * calibration.filters.temperature_rate_tau_s
-
-
 @dataclass(frozen=True)
 class Applied:
     """A log (or one chunk of it) after compensation: the kept samples' values, and what was dropped."""
@@ -331,16 +328,16 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
             causal = _refinable_error(model, signals, slice(0, n))
             bias = replace(bias, window=BiasWindow(log.t[:n].copy(), log.rate_dps[:n].copy(), log.temp_c[:n].copy(),
                                                    float(np.mean(causal))))
-            refinement = Refinement(bias, model.refinable, _refine_span_s(calibration))
+            refinement = Refinement(bias, model.refinable, calibration.filters.temperature_rate_tau_s)
         first = n   # the rows after the window feed the refinement
     else:
         bias, refinement, first = after.bias, after.refinement, 0
     if refinement is not None:
         ready = first + int(np.searchsorted(log.t[first:], refinement.ready_at, side='left'))
-        refinement.add_many(log.t[first:ready], log.temp_c[first:ready])
         held = slice(first, ready)
-        if ready > first:   # the temperature-rate terms held at their window mean until the refinement
-            comp[held] = refinement.held(comp[held] - _refinable_error(model, signals, held))
+        if ready > first:   # until the refinement, the temperature-rate terms as it gives them
+            comp[held] = refinement.error_many(log.t[held], log.temp_c[held], log.rate_dps[held],
+                                               comp[held] - _refinable_error(model, signals, held))
     corrected = bias.correct(log.rate_dps, comp)
     if refinement is not None:
         if ready < len(log):

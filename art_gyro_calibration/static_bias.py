@@ -12,6 +12,10 @@ static bias then absorbs the Shupe error of its window for the whole mission. So
 window is kept, and once the temperature has been followed for a few filter time
 constants (:class:`Refinement`) the rate of temperature over the window is estimated
 from both sides of it, and ``CalcStaticBiasDrift`` is recomputed with it, once.
+
+Until then the filter's first minutes cannot serve either: it rises from 0 and, on a decaying
+self-heating, overshoots. So the temperature-rate terms are evaluated on the slope of the same
+polynomial, fitted provisionally to the temperatures seen so far, at the sample and over the window.
 """
 
 from __future__ import annotations
@@ -38,6 +42,12 @@ DEFAULT_MAX_STD_DPS = 0.05
 # its noise 0.05 deg/h (0.05 degC counts).
 REFINE_SPAN_TAUS = 3.0
 REFINE_DEGREE = 3
+# Before the refinement, the polynomial is fitted provisionally to the temperatures seen so far once they span this many
+# filter time constants from the window's start (1 min by default): over 20 s, one 0.05 degC count of a slow warm-up
+# swings a cubic's slope by 30 deg/h of a 0.6 deg/s per degC/s Shupe term (measured). Until then the terms hold their
+# window mean. It is solved again every PROVISIONAL_STEP_S of the samples' time (once a second at 1 kHz too).
+PROVISIONAL_TAUS = 0.5
+PROVISIONAL_STEP_S = 1.0
 
 # One sample (the node) or a whole log (apply_calibration).
 Rate = TypeVar('Rate', float, NDArray[np.float64])
@@ -172,73 +182,146 @@ class StaticBiasCollector:
 class Refinement:
     """Refines a static bias once the temperature around its window is known (see the module's docstring).
 
-    The temperature from the window's start over ``span_s`` is fitted with a polynomial in
-    time (:data:`REFINE_DEGREE`); its slope at each window sample replaces what the causal filter read there, and
-    ``CalcStaticBiasDrift`` moves by the change of the temperature-rate ``terms``' mean.
-    Samples come one at a time (:meth:`add`, the node) or as arrays (:meth:`add_many`);
-    the refined bias applies from the first sample at or after :attr:`ready_at`.
+    The temperature from the window's start over :data:`REFINE_SPAN_TAUS` filter time constants ``tau_s`` is
+    fitted with a polynomial in time (:data:`REFINE_DEGREE`); its slope at each window sample replaces what the
+    causal filter read there, and ``CalcStaticBiasDrift`` moves by the change of the temperature-rate ``terms``' mean.
+    Until :attr:`ready_at` the terms' part of the modelled error is :meth:`error_one` (the node, a sample at a
+    time) or :meth:`error_many` (arrays): the provisional fit's slope at the sample less its mean over the window,
+    on top of the window's mean as the filter gave it. The refined bias applies from the first sample at or
+    after :attr:`ready_at`.
     """
 
-    __slots__ = ('bias', 'terms', 'span_s', 'center', 'ready_at', 'sums')
+    __slots__ = ('bias', 'terms', 'span_s', 'center', 'ready_at', 'sums', 'provisional_from', 'tick', 'slope',
+                 'window_terms_dps')
 
-    def __init__(self, bias: StaticBias, terms: Sequence[Term], span_s: float) -> None:
+    def __init__(self, bias: StaticBias, terms: Sequence[Term], tau_s: float) -> None:
         if bias.window is None:
             raise ValueError('a refinement needs the static bias window')
         window = bias.window
         self.bias = bias
         self.terms = tuple(terms)
-        self.span_s = span_s
+        self.span_s = REFINE_SPAN_TAUS * tau_s
         self.center = 0.5 * float(window.t[0] + window.t[-1])
-        self.ready_at = float(window.t[0]) + span_s
+        self.ready_at = float(window.t[0]) + self.span_s
+        self.provisional_from = float(window.t[0]) + PROVISIONAL_TAUS * tau_s
         # Sums of u^0..u^2d and T u^0..u^d, u = (t - center) / span: the normal equations of the polynomial.
-        self.sums = [0.0] * (3 * REFINE_DEGREE + 2)
+        self.sums = np.zeros(3 * REFINE_DEGREE + 2)
+        # The provisional fit: the step it was last solved in (-1: not yet), its slope's coefficients in u
+        # (degC/s) and the terms' mean over the window on that slope.
+        self.tick = -1
+        self.slope: NDArray[np.float64] | None = None
+        self.window_terms_dps = 0.0
         self.add_many(window.t, window.temp_c)
 
-    def add(self, t: float, temp_c: float) -> None:
-        """One more sample of the temperature (before :attr:`ready_at`)."""
+    def add_many(self, t: NDArray[np.float64], temp_c: NDArray[np.float64]) -> None:
+        """Many samples at once (all before :attr:`ready_at`), their fit aside."""
+        self.sums += self._columns(t, temp_c).sum(axis=0)
+
+    def _columns(self, t: NDArray[np.float64], temp_c: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per sample, what it adds to :attr:`sums`."""
+        u = (np.asarray(t, dtype=float) - self.center) / self.span_s
+        powers = u[:, None] ** np.arange(2 * REFINE_DEGREE + 1)
+        return np.concatenate((powers, np.asarray(temp_c, dtype=float)[:, None] * powers[:, :REFINE_DEGREE + 1]),
+                              axis=1)
+
+    def error_one(self, t: float, temp_c: float, rate_dps: float, others_dps: float) -> float:
+        """Add one sample (before :attr:`ready_at`); the modelled error: ``others_dps`` (the other terms') and these.
+
+        The static bias took the true error of these terms over its window; the filter read about 0 there
+        and rises over the next minutes, so its value would subtract that error a second time.
+        """
         u = (t - self.center) / self.span_s
-        s = self.sums
+        sums = self.sums
         power = 1.0
         for k in range(2 * REFINE_DEGREE + 1):
-            s[k] += power
+            sums[k] += power
             if k <= REFINE_DEGREE:
-                s[2 * REFINE_DEGREE + 1 + k] += temp_c * power
+                sums[2 * REFINE_DEGREE + 1 + k] += temp_c * power
             power *= u
-
-    def add_many(self, t: NDArray[np.float64], temp_c: NDArray[np.float64]) -> None:
-        """Many samples at once (all before :attr:`ready_at`)."""
-        u = (np.asarray(t, dtype=float) - self.center) / self.span_s
-        temp = np.asarray(temp_c, dtype=float)
-        powers = [u ** k for k in range(2 * REFINE_DEGREE + 1)]
-        for i, column in enumerate(powers + [temp * p for p in powers[:REFINE_DEGREE + 1]]):
-            self.sums[i] += float(column.sum())
-
-    def held(self, others_dps: Rate) -> Rate:
-        """The modelled error before :attr:`ready_at`: ``others_dps`` (the other terms') plus these terms' window mean.
-
-        The static bias took the true error of these terms over its window, where the causal
-        filter read about 0; held there, the filter's rise over the next minutes is not
-        subtracted a second time.
-        """
+        if t >= self.provisional_from:
+            tick = math.floor((t - self.provisional_from) / PROVISIONAL_STEP_S)
+            if tick != self.tick:
+                self.tick = tick
+                self._provisional(sums)
         window = self.bias.window
         assert window is not None   # checked when made
-        return others_dps + window.causal_dps
+        slope = self.slope
+        if slope is None:
+            return others_dps + window.causal_dps
+        rate_of_temp = 0.0
+        for c in slope[::-1]:
+            rate_of_temp = rate_of_temp * u + c
+        return (others_dps + window.causal_dps - self.window_terms_dps
+                + sum(term.evaluate_one(rate_of_temp, rate_dps) for term in self.terms))
+
+    def error_many(self, t: NDArray[np.float64], temp_c: NDArray[np.float64], rate_dps: NDArray[np.float64],
+                   others_dps: NDArray[np.float64]) -> NDArray[np.float64]:
+        """:meth:`error_one` over arrays of samples (all before :attr:`ready_at`), as the node does them in turn."""
+        window = self.bias.window
+        assert window is not None
+        sums = self.sums + np.cumsum(self._columns(t, temp_c), axis=0)
+        tick = np.where(t >= self.provisional_from, np.floor((t - self.provisional_from) / PROVISIONAL_STEP_S), -1)
+        # Solved again where the step differs from the last solved one (a sample before provisional_from keeps it).
+        counted = np.flatnonzero(tick >= 0)
+        last = np.concatenate(([self.tick], tick[counted]))
+        solved = counted[last[1:] != last[:-1]]
+        # Per sample, the provisional fit in force: -1 the one before these samples, else an index into solved.
+        in_force = np.searchsorted(solved, np.arange(len(t)), side='right') - 1
+        slopes = np.zeros((len(solved) + 1, REFINE_DEGREE))
+        means = np.zeros(len(solved) + 1)
+        has = np.zeros(len(solved) + 1, dtype=bool)
+        if self.slope is not None:
+            slopes[-1], means[-1], has[-1] = self.slope, self.window_terms_dps, True
+        for i, row in enumerate(solved):
+            self._provisional(sums[row])
+            if self.slope is not None:
+                slopes[i], means[i], has[i] = self.slope, self.window_terms_dps, True
+        out = others_dps + window.causal_dps
+        fitted = has[in_force]
+        if fitted.any():
+            u = (t[fitted] - self.center) / self.span_s
+            rate_of_temp = np.asarray(np.polynomial.polynomial.polyval(u, slopes[in_force[fitted]].T, tensor=False),
+                                      dtype=np.float64)
+            terms = np.zeros(len(rate_of_temp))
+            for term in self.terms:
+                terms += term.evaluate(rate_of_temp, rate_dps[fitted])
+            out[fitted] += terms - means[in_force[fitted]]
+        if len(t):
+            self.sums = sums[-1].copy()
+            self.tick = int(last[-1])
+        return np.asarray(out, dtype=np.float64)
+
+    def _provisional(self, sums: NDArray[np.float64]) -> None:
+        """Solve the fit for the samples summed in ``sums``; if it is not determined, keep the last."""
+        slope = self._slope(sums)
+        if slope is not None:
+            self.slope, self.window_terms_dps = slope, self._window_terms(slope)
+
+    def _slope(self, sums: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """The fitted polynomial's derivative in time (coefficients in u, degC/s); None if not determined."""
+        d = REFINE_DEGREE
+        normal = np.array([[sums[i + j] for j in range(d + 1)] for i in range(d + 1)])
+        if sums[0] < d + 1 or not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
+            return None
+        coefficients = np.linalg.solve(normal, sums[2 * d + 1:])
+        return np.asarray(np.polynomial.polynomial.polyder(coefficients), dtype=np.float64) / self.span_s
+
+    def _window_terms(self, slope: NDArray[np.float64]) -> float:
+        """The terms' mean over the window with the temperature rate of ``slope`` at each window sample."""
+        window = self.bias.window
+        assert window is not None
+        rate_of_temp = np.asarray(np.polynomial.polynomial.polyval((window.t - self.center) / self.span_s, slope),
+                                  dtype=np.float64)
+        return float(sum(np.mean(t.evaluate(rate_of_temp, window.rate_dps)) for t in self.terms))
 
     def refined(self) -> StaticBias:
         """The static bias with ``CalcStaticBiasDrift`` recomputed; unchanged if the fit is not determined."""
-        d = REFINE_DEGREE
-        s = self.sums
-        normal = np.array([[s[i + j] for j in range(d + 1)] for i in range(d + 1)])
-        if s[0] < d + 1 or not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
+        slope = self._slope(self.sums)
+        if slope is None:
             return replace(self.bias, window=None)
-        coefficients = np.linalg.solve(normal, s[2 * d + 1:])
         window = self.bias.window
         assert window is not None
-        u = (window.t - self.center) / self.span_s
-        derivative = np.polynomial.polynomial.polyder(coefficients)
-        slope = np.asarray(np.polynomial.polynomial.polyval(u, derivative), dtype=np.float64) / self.span_s   # degC/s
-        refit = float(sum(np.mean(t.evaluate(slope, window.rate_dps)) for t in self.terms))
-        delta = refit - window.causal_dps
+        delta = self._window_terms(slope) - window.causal_dps
         return replace(self.bias, calc_static_bias_drift_dps=self.bias.calc_static_bias_drift_dps + delta,
                        window=None, refined_dps=delta)
 
