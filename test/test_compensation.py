@@ -86,12 +86,16 @@ def test_a_cold_start_with_a_warm_up_term_removes_it() -> None:
                                rtol=0, atol=1e-12)
 
 
-def _self_heating(hours: float = 1.0) -> tuple[GyroLog, float, np.ndarray]:
-    """A freshly powered gyro warming by 6 degC with a 10-minute time constant: dT/dt starts at 0.01 degC/s."""
+def _self_heating(hours: float = 1.0, heating_c: float = 6.0, tau_s: float = 600.0,
+                  shupe: float = 0.5) -> tuple[GyroLog, float, np.ndarray]:
+    """A freshly powered gyro warming by ``heating_c`` with time constant ``tau_s``, a Shupe effect of ``shupe``.
+
+    By default 6 degC in 10 minutes: dT/dt starts at 0.01 degC/s, and 0.5 deg/s per degC/s makes 0.005 deg/s
+    (18 deg/h) at power-on. The temperature in 0.05 degC counts.
+    """
     t = np.arange(int(hours * 3600 * RATE_HZ)) / RATE_HZ
-    temp = 20.0 + 6.0 * (1.0 - np.exp(-t / 600.0))
-    true_rate_of_temp = 6.0 / 600.0 * np.exp(-t / 600.0)
-    shupe = 0.5   # deg/s per degC/s: 0.005 deg/s (18 deg/h) at power-on
+    temp = 20.0 + heating_c * (1.0 - np.exp(-t / tau_s))
+    true_rate_of_temp = heating_c / tau_s * np.exp(-t / tau_s)
     art = _calibration()
     measured = measured_from_true(art.polynomial, shupe * true_rate_of_temp, temp)
     return GyroLog(t, measured, np.round(temp / 0.05) * 0.05), shupe, true_rate_of_temp
@@ -133,14 +137,10 @@ def test_a_fast_self_heating_is_refined_without_a_lasting_bias() -> None:
     A quadratic over the refinement's 6 minutes read the window's temperature rate 9 % low: the
     node carried -3.7 deg/h of the 0.6 deg/s per degC/s Shupe effect for the whole mission.
     """
-    t = np.arange(int(3600 * RATE_HZ)) / RATE_HZ
-    temp = 20.0 + 6.0 * (1.0 - np.exp(-t / 300.0))
-    art = _calibration()
-    measured = measured_from_true(art.polynomial, 0.6 * 6.0 / 300.0 * np.exp(-t / 300.0), temp)
-    log = GyroLog(t, measured, np.round(temp / 0.05) * 0.05)
-    cal = _calibration(Term('temperature_rate', 'power', (0.6,), (1,)))
+    log, shupe, _ = _self_heating(tau_s=300.0, shupe=0.6)
+    cal = _calibration(Term('temperature_rate', 'power', (shupe,), (1,)))
     applied = apply_calibration(log, cal, BIAS_SAMPLES, start=RunStart(powered_on_at_start=True))
-    assert abs(applied.corrected_dps[t > 1800.0].mean()) * DPH < 1.0   # -0.45 deg/h
+    assert abs(applied.corrected_dps[log.t > 1800.0].mean()) * DPH < 1.0   # -0.45 deg/h
     np.testing.assert_allclose(_per_sample(cal, log, RunStart(powered_on_at_start=True)),
                                applied.corrected_dps[BIAS_SAMPLES - 1:], rtol=0, atol=1e-9)
 
@@ -175,12 +175,8 @@ def test_a_slow_warm_up_in_temperature_counts_does_not_swing_the_provisional_fit
     Fitted from the window on, a cubic through the first of those steps swung the Shupe term by
     34 deg/h (measured); from a minute on, the swing stays under 4 deg/h.
     """
-    t = np.arange(int(1200 * RATE_HZ)) / RATE_HZ
-    temp = 20.0 + 2.0 * (1.0 - np.exp(-t / 1500.0))
-    art = _calibration()
-    measured = measured_from_true(art.polynomial, 0.6 * 2.0 / 1500.0 * np.exp(-t / 1500.0), temp)
-    log = GyroLog(t, measured, np.round(temp / 0.05) * 0.05)
-    cal = _calibration(Term('temperature_rate', 'power', (0.6,), (1,)))
+    log, shupe, _ = _self_heating(hours=0.5, heating_c=2.0, tau_s=1500.0, shupe=0.6)
+    cal = _calibration(Term('temperature_rate', 'power', (shupe,), (1,)))
     applied = apply_calibration(log, cal, BIAS_SAMPLES, start=RunStart(powered_on_at_start=True))
     assert np.max(np.abs(applied.corrected_dps[BIAS_SAMPLES:])) * DPH < 4.0
 
