@@ -205,17 +205,12 @@ class Refinement:
         self.ready_at = float(window.t[0]) + self.span_s
         self.provisional_from = float(window.t[0]) + PROVISIONAL_TAUS * tau_s
         # Sums of u^0..u^2d and T u^0..u^d, u = (t - center) / span: the normal equations of the polynomial.
-        self.sums = np.zeros(3 * REFINE_DEGREE + 2)
+        self.sums = self._columns(window.t, window.temp_c).sum(axis=0)
         # The provisional fit: the step it was last solved in (-1: not yet), its slope's coefficients in u
         # (degC/s) and the terms' mean over the window on that slope.
         self.tick = -1
         self.slope: NDArray[np.float64] | None = None
         self.window_terms_dps = 0.0
-        self.add_many(window.t, window.temp_c)
-
-    def add_many(self, t: NDArray[np.float64], temp_c: NDArray[np.float64]) -> None:
-        """Many samples at once (all before :attr:`ready_at`), their fit aside."""
-        self.sums += self._columns(t, temp_c).sum(axis=0)
 
     def _columns(self, t: NDArray[np.float64], temp_c: NDArray[np.float64]) -> NDArray[np.float64]:
         """Per sample, what it adds to :attr:`sums`."""
