@@ -463,8 +463,8 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
         f' at commit `{meta["commit"]}`; {meta["cases"]} runs, {meta["cpu_s"]:.0f} s of CPU '
         f'({meta["wall_s"]:.0f} s wall on {meta["jobs"]} processes).'
         + (f' Issue 20 item 6\'s sections run again at commit `{meta["item6_commit"]}` (`--from-results` of that '
-           'run `--rerun-item6`): the change since touches `calibrate fit` after `close_loop`, which the sections '
-           'before item 6 call alone.' if meta.get('item6_commit') else ''), '',
+           'run, `--rerun-item6`); the sections before them are as that run saved them.'
+           if meta.get('item6_commit') else ''), '',
         *([meta['note'], ''] if meta.get('note') else []),
         '## Setup', '',
         f'- Gyro: the packaged {SERIAL} polynomial ({meta["rows"]} x {meta["columns"]}) is the true error; '
