@@ -1222,13 +1222,15 @@ def main() -> int:
     parser.add_argument('--baseline-label', default='baseline', help='what the baseline measured')
     parser.add_argument('--no-item6', action='store_true', help='skip the sections of issue 20 item 6')
     parser.add_argument('--rerun-item6', action='store_true',
-                        help='with --from-results: run item 6\'s sections again on this code, keep the rest as saved '
-                             '(for a change to calibrate fit after close_loop, which those sections alone run)')
+                        help='with --from-results: run item 6\'s sections again on this code and keep the other '
+                             'sections as saved (they call close_loop alone; item 6 runs all of calibrate fit)')
     parser.add_argument('--cold-reps', type=int, default=5, help='item 6: runs per self-heating profile x effects')
     parser.add_argument('--item6-nulls', type=int, default=60, help='item 6: null fit logs (half 2 h, half 6 h)')
     parser.add_argument('--shape-reps', type=int, default=20, help='item 6: most runs per injected shape')
     parser.add_argument('--item6-budget-s', type=float, default=2400.0, help='item 6: CPU seconds for its runs')
     args = parser.parse_args()
+    if args.rerun_item6 and not args.from_results:
+        parser.error('--rerun-item6 needs --from-results: the saved run whose other sections it keeps')
     if args.from_results:
         saved = json.loads(args.from_results.read_text(encoding='utf-8'))
         meta = {**saved['meta'], **({'note': args.note} if args.note else {})}

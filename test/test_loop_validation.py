@@ -226,3 +226,13 @@ def test_the_power_target_covers_long_fit_logs_from_a_quarter_magnitude(lv: Modu
     assert lv.targeted_cell({'magnitude': 0.25, 'hours': 6.0})
     assert not lv.targeted_cell({'magnitude': 1.0, 'hours': 2.0})
     assert not lv.targeted_cell({'magnitude': 0.1, 'hours': 6.0})
+
+
+def test_rerunning_item6_without_saved_results_is_refused(lv: ModuleType, monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """--rerun-item6 keeps the other sections of a saved run: without one it is an error, not a whole study."""
+    monkeypatch.setattr(sys, 'argv', ['loop_validation.py', '--rerun-item6'])
+    with pytest.raises(SystemExit) as exit_info:
+        lv.main()
+    assert exit_info.value.code == 2
+    assert '--rerun-item6 needs --from-results' in capsys.readouterr().err
