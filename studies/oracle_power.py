@@ -53,6 +53,7 @@ from art_gyro_calibration.analysis.trace import (DEFAULT_ALPHA, DEFAULT_BIN_S, D
                                                  DEFAULT_DRAWS, DEFAULT_FOLDS, SURROGATE_BATCH, Binned, Screen,
                                                  null_spectrum, phase_surrogates)
 from art_gyro_calibration.calibration import load_packaged_calibration  # noqa: E402
+from art_gyro_calibration.log import GyroLog  # noqa: E402
 from art_gyro_calibration.signals import LAGGED_SIGNAL  # noqa: E402
 
 # The simulator's effects this study measures (not shupe_true_rate, which came later and has no term form).
@@ -79,18 +80,22 @@ def _statistics(screen: Screen, spec: TermSpec, targets: np.ndarray) -> dict[str
             'fitted': screen.explained(family, targets)['true'][0]}
 
 
+def first_screen(log: GyroLog, rows: int, columns: int, seed: int) -> Screen:
+    """The loop's first screen: its ART fit and signals, bins, held-out blocks of the residual's correlation time."""
+    art = close_loop(log, rows, columns, LoopOptions(max_effects=0, seed=seed))
+    binned = Binned(art.signals, art.error, art.segments, rows, columns, DEFAULT_FOLDS, DEFAULT_BIN_S,
+                    DEFAULT_BLOCK_S)
+    residual = art.error - art.art.polynomial.error(log.rate_dps, log.temp_c)
+    binned.refold(max(DEFAULT_BLOCK_S, correlation_time_s(log.t, residual, art.segments)))
+    return Screen(binned)
+
+
 def run_case(case: Case) -> dict[str, Any]:
     """The true forms' statistics on one run: every form's on a null run, its own form's and p-values on another."""
     truth = load_packaged_calibration(SERIAL)
     rows, columns = truth.polynomial.rows, truth.polynomial.columns
     log = simulate_run(truth, case.settings()).log(truth)
-    # The loop's first screen: its ART fit and signals, bins, and held-out blocks of the residual's correlation time.
-    art = close_loop(log, rows, columns, LoopOptions(max_effects=0, seed=case.seed))
-    binned = Binned(art.signals, art.error, art.segments, rows, columns, DEFAULT_FOLDS, DEFAULT_BIN_S,
-                    DEFAULT_BLOCK_S)
-    residual = art.error - art.art.polynomial.error(log.rate_dps, log.temp_c)
-    binned.refold(max(DEFAULT_BLOCK_S, correlation_time_s(log.t, residual, art.segments)))
-    screen = Screen(binned)
+    screen = first_screen(log, rows, columns, case.seed)
     residual = screen.residual()
     out: dict[str, Any] = {'effect': case.effect, 'magnitude': case.magnitude, 'hours': case.hours,
                            'seed': case.seed, 'statistics': {}, 'p_values': {}}
