@@ -156,9 +156,13 @@ def oracle_fit(log: GyroLog, case: Case, art: Calibration, index: NDArray[np.int
     return replace(art, polynomial=fit.model.polynomial, terms=fit.model.terms)
 
 
-def validation_runs(calibration: Calibration, case: Case) -> dict[str, SimulatedRun]:
-    """A cold run and a warm restart at another heading of the same gyro, each VALIDATION_HOURS long."""
-    settings = replace(case.settings(), hours=VALIDATION_HOURS)
+def validation_runs(calibration: Calibration, case: Case,
+                    fitted: SimulationSettings | None = None) -> dict[str, SimulatedRun]:
+    """A cold run and a warm restart at another heading of the same gyro, each VALIDATION_HOURS long.
+
+    ``fitted``: the settings of the fitted run, if not ``case.settings()``.
+    """
+    settings = replace(fitted or case.settings(), hours=VALIDATION_HOURS)
     return {'cold': simulate_run(calibration, same_gyro(settings, case.seed + 1_000_000)),
             'warm': warm_restart(calibration, same_gyro(settings, case.seed + 2_000_000), WARM_START_S,
                                  WARM_HEADING_DEG)}
