@@ -1,26 +1,17 @@
 """The pure helpers of studies/drift_null.py: telling the two worlds apart, and the summary of the runs."""
 
-import importlib.util
-import sys
-from pathlib import Path
+from collections.abc import Callable
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 import pytest
 
-STUDY = Path(__file__).resolve().parent.parent / 'studies' / 'drift_null.py'
-
 
 @pytest.fixture(scope='module')
-def dn() -> ModuleType:
-    """The study as a module (studies/ is not a package)."""
-    spec = importlib.util.spec_from_file_location('drift_null_study', STUDY)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+def dn(load_study: Callable[[str], ModuleType]) -> ModuleType:
+    """The study as a module."""
+    return load_study('drift_null')
 
 
 def _nulls(dn: ModuleType, world: str, told_scale: float, count: int, rng: np.random.Generator) -> list[dict[str, Any]]:

@@ -1,8 +1,7 @@
 """The pure helpers of studies/loop_validation.py's issue 20 item 6 sections: summaries, shapes, targets."""
 
-import importlib.util
 import sys
-from pathlib import Path
+from collections.abc import Callable
 from types import ModuleType
 from typing import Any
 
@@ -12,18 +11,11 @@ import pytest
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.log import GyroLog
 
-STUDY = Path(__file__).resolve().parent.parent / 'studies' / 'loop_validation.py'
-
 
 @pytest.fixture(scope='module')
-def lv() -> ModuleType:
-    """The study as a module (studies/ is not a package)."""
-    spec = importlib.util.spec_from_file_location('loop_validation_study', STUDY)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+def lv(load_study: Callable[[str], ModuleType]) -> ModuleType:
+    """The study as a module."""
+    return load_study('loop_validation')
 
 
 def _field(**dph: float) -> dict[str, dict[str, float]]:
