@@ -54,7 +54,7 @@ from numpy.typing import NDArray  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from loop_validation import (MAX_WORSENING_DPH, POWER_NODE_SIGNALS, RATE_RANDOM_WALK_DPH_RTHR, REPO,  # noqa: E402
                              SCENARIOS, SERIAL, STARTS, WANDER_DPS, WANDER_TAU_S, Case, _commit,
-                             validation_runs)
+                             field_dph, validation_runs)
 from oracle_power import _statistics, first_screen, true_form  # noqa: E402
 
 from art_gyro_calibration.analysis.loop import LoopOptions, close_loop  # noqa: E402
@@ -115,9 +115,9 @@ def run_case(task: tuple[str, bool, int, bool]) -> dict[str, Any]:
             node_signals=POWER_NODE_SIGNALS)), log)
         out['found'] = [e.term.signal for e in (*result.effects, *result.findings)]
         runs = validation_runs(truth, Case(None, 0.0, HOURS, seed), fitted)
-        out['field_dph'] = {
+        out['field'] = {
             scenario: {name: replay_field(runs[scenario].log(truth), calibration, DEFAULT_SAMPLES,
-                                          start=STARTS[scenario]).systematic_rms_dps * DEG_PER_H_PER_DPS
+                                          start=STARTS[scenario]).to_dict()
                        for name, calibration in (('art', result.art), ('extended', result.extended))}
             for scenario in SCENARIOS}
     return out
@@ -129,11 +129,6 @@ def _runs(results: list[dict[str, Any]], world: str, drift: bool) -> list[dict[s
 
 def _power(runs: list[dict[str, Any]]) -> NDArray[np.float64]:
     return np.array([r['power_dph2'] for r in runs])
-
-
-def field_dph(r: dict[str, Any], calibration: str) -> float:
-    """A run's field error over its cold and warm second runs (deg/h): the rms of the two, as the loop study's."""
-    return math.sqrt(float(np.mean([r['field_dph'][s][calibration] ** 2 for s in SCENARIOS])))
 
 
 def told_apart(nulls: dict[str, list[dict[str, Any]]]) -> dict[str, float]:

@@ -36,7 +36,8 @@ def _run(world: str, drift: bool, statistic: float, found: list[str] | None = No
                            'power_dph2': [1.0] * 16, 'statistics': {'fitted': statistic, 'held_out': statistic}}
     if found is not None:
         run['found'] = found
-        run['field_dph'] = {s: {'art': art, 'extended': extended} for s in ('cold', 'warm')}
+        run['field'] = {s: {'art': {'systematic_rms_dph': art}, 'extended': {'systematic_rms_dph': extended}}
+                        for s in ('cold', 'warm')}
     return run
 
 
