@@ -144,7 +144,12 @@ class Compensator:
 
     @property
     def bias(self) -> StaticBias:
-        """The static bias in use; setting one that kept its window starts its refinement."""
+        """The static bias in use; setting one that kept its window starts its refinement.
+
+        A refinement runs from the next sample: until its ``ready_at`` the temperature-rate terms
+        are its provisional ones, and the sample at ``ready_at`` is the first corrected with the
+        refined bias (:meth:`error`), which then replaces this one. Setting another bias drops it.
+        """
         return self._bias
 
     @bias.setter
@@ -167,11 +172,10 @@ class Compensator:
             self.outside_range += 1
         refinement = self._refinement
         if refinement is not None:
-            if t >= refinement.ready_at:
-                self._bias, self._refinement = refinement.refined(), None
-            else:
+            if t < refinement.ready_at:
                 return refinement.error_one(t, temp_c, rate_dps,
                                             model.error_one(tracker) - model.refinable_error_one(tracker))
+            self._bias, self._refinement = refinement.refined(), None   # this sample is the first corrected with it
         return model.error_one(tracker)
 
     def _read_feeds(self) -> ErrorModel:
@@ -230,10 +234,31 @@ class FrameCorrector:
     def collect(self, collector: StaticBiasCollector, collected: Callable[[StaticBiasCollector], None]) -> None:
         """Feed ``collector``; the frame that completes it calls ``collected`` before it is corrected.
 
-        ``collected`` may set ``compensator.bias``: that frame is then corrected with the new bias.
+        ``collected`` ends the collection (:meth:`end_collection`), with its bias if it found one.
         """
         self._collected = collected
         self.collector = collector
+
+    def end_collection(self, bias: StaticBias | None) -> None:
+        """The static bias hand-off: stop feeding the collection and, given ``bias``, put it in force.
+
+        What a frame sees: the frames up to the one that completed the collection are corrected
+        with the bias in force before; that frame (whose ``collected`` callback calls this, inside
+        :meth:`step`) is the first corrected with ``bias``. If ``bias`` kept its window and the model
+        has temperature-rate terms, its refinement starts with it (:attr:`Compensator.bias`): the
+        next frames' temperature-rate terms follow it, and the frame at its ``ready_at`` is the first
+        corrected with the refined bias. Without ``bias`` (motion, a stall, a stop) the bias in
+        force, and a refinement of it, go on.
+
+        No lock of its own: the bias is only ever put in force on the thread that runs :meth:`step`.
+        Another thread (the node's timer giving up a stalled collection) ends one without a bias;
+        a frame being stepped meanwhile may still feed it one sample, and its owner ignores a
+        collection it ended. The node's static bias service calls this under its own lock, so that
+        its state reads the bias and the collection's end together.
+        """
+        self.collector = None
+        if bias is not None:
+            self.compensator.bias = bias
 
     def step(self, raw_rate: int, raw_temp: int, t: float) -> str:
         """Correct the frame read at ``t`` (s); '' if it is to be published, else why not."""
@@ -261,7 +286,7 @@ class FrameCorrector:
         if (collector is not None and compensator.current
                 and collector.add(rate_dps, error_dps, t, temp_c, compensator.causal_dps())):
             self._collected(collector)
-        self.rate_dps = compensator.correct(rate_dps, error_dps)   # with the bias this frame may have completed
+        self.rate_dps = compensator.correct(rate_dps, error_dps)   # with the bias this frame may have put in force
         self.temp_c = temp_c
         return ''
 

@@ -117,7 +117,10 @@ class StaticBiasService:
             return self._collection
 
     def _collected(self, collection: StaticBiasCollector) -> None:
-        """The frame that completed ``collection`` (reader thread): its bias is used from that frame on."""
+        """The frame that completed ``collection`` (reader thread): its bias is used from that frame on.
+
+        The one place a bias is put in force (:meth:`_end`, on the reader thread, inside the frame's step).
+        """
         assert isinstance(collection, _Collection)
         try:
             bias = collection.result()
@@ -127,13 +130,18 @@ class StaticBiasService:
             self._end(collection, bias, '')
 
     def _end(self, collection: _Collection, bias: StaticBias | None, error: str, stopping: bool = False) -> None:
-        """End ``collection`` with ``bias`` or refused for ``error``; ``stopping``: cut short by the node's stop."""
+        """End ``collection`` with ``bias`` or refused for ``error``; ``stopping``: cut short by the node's stop.
+
+        The hand-off (:meth:`FrameCorrector.end_collection`) runs under the service's lock, with what
+        :meth:`state` reads. A bias comes only from the reader thread; the timer and the stop end a
+        collection without one, and a collection they ended that a last frame completes is ignored here.
+        """
         with self._lock:
             if self._collection is not collection:
                 return   # abandoned meanwhile
-            self._collection = self._corrector.collector = None
+            self._collection = None
+            self._corrector.end_collection(bias)
             if bias is not None:
-                self._corrector.compensator.bias = bias
                 self._outcome = 'ok'
                 self._bias_time = time.monotonic()
                 self._node.get_logger().info(f'static bias: {bias.describe()}')
