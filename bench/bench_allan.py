@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from art_gyro_calibration.analysis.allan import AllanAccumulator
-from art_gyro_calibration.log import CsvWriter
+from art_gyro_calibration.analysis.csv_writer import CsvWriter
 from art_gyro_calibration.units import SECONDS_PER_HOUR
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from art_gyro_calibration.calibration import load_packaged_calibration, write_calibration
-from art_gyro_calibration.log import CsvWriter
+from art_gyro_calibration.analysis.csv_writer import CsvWriter
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import SECONDS_PER_HOUR
 

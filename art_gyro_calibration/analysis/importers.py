@@ -23,7 +23,8 @@ from numpy.typing import NDArray
 from scipy.ndimage import maximum_filter1d, uniform_filter1d
 
 from art_gyro_calibration.calibration import SIGNAL_PATTERN
-from art_gyro_calibration.log import GyroLog, write_columns
+from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.analysis.csv_writer import write_columns
 from art_gyro_calibration.signals import DERIVED_SIGNALS
 
 DEG_PER_MRAD = 180.0 / (1000.0 * math.pi)

@@ -47,9 +47,10 @@ from scipy.signal import lfilter
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.gyro_physics import (ANN_ARBOR_LATITUDE_DEG, earth_rate_dps, measured_from_true, to_counts,
                                                white_noise_dps)
-from art_gyro_calibration.log import GyroLog, write_columns
+from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals, first_order_smooth
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
+from art_gyro_calibration.analysis.csv_writer import write_columns
 
 FULL_SCALE_DPS = 100.0
 # Table rates of one cycle (both signs of each); a cycle lasts about 27 minutes.

@@ -16,7 +16,8 @@ import numpy as np
 
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import RunStart, apply_calibration, plausible
-from art_gyro_calibration.log import READ_CHUNK_ROWS, CsvWriter, concatenate
+from art_gyro_calibration.log import READ_CHUNK_ROWS, concatenate
+from art_gyro_calibration.analysis.csv_writer import CsvWriter
 from art_gyro_calibration.analysis.bags import BagTopics, read_any_chunks
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, StaticBias
 

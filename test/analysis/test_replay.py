@@ -15,7 +15,8 @@ from art_gyro_calibration.analysis.replay import (field_score_dps, own_restarts,
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, warm_restart, write_run
 from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration
 from art_gyro_calibration.compensation import RunStart, apply_calibration
-from art_gyro_calibration.log import GyroLog, write_columns
+from art_gyro_calibration.analysis.csv_writer import write_columns
+from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import POWER_ON_SIGNAL
 from art_gyro_calibration.static_bias import MotionError
 from art_gyro_calibration.terms import Term

@@ -22,7 +22,8 @@ from art_gyro_calibration.calibration import load_calibration, load_packaged_cal
 from art_gyro_calibration.compensation import apply_calibration  # noqa: E402
 from art_gyro_calibration.fake_rd2100 import FakeRd2100, GyroSimulator, RateProfile, TemperatureProfile  # noqa: E402
 from art_gyro_calibration.kvh_fog import KvhFogConfig, encode_kvh_fog  # noqa: E402
-from art_gyro_calibration.log import read_log, write_columns  # noqa: E402
+from art_gyro_calibration.analysis.csv_writer import write_columns  # noqa: E402
+from art_gyro_calibration.log import read_log  # noqa: E402
 from art_gyro_calibration.ros.parameters import (KVH_FOG_PARAMETERS, PARAMETERS,  # noqa: E402
                                                  check_kvh_fog_calibration, check_settings, usage)
 
