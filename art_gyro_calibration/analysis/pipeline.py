@@ -106,88 +106,124 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
             warn: Callable[[str], None] = lambda message: None) -> FitResult:
     """``calibrate fit`` on the log at ``log_path``; the calibration is to be written to ``calibration_path``.
 
-    ``warn`` is told, as each is found, what a person must look at: a model that does not
-    fit, a warm-up no cold run judged (that one is in the report too).
+    In steps: the log as the loop takes it, the loop, the start-up check, the ``--validate``
+    runs, the baseline; then the calibration to write, chosen once (:func:`_choose`), and
+    the report, assembled once. ``warn`` is told, as each is found, what a person must look
+    at: a model that does not fit, a warm-up no cold run judged (that one is in the report too).
     """
-    loop_options = settings.loop
-    still = None
-    if settings.still is not None:
-        still = still_noise(settings.still, loop_options, settings.topics)
-        loop_options = replace(loop_options, still_instability_dps=still['bias_instability_dps'])
-    log = read_any_log(log_path, loop_options.rate_scale_factor, loop_options.temp_scale_factor, settings.topics,
-                       warn)
-    usable = usable_rates(log.rate_dps, loop_options.rate_scale_factor)
+    still = None if settings.still is None else still_noise(settings.still, settings.loop, settings.topics)
+    loop_options = settings.loop if still is None else replace(
+        settings.loop, still_instability_dps=still['bias_instability_dps'])
+    log = _log_to_fit(log_path, settings, loop_options, warn)
+    loop = close_loop(log, settings.rows, settings.columns, loop_options)
+    # The report and figures are the loop's; what the checks drop is in their sections.
+    loop_report = build_report(log, loop, settings.bias_samples, source=str(log_path))
+    result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
+    _warn_loop(loop, warn)
+    validation = _validate(result, settings) if settings.validate else None
+    refit = result.extended if validation is None else validation.calibration
+    baseline = _baseline(log, result, refit, settings)
+    kept = baseline if isinstance(baseline, BaselineCheck) and baseline.verdict == BASELINE else None
+    if kept is not None:
+        warn(kept.message)
+    choice = _choose(result, startup, restarts, validation, refit, kept, settings)
+    calibration = choice.calibration
+    judged = settings.validate and settings.validate_powered_on_at_start
+    warning = '' if judged else unjudged_warm_up(calibration, result.bias_instability_dph)
+    if warning:
+        warn(warning)
+    needed = node_parameters_needed(calibration)   # a term on a --node-signal column: the node must be fed it
+    comment = f'Fitted by calibrate fit from {log_path}: {choice.polynomial}, effects beyond it: {choice.found}.'
+    if needed:
+        warn(f'{calibration_path} has terms on signals the gyro does not measure: gyro_node refuses it unless '
+             + '; '.join(f'{name} is set ({what})' for name, what in needed.items()))
+        comment += f' gyro_node needs {" and ".join(needed)} set.'
+    report = {
+        **loop_report,
+        # Per candidate of the last screen, the smallest effect this log would have found (DetectionLimit.to_dict).
+        'detection_limit_dph': {d.signal: d.to_dict() for d in loop.detection},
+        **({} if still is None else {'still': still}),
+        **({} if startup is None else {'startup_check': validation_section(startup, restarts)}),
+        **({} if validation is None else {'validation': validation_section(validation, list(settings.validate))}),
+        'baseline': baseline.to_dict() if isinstance(baseline, BaselineCheck) else
+        {'source': None, 'verdict': 'none', 'message': baseline},
+        **({'warnings': [warning]} if warning else {}),
+        # The effects above are the loop's; the checks may have dropped some: what the file holds.
+        'written': {'calibration': calibration_path, 'terms': [t.signal for t in calibration.terms],
+                    **({'node_parameters': needed} if needed else {})},
+    }
+    return FitResult(log, loop, startup, validation, calibration, comment, report,
+                     baseline if isinstance(baseline, BaselineCheck) else None)
+
+
+def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions, warn: Callable[[str], None]) -> GyroLog:
+    """The log read with ``options``' scale factors, less the rows the node would drop; refused if it is too narrow.
+
+    A log whose steady rates and temperatures cannot determine the polynomial is refused
+    (:class:`LogError`); one without ``ref_rate`` is left for the loop to say what is missing.
+    """
+    log = read_any_log(log_path, options.rate_scale_factor, options.temp_scale_factor, settings.topics, warn)
+    usable = usable_rates(log.rate_dps, options.rate_scale_factor)
     if not usable.all():   # the node drops these frames: no value to fit (a turn beyond the range reads as slower)
         warn(f'{log.t.size - int(usable.sum())} of {log.t.size} rows excluded: the rate clipped (at '
-             f'+-{unit_range_dps(loop_options.rate_scale_factor):g} deg/s) or beyond any unit\'s range (the node '
+             f'+-{unit_range_dps(options.rate_scale_factor):g} deg/s) or beyond any unit\'s range (the node '
              'drops such frames)')
         log = log.slice(usable)
-    if log.ref_rate is not None:   # without it the loop says what is missing
+    if log.ref_rate is not None:
         try:
-            check_coverage(log.temp_c, steady_segments(log.t, log.ref_rate, loop_options.settle_s).rate,
+            check_coverage(log.temp_c, steady_segments(log.t, log.ref_rate, options.settle_s).rate,
                            settings.rows, settings.columns)
         except ValueError as e:
             raise LogError(f'{log_path}: {e}') from None
-    loop = close_loop(log, settings.rows, settings.columns, loop_options)
-    # The report and figures are the loop's; what the check drops is in its section, as --validate's drops are.
-    report = build_report(log, loop, settings.bias_samples, source=str(log_path))
-    # Per candidate of the last screen, the smallest effect this log would have found (DetectionLimit.to_dict).
-    report['detection_limit_dph'] = {d.signal: d.to_dict() for d in loop.detection}
-    if still is not None:
-        report['still'] = still
-    result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
-    found = ', '.join(e.signal for e in result.effects) or 'nothing'
-    if startup is not None:
-        report['startup_check'] = validation_section(startup, restarts)
-        found += _dropped(startup, OWN_RUNS_NAME if restarts[:1] == [COLD_START_NAME] else RESTARTS_NAME)
+    return log
+
+
+def _warn_loop(loop: LoopResult, warn: Callable[[str], None]) -> None:
+    """Tell ``warn`` what the loop found and does not write, and whether its model leaves more than noise."""
     for finding in loop.findings:
         if finding.signal not in HEADING_SIGNALS:
             warn(f'an effect on {finding.signal} ({finding.score.effect_dph:.2f} deg/h) was found and not written: '
                  f'{not_written_reason(finding.signal)}')
-    if not report['model_adequate']:
-        shapes = [f'{x["signal"]} ({x["shape_dph"]:.2f} deg/h)' for x in report['adequacy']['signals'] if x['found']]
-        warn(f'the model does not fit: {report["adequacy"]["excess_dph"]:.2f} deg/h beyond the noise budget, '
+    adequacy = loop.adequacy
+    if adequacy is not None and not adequacy.model_adequate:
+        shapes = [f'{x.signal} ({x.shape_dph:.2f} deg/h)' for x in adequacy.signals if x.found]
+        warn(f'the model does not fit: {adequacy.excess_dph:.2f} deg/h beyond the noise budget, '
              'held out, over 10-minute means'
              + (f'; what it leaves has a shape beyond chance and the materiality against {", ".join(shapes)}'
                 if shapes else '')
              + '; see REPORT.md and the residual against each signal (--plots)')
-    calibration = result.extended
-    validation = None
-    if settings.validate:
-        validation = _validate(result, settings)
-        report['validation'] = validation_section(validation, list(settings.validate))
-        calibration = validation.calibration
-        if validation.dropped:
-            found = (', '.join(t.signal for t in calibration.terms) or 'nothing') \
-                + _dropped(validation, 'the validation runs')
-    baseline = _baseline(log, result, calibration, settings)
-    polynomial = f'ART polynomial {settings.rows} x {settings.columns}'
-    if isinstance(baseline, BaselineCheck):
-        report['baseline'] = baseline.to_dict()
-        if baseline.verdict == BASELINE:
-            warn(baseline.message)
-            polynomial = f'the baseline\'s polynomial ({baseline.source}; the refit was not better held out)'
-            if len(baseline.calibration.terms) < len(calibration.terms):
-                found += ' (not written: they made the baseline worse)'
-            calibration = baseline.calibration
-    else:
-        report['baseline'] = {'source': None, 'verdict': 'none', 'message': baseline}
-    judged = settings.validate and settings.validate_powered_on_at_start
-    warning = '' if judged else unjudged_warm_up(calibration, result.bias_instability_dph)
-    if warning:
-        report['warnings'] = [warning]
-        warn(warning)
-    # The effects above are the loop's; the checks may have dropped some: say what the file holds.
-    needed = node_parameters_needed(calibration)   # a term on a --node-signal column: the node must be fed it
-    report['written'] = {'calibration': calibration_path, 'terms': [t.signal for t in calibration.terms]}
-    comment = f'Fitted by calibrate fit from {log_path}: {polynomial}, effects beyond it: {found}.'
-    if needed:
-        report['written']['node_parameters'] = needed
-        warn(f'{calibration_path} has terms on signals the gyro does not measure: gyro_node refuses it unless '
-             + '; '.join(f'{name} is set ({what})' for name, what in needed.items()))
-        comment += f' gyro_node needs {" and ".join(needed)} set.'
-    return FitResult(log, loop, startup, validation, calibration, comment, report,
-                     baseline if isinstance(baseline, BaselineCheck) else None)
+
+
+@dataclass(frozen=True)
+class _Choice:
+    """The calibration to write and what its comment says of it.
+
+    ``polynomial``: whose polynomial it holds; ``found``: the effects beyond it, and what the checks dropped.
+    """
+
+    calibration: Calibration
+    polynomial: str
+    found: str
+
+
+def _choose(result: LoopResult, startup: Validation | None, restarts: list[str], validation: Validation | None,
+            refit: Calibration, kept: BaselineCheck | None, settings: FitSettings) -> _Choice:
+    """The calibration to write: ``refit`` (the loop's after the start-up check and the ``--validate`` runs).
+
+    Or ``kept``'s, a baseline whose polynomial the refit did not beat held out: its calibration
+    holds the terms fitted on top of it that made it better.
+    """
+    found = ', '.join(e.signal for e in result.effects) or 'nothing'
+    if startup is not None:
+        found += _dropped(startup, OWN_RUNS_NAME if restarts[:1] == [COLD_START_NAME] else RESTARTS_NAME)
+    if validation is not None and validation.dropped:
+        found = (', '.join(t.signal for t in refit.terms) or 'nothing') + _dropped(validation, 'the validation runs')
+    if kept is None:
+        return _Choice(refit, f'ART polynomial {settings.rows} x {settings.columns}', found)
+    if len(kept.calibration.terms) < len(refit.terms):
+        found += ' (not written: they made the baseline worse)'
+    return _Choice(kept.calibration, f'the baseline\'s polynomial ({kept.source}; the refit was not better held out)',
+                   found)
 
 
 def _baseline(log: GyroLog, result: LoopResult, calibration: Calibration,
