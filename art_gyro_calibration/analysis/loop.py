@@ -29,10 +29,7 @@ from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.noise import allan_floor_dps
 from art_gyro_calibration.analysis.detection import DetectionLimit, detection_limits
-from art_gyro_calibration.analysis.trace import (DEFAULT_BLOCK_S, Binned, CandidateScore, Screen, ScreenOptions,
-                                                 TraceResult, duration_s, held_out_residual, joined,
-                                                 mirrored_spectrum, phase_surrogates_alike, time_constant_bounds,
-                                                 trace_residual)
+from art_gyro_calibration.analysis import trace
 
 DEFAULT_MAX_EFFECTS = 4
 # Signals computed from the measured rate alone, and the screen's forms on the rate.
@@ -62,7 +59,7 @@ _SQUARABLE = tuple(name for name, s in SIGNALS.items() if s.squarable)
 
 
 @dataclass(frozen=True)
-class LoopOptions(ScreenOptions):
+class LoopOptions(trace.ScreenOptions):
     """How :func:`close_loop` runs: each round's screen (:class:`trace.ScreenOptions`) and the loop's own settings.
 
     ``serial_number``, ``rate_scale_factor`` and ``temp_scale_factor`` only go into the
@@ -88,7 +85,7 @@ class LoopOptions(ScreenOptions):
     max_effects: int = DEFAULT_MAX_EFFECTS
     materiality_dph: float | None = None
     exclude: tuple[str, ...] = ()
-    block_s: float = DEFAULT_BLOCK_S
+    block_s: float = trace.DEFAULT_BLOCK_S
     from_power_on: bool = True
     still_instability_dps: float | None = None
     node_signals: tuple[str, ...] = ()
@@ -99,7 +96,7 @@ class Effect:
     """One traced effect, as added to the model."""
 
     term: Term
-    score: CandidateScore
+    score: trace.CandidateScore
     held_out_rms_without_dps: float
     held_out_rms_with_dps: float
 
@@ -152,7 +149,7 @@ class LoopResult:
     art: Calibration
     extended: Calibration
     effects: tuple[Effect, ...]
-    rounds: tuple[TraceResult, ...]
+    rounds: tuple[trace.TraceResult, ...]
     noise_floor_dps: float
     held_out_rms_art_dps: float
     held_out_rms_extended_dps: float
@@ -221,8 +218,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
     # A still gyro (one reference rate throughout) reads nothing but its error: a signal derived
     # from its rate would explain the error with itself, so none is a candidate.
     still = bool(np.ptp(log.ref_rate) == 0.0)
-    binned = Binned(signals, error, segments, rows, columns, options.folds, bin_s, block_s)
-    noise = noise_levels(binned, Screen(binned).residual() / binned.sqrt_counts, bin_s)
+    binned = trace.Binned(signals, error, segments, rows, columns, options.folds, bin_s, block_s)
+    noise = noise_levels(binned, trace.Screen(binned).residual() / binned.sqrt_counts, bin_s)
     if options.still_instability_dps is not None:
         noise = replace(noise, instability_dps=options.still_instability_dps)
     signals.forget()   # the rest of the loop takes its signals chunk by chunk
@@ -230,8 +227,8 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
     materiality = noise.materiality_dph if options.materiality_dph is None else options.materiality_dph
     excluded = [*options.exclude, *(RATE_SIGNALS if still else ())]
     specs: list[TermSpec] = []
-    rounds: list[TraceResult] = []
-    scores: list[CandidateScore] = []
+    rounds: list[trace.TraceResult] = []
+    scores: list[trace.CandidateScore] = []
     strong: list[bool] = []   # per spec: its round's score beat the threshold by STRONG_FACTOR
     while len(rounds) < options.max_effects:
         # Held-out blocks at least as long as what the current model leaves stays correlated:
@@ -239,16 +236,16 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
         if specs:
             residual[index] = fit_model(signals, error, rows, columns, specs, index, ranges=binned.ranges).residual
         binned.refold(max(block_s, correlation_time_s(signals.t, residual, segments)))
-        found = trace_residual(signals, error, segments, rows, columns, specs, options,
-                               materiality_dph=materiality, noise_floor_dps=floor,
-                               exclude=excluded + [s.signal for s in scores], binned=binned, still=still)
+        found = trace.trace_residual(signals, error, segments, rows, columns, specs, options,
+                                     materiality_dph=materiality, noise_floor_dps=floor,
+                                     exclude=excluded + [s.signal for s in scores], binned=binned, still=still)
         rounds.append(found)
         best = found.best
         if best is None:
             break
         same = [i for i, spec in enumerate(specs) if spec.signal == best.spec.signal]
         if same:   # one term per signal in a calibration file: a second form on it joins the first
-            specs[same[0]] = joined(specs[same[0]], best.spec)
+            specs[same[0]] = trace.joined(specs[same[0]], best.spec)
             scores[same[0]] = best
             strong[same[0]] = strong[same[0]] and _strong(found)
         else:
@@ -283,19 +280,20 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
     low, high = float(np.floor(log.temp_c[index].min())), float(np.ceil(log.temp_c[index].max()))
     art = Calibration(options.serial_number, options.rate_scale_factor, art_model.polynomial,
                       (low, high if high > low else low + 1.0), options.temp_scale_factor, (), filters)
+    # What the written model leaves, judged (in this order: the checks share the binned rows' caches).
+    held_out_art = every_row.held_out_rms()
+    alarm = adequacy(binned, written, floor, bin_s, materiality, options)
+    residual_materiality = residual_materiality_dph(binned, written, materiality, bin_s, options)
+    detection = detection_limits(binned, specs, rounds[-1], rows, columns, materiality, still,
+                                 seed=options.seed) if rounds else ()
     return LoopResult(
         art=art, extended=replace(art, polynomial=final.model.polynomial, terms=final.model.terms),
         effects=tuple(e for e in effects if e not in heading), rounds=tuple(rounds), noise_floor_dps=floor,
-        held_out_rms_art_dps=every_row.held_out_rms(),
-        held_out_rms_extended_dps=held_out_all, held_out_block_s=every_row.block_s, signals=signals,
-        error=error, segments=segments, materiality_dph=materiality, bias_instability_dph=instability_dph,
-        adequacy=adequacy(binned, written, floor, bin_s, materiality, options), findings=tuple(heading),
-        start=RunStart(powered_on_at_start=options.from_power_on),
-        residual_materiality_dph=materiality if options.still_instability_dps is not None else min(
-            materiality, noise_levels(binned, Screen(binned, written).residual() / binned.sqrt_counts, bin_s)
-            .materiality_dph),
-        detection=detection_limits(binned, specs, rounds[-1], rows, columns, materiality, still, seed=options.seed)
-        if rounds else ())
+        held_out_rms_art_dps=held_out_art, held_out_rms_extended_dps=held_out_all,
+        held_out_block_s=every_row.block_s, signals=signals, error=error, segments=segments,
+        materiality_dph=materiality, bias_instability_dph=instability_dph, adequacy=alarm, findings=tuple(heading),
+        start=RunStart(powered_on_at_start=options.from_power_on), residual_materiality_dph=residual_materiality,
+        detection=detection)
 
 
 def node_signals(options: LoopOptions, columns: tuple[str, ...]) -> tuple[str, ...]:
@@ -317,7 +315,7 @@ def node_signals(options: LoopOptions, columns: tuple[str, ...]) -> tuple[str, .
 STRONG_FACTOR = 2.0
 
 
-def _strong(found: TraceResult) -> bool:
+def _strong(found: trace.TraceResult) -> bool:
     """Whether the round's pick beat its threshold by :data:`STRONG_FACTOR`."""
     return found.best is not None and found.best.score >= STRONG_FACTOR * max(found.threshold_score, 1.0)
 
@@ -326,7 +324,7 @@ def _strong(found: TraceResult) -> bool:
 RETUNE_FACTOR = 2.0
 
 
-def retuned(binned: Binned, specs: list[TermSpec]) -> list[TermSpec]:
+def retuned(binned: trace.Binned, specs: list[TermSpec]) -> list[TermSpec]:
     """``specs`` with each time constant (or lag) fitted again given every other term.
 
     A time constant chosen while another effect was still in the residual is biased by it
@@ -336,14 +334,14 @@ def retuned(binned: Binned, specs: list[TermSpec]) -> list[TermSpec]:
     log(tau) through the best and its neighbours (one more); only the one kept stays cached.
     """
     out = list(specs)
-    duration = duration_s(binned.signals)
+    duration = trace.duration_s(binned.signals)
     for i, spec in enumerate(out):
         if spec.time_constant_s <= 0.0:
             continue
-        screen = Screen(binned, out[:i] + out[i + 1:])
+        screen = trace.Screen(binned, out[:i] + out[i + 1:])
         own = np.log(spec.time_constant_s)
         logs = np.unique(np.clip(own + np.log(RETUNE_FACTOR) * np.linspace(-1.0, 1.0, 5),
-                                 *np.log(time_constant_bounds(spec, duration))))
+                                 *np.log(trace.time_constant_bounds(spec, duration))))
         # The spec itself where it is tried (exp(log(tau)) may differ in the last bit): cached.
         tried = [spec if x == own else replace(spec, time_constant_s=float(np.exp(x))) for x in logs]
         binned.candidate_means(tried)
@@ -365,7 +363,7 @@ THERMAL_STILL_RATE = 3e-3
 THERMAL_STILL_S = 180.0
 
 
-def thermally_still_runs(binned: Binned) -> NDArray[np.int64] | None:
+def thermally_still_runs(binned: trace.Binned) -> NDArray[np.int64] | None:
     """Per bin, a label of its stretch of steady temperature (-1 for none); None if under 10 minutes in all."""
     rate = binned.signals.temperature_rate[binned.index[binned.starts]]
     still = np.abs(rate) <= THERMAL_STILL_RATE
@@ -397,7 +395,7 @@ class NoiseLevels:
         return self.instability_dps * DEG_PER_H_PER_DPS
 
 
-def noise_levels(binned: Binned, bin_means: NDArray[np.float64], bin_s: float) -> NoiseLevels:
+def noise_levels(binned: trace.Binned, bin_means: NDArray[np.float64], bin_s: float) -> NoiseLevels:
     """Bias instability and slow wander of a residual's bin means.
 
     Over the stretches where the temperature holds, if the log has 10 minutes of them (an
@@ -422,13 +420,26 @@ def noise_levels(binned: Binned, bin_means: NDArray[np.float64], bin_s: float) -
     return NoiseLevels(allan_floor_dps(allan_deviation(values, rate_hz, runs), rate_hz, 60.0), wander)
 
 
+def residual_materiality_dph(binned: trace.Binned, specs: Sequence[TermSpec], materiality_dph: float, bin_s: float,
+                             options: LoopOptions) -> float:
+    """The materiality of what the polynomial + ``specs`` leave: the start-up check weighs term sets against it.
+
+    ``materiality_dph`` (of what the polynomial alone leaves, effects included) if it is lower, or if
+    the bias instability was measured on a still record (``options.still_instability_dps``).
+    """
+    if options.still_instability_dps is not None:
+        return materiality_dph
+    leaves = trace.Screen(binned, specs).residual() / binned.sqrt_counts
+    return min(materiality_dph, noise_levels(binned, leaves, bin_s).materiality_dph)
+
+
 # The residual's block means may exceed their noise budget by this factor before the alarm:
 # the budget's bias instability is itself estimated from the same residual.
 ADEQUACY_RATIO = 3.0
 ADEQUACY_BLOCK_S = 600.0
 
 
-def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s: float,
+def adequacy(binned: trace.Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s: float,
              materiality_dph: float, options: LoopOptions = LoopOptions()) -> Adequacy:
     """The lack-of-fit alarm: whether the held-out residual's 10-minute means stay within the noise budget.
 
@@ -440,7 +451,7 @@ def adequacy(binned: Binned, specs: Sequence[TermSpec], floor_dps: float, bin_s:
     one of a still record where one was measured (``options.still_instability_dps``).
     """
     # A bin the other folds' fit predicts poorly (a rare rate: its leverage) weighs by its held-out variance.
-    residual, inflation = held_out_residual(binned, specs)
+    residual, inflation = trace.held_out_residual(binned, specs)
     residual /= binned.sqrt_counts   # held-out bin means, deg/s
     weights = binned.sqrt_counts ** 2 / inflation
     t = binned.bin_times()
@@ -582,7 +593,7 @@ def _group_means(groups: NDArray[np.int64], weights: NDArray[np.float64],
     return out
 
 
-def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDArray[np.float64],
+def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation: NDArray[np.float64],
                   materiality_dph: float, bin_s: float,
                   options: LoopOptions = LoopOptions()) -> tuple[SignalShape, ...]:
     """The held-out residual (bin means, deg/s) against each signal the loop knows, with no form assumed.
@@ -626,7 +637,7 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDAr
     # the group means themselves would take out the wander they hold too (a score of 20 by chance against the
     # time since power-on, 2.0 against a 2 h log's supply voltage).
     t = np.asarray(signals.t)[rows]
-    spectra = [mirrored_spectrum(cross_fitted(g, t, weights, residual) / spread_of) for g in groups]
+    spectra = [trace.mirrored_spectrum(cross_fitted(g, t, weights, residual) / spread_of) for g in groups]
     means = [np.empty((len(w), options.draws + 1)) for w in shares]   # per signal: group means, residual first
     for m, own_means in zip(means, own):
         m[:, 0] = own_means
@@ -636,7 +647,7 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDAr
     batch = max(1, SHAPE_DRAW_BATCH // len(groups))
     for done in range(0, options.draws, batch):
         count = min(batch, options.draws - done)
-        for g, m, values in zip(groups, means, phase_surrogates_alike(spectra, count, rng)):
+        for g, m, values in zip(groups, means, trace.phase_surrogates_alike(spectra, count, rng)):
             m[:, 1 + done:1 + done + count] = _group_means(g, weights, values[:len(residual)] * spread_of[:, None])
     kept = [w >= MIN_LEVEL_SHARE for w in shares]   # a level of a few bins (a restart's turn) is one moment
     scores = np.stack([shape_scores(m[k], w[k]) for m, w, k in zip(means, shares, kept)])
@@ -654,7 +665,7 @@ def signal_shapes(binned: Binned, residual: NDArray[np.float64], inflation: NDAr
                  for i, name in enumerate(names))
 
 
-def _maybe_square(spec: TermSpec, binned: Binned, specs: list[TermSpec], materiality_dph: float) -> TermSpec:
+def _maybe_square(spec: TermSpec, binned: trace.Binned, specs: list[TermSpec], materiality_dph: float) -> TermSpec:
     """``spec`` with powers [1, 2] if the square lowers the held-out error and its curvature is material.
 
     The curvature is the square's part that a straight line in the signal cannot give,
@@ -663,10 +674,10 @@ def _maybe_square(spec: TermSpec, binned: Binned, specs: list[TermSpec], materia
     if spec.form != 'power' or spec.powers != (1,) or spec.signal not in _SQUARABLE + tuple(binned.signals.extras):
         return spec
     squared = replace(spec, powers=(1, 2))
-    both = Screen(binned, specs + [squared])
-    if both.base_sse() >= Screen(binned, specs + [spec]).base_sse():
+    both = trace.Screen(binned, specs + [squared])
+    if both.base_sse() >= trace.Screen(binned, specs + [spec]).base_sse():
         return spec
-    _, beta = Screen(binned, specs).fit_with(squared)
+    _, beta = trace.Screen(binned, specs).fit_with(squared)
     means = binned.candidate_means([squared])[:, 0, :]
     line = np.column_stack([np.ones(len(means)), means[:, 0]])
     bend = means[:, 1] - line @ np.linalg.lstsq(line, means[:, 1], rcond=None)[0]
