@@ -16,7 +16,7 @@ are left out and no static bias is collected, and while one is stale the answer 
 Until the refinement is ready, the temperature-rate terms are not evaluated on the filter: the
 static bias has taken the true Shupe error of the window (the causal filter read about 0 there),
 so letting the filter's rise through its first minutes into the output would subtract that error
-a second time (up to 23 deg/h for minutes after a cold start with self-heating, measured). They
+a second time (for minutes after a cold start with self-heating, when the error is largest). They
 hold their window mean for a minute, then follow the refinement's provisional fit
 (:meth:`static_bias.Refinement.error_one`): how far its slope moved since the window.
 """

@@ -12,18 +12,17 @@ error is the one of the fit that did not see it. The baseline is replayed as it 
 
 A refit whose polynomial is not better than the baseline by the loop's materiality is
 not written: the file keeps the baseline polynomial, with the loop's terms fitted on top
-of it if, replayed the same way, they make the baseline better by the materiality (a
-rate-sign term that stood in for a Shupe effect on a 2 h log, 0.63 deg/h better than the
-baseline on it against a materiality of 1.19, was 2.4 deg/h worse on a warm second run).
+of it if, replayed the same way, they make the baseline better by the materiality (a term
+that stands in for another effect on a short log can help a little on it and harm a second run).
 A slow bias wander of a short log, or a polynomial order too low for the gyro, is what
 makes a refit worse than the baseline. The terms keep their fit on the
 whole log in both (a warm-up lives in the first block alone): the polynomial is judged.
 
 Held out on the log, the refit is judged only at the log's temperatures. Beyond them it
 holds its value at the log's edge (its ``temperature_range_c``), where the baseline was
-calibrated (:func:`beyond_log`): a 2 h log over 16..25 degC wrote a refit that a second
-run from 10 degC found 53 deg/h worse than the baseline's 7.6 (field check at d5e7267). A
-refit that is worse there than the baseline by the materiality is not written either.
+calibrated (:func:`beyond_log`): a polynomial fitted over a narrow span of temperatures
+can be far off outside it, where the baseline holds. A refit that is worse there than the
+baseline by the materiality is not written either.
 """
 
 from __future__ import annotations

@@ -30,10 +30,9 @@ loop also asks that size of any effect.
 
 Not modelled: the screen draws its chance copies from the spectrum of the residual it tests,
 so an effect present raises its own bar (less where the strongest candidate's fit is taken
-out first, :func:`trace.null_spectrum`). On 2 h logs (injection, doc/calibration.md) a supply
-voltage was found from 1-2 times its limit (3 of 4 seeds), a Shupe term from 2-6 times (in 3 of 4 seeds,
-not the fourth up to 6), a drift from 3-6 times: slow forms whose power falls where the chance
-spectrum is measured need more than the limit says. Nothing was found at half the limit.
+out first, :func:`trace.null_spectrum`). So the limit is a lower bound: slow forms (a drift,
+a Shupe effect) whose power falls where the chance spectrum is measured need a few times more
+than it says to be found.
 
 How the limit scales with the log's length is measured: the same computation on the log's
 first half and first quarter (the model refitted there), with the threshold scaled

@@ -259,7 +259,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
     # Every effect must lower the held-out error of the final model, every row counted (on the blocks
     # of the last round): one that passed its screen only given candidates that did not make it is dropped.
     # Not one that beat its round's chance by far: over one chamber cycle the held-out error of a temperature
-    # term is how the polynomial extrapolates into a held-out block's temperatures (doc/oracle-power.md).
+    # term is how the polynomial extrapolates into a held-out block's temperatures.
     every_row = binned.row_folds(specs)
     while True:
         held_out_all = every_row.held_out_rms(specs)
@@ -478,21 +478,19 @@ def adequacy(binned: trace.Binned, specs: Sequence[TermSpec], floor_dps: float, 
 # else (fewer groups than this) by equal counts (signal_groups).
 SHAPE_GROUPS = 12
 # A signal that holds at most SHAPE_LEVELS levels (a rate table's steps) is grouped by level: equal counts split
-# +2 deg/s between a group with +1 and one with +5 on a 2 h log, and a bump there scored 2.75 against the 2.84
-# chance reached. Levels are split where the sorted values leap by more than LEVEL_GAP of their range: a rate
-# table's steps are 1 deg/s apart in 200, its noise a few thousandths; a ramped temperature or a supply voltage
-# leaps nowhere near that.
+# one step between two groups with its neighbours, and a bump at that step is diluted below chance. Levels are
+# split where the sorted values leap by more than LEVEL_GAP of their range: a rate table's steps are 1 deg/s apart
+# in 200, its noise a few thousandths; a ramped temperature or a supply voltage leaps nowhere near that.
 SHAPE_LEVELS = 32
 LEVEL_GAP = 1e-3
 LEVEL_WIDTH = 0.5   # and each level spans less than this share of the leaps beside it
 SHAPE_BINS = 24     # other signals: groups of equal width over their central values
 TAIL_SHARE = 0.01   # the share of the values at either end beyond those
 # A group of less than this share of the weight is left out of the statistics and the size: a few bins (a
-# restart's turn) are one moment of the wander, not a shape (one at 18.8 deg/h alarmed a null 2 h log).
+# restart's turn) are one moment of the wander, not a shape (such a group alone can raise a false alarm).
 MIN_LEVEL_SHARE = 0.5 / SHAPE_LEVELS
 # Each statistic is scaled by this quantile of its chance copies: by their median, the spread over few groups (a
-# long tail) set the level chance reaches for all, and a temperature bump on a 6 h log, 1.8 times the 95 % of its
-# own copies, was not found.
+# long tail) set the level chance reaches for all, and a bump well beyond its own copies went unfound.
 SHAPE_SCALE_QUANTILE = 0.9
 # Chance copies of the residual grouped at a time, over all signals.
 SHAPE_DRAW_BATCH = 25
@@ -571,8 +569,8 @@ def shape_scores(means: NDArray[np.float64], shares: NDArray[np.float64]) -> NDA
     ``means`` and ``shares``: of the groups :func:`signal_shapes` keeps (:data:`MIN_LEVEL_SHARE`).
     The larger of two statistics, each over its :data:`SHAPE_SCALE_QUANTILE` among the copies:
     the weighted spread of the group means (a shape across the signal's range) and the largest
-    group mean over its own spread among the copies (a shape in one group: a temperature bump on
-    a 6 h log, the loop study's run 402001, stood out by this one alone).
+    group mean over its own spread among the copies (a shape in one group, a bump at some
+    temperatures, can stand out by this one alone).
     """
     spread = shares @ means ** 2
     own_spread = np.sqrt(np.mean(means[:, 1:] ** 2, axis=1))
@@ -607,9 +605,7 @@ def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation
     the signals: one level for all.
     A shape beyond chance is weighed against the materiality read from the residual without it
     (unless the materiality was given, or measured on a still record): the shape is in the
-    residual the loop read its bias instability from, and raised it against itself (a bump of
-    1.42 deg/h against the rate on a 6 h log, 1.7 times chance: the materiality 1.47 deg/h with it,
-    1.21 without).
+    residual the loop read its bias instability from, and would raise it against itself.
     """
     signals = binned.signals
     rows = binned.index[binned.starts]
@@ -619,8 +615,8 @@ def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation
     names = [n for n in SHAPE_SIGNALS if n != 'time_since_power_on' or options.from_power_on]
     names += list(signals.extras)
     # A held-out bin's residual carries the error of the fit made without it, as wide as its leverage
-    # (``inflation``): the one -100 deg/s step of a 2 h log, held out, left -182 deg/h in a null run (inflation
-    # 110, the rest about 1), a false alarm against the rate. Weighted by the inverse of their variance, and the
+    # (``inflation``): a rate step met once in a short log, held out, leaves a large residual in a log with no
+    # effect at all, a false alarm against the rate. Weighted by the inverse of their variance, and the
     # chance copies drawn from the residual standardised by it and given it back, such bins weigh as they should.
     spread_of = np.sqrt(inflation)
     weights = binned.sqrt_counts ** 2 / spread_of ** 2
@@ -633,9 +629,9 @@ def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation
     own = [_group_means(g, weights, residual[:, None])[:, 0] for g in groups]
     # Chance copies keep the residual's memory but not the shape under test: a function of the temperature over
     # a chamber's repeated cycles is periodic, and copies with its spectrum repeat a shape as large as it on every
-    # cycle (a bump of 4.6 deg/h scored 1.3 against the 1.7 chance reached). The shape is taken out cross-fitted:
-    # the group means themselves would take out the wander they hold too (a score of 20 by chance against the
-    # time since power-on, 2.0 against a 2 h log's supply voltage).
+    # cycle, and the shape would hide below the chance it sets. The shape is taken out cross-fitted: the group
+    # means themselves would take out the wander they hold too, and a slow signal (the time since power-on, a
+    # supply voltage) would then score high by chance.
     t = np.asarray(signals.t)[rows]
     spectra = [trace.mirrored_spectrum(cross_fitted(g, t, weights, residual) / spread_of) for g in groups]
     means = [np.empty((len(w), options.draws + 1)) for w in shares]   # per signal: group means, residual first

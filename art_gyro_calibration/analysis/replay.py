@@ -136,9 +136,9 @@ def unjudged_warm_up(calibration: Calibration, bias_instability_dph: float) -> s
     Neither the fitted log (one power-on) nor its restarts (power-on unknown) can tell a
     warm-up from a wander of the bias that happens to start high: on every cold start the
     node applies the term, and one fitted to noise is then a bias of about its amplitude
-    (5-6 deg/h in null runs of the loop study's simulator, 4-7 times their bias instability). The
-    amplitude is given beside the log's bias instability: a person can tell 72 deg/h from
-    a wander of 3 deg/h, where a fixed ratio would be tuned to one simulator.
+    (several times the bias instability). The amplitude is given beside the log's bias
+    instability: a person can tell a large warm-up from a small wander, where a fixed ratio
+    would be tuned to one simulator.
     """
     warm_up = next((t for t in calibration.terms if t.signal == POWER_ON_SIGNAL), None)
     if warm_up is None:
@@ -328,10 +328,9 @@ def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_
         return result, None, []
     names = [name for name, _, _ in runs]
     # The restarts are an hour or two of one run: a true term that matters little can score a few tenths of
-    # a deg/h worse on them by chance (a quarter-size supply effect in 6 h logs: 0.1-0.9 deg/h in 9 of 20 runs),
-    # where a term fitted to noise that shifts the static bias scores worse by several deg/h. Term sets are
-    # weighed against the noise the written model leaves: the loop's materiality also holds what the polynomial
-    # alone left of the effects (2.37 deg/h for a Shupe effect and a warm-up, 1.52 after their terms).
+    # a deg/h worse on them by chance, where a term fitted to noise that shifts the static bias scores worse by
+    # several deg/h. Term sets are weighed against the noise the written model leaves: the loop's materiality
+    # also holds what the polynomial alone left of the effects.
     chance = result.residual_materiality_dph or result.materiality_dph
     check = validate(result, [run for _, run, _ in runs], bias_samples, settle_s, [how for _, _, how in runs],
                      kept_signals=() if cold else (POWER_ON_SIGNAL,),
