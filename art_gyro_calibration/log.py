@@ -327,7 +327,7 @@ class RawLogWriter:
         except (OSError, ValueError, AttributeError):
             pass
 
-    def write(self, t: float, raw_rate: int, raw_temp: int) -> None:
+    def write(self, t: float, raw_rate: float, raw_temp: float) -> None:
         """Add one sample; flushed in batches so a crash loses at most ``flush_every`` rows."""
         if not math.isfinite(t):
             raise ValueError(f'log time must be finite, got {t!r}')

@@ -114,8 +114,8 @@ def test_chunks_equal_the_whole_and_errors_name_the_line(tmp_path: Path) -> None
         list(read_log_chunks(path, 0.00305, 0.05, chunk_rows=37))
 
 
-def test_a_last_row_cut_mid_way_is_dropped_and_said(tmp_path):
-    """A full disk cut '500' to '50' and calibrate read it as a valid row (issue 25)."""
+def test_a_last_row_cut_mid_way_is_dropped_and_said(tmp_path: Path) -> None:
+    """A full disk cut '500' to '50': the cut row is dropped and said, not read as a valid row."""
     path = tmp_path / 'cut.csv'
     path.write_text('t,raw_rate,raw_temp\n1.0,2,500\n2.0,3,500\n3.0,4,50', encoding='utf-8')
     with pytest.warns(CutRowWarning, match=r'cut.csv:4: the last row does not end its line \(cut by a kill or a '
@@ -128,7 +128,7 @@ def test_a_last_row_cut_mid_way_is_dropped_and_said(tmp_path):
         assert len(read_log(path, 0.00305, 0.05)) == 2
 
 
-def test_calibrate_says_which_row_it_dropped(tmp_path, capsys):
+def test_calibrate_says_which_row_it_dropped(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from art_gyro_calibration.analysis.cli import main
     log = tmp_path / 'cut.csv'
     log.write_text('t,rate_dps,temp_c\n' + ''.join(f'{i * 0.1:.1f},{0.01 * (i % 3)},25\n' for i in range(200))

@@ -67,7 +67,7 @@ class AllanDeviation:
 
     def confidence(self, sample_rate_hz: float, level: float = 0.683) -> tuple[Floats, Floats]:
         """Lower and upper bounds of each value at ``level``: the chi-squared interval of its variance."""
-        from scipy.stats import chi2
+        from scipy.stats import chi2  # type: ignore[import-untyped]  # scipy ships no types
         edf = self.degrees_of_freedom(sample_rate_hz)
         low = self.adev * np.sqrt(edf / chi2.ppf(0.5 + level / 2.0, edf))
         high = self.adev * np.sqrt(edf / chi2.ppf(0.5 - level / 2.0, edf))
@@ -96,7 +96,7 @@ class _AngleStore:
         if self._file is None:
             self._memory.append(values.copy())
         else:
-            view = memoryview(np.ascontiguousarray(values)).cast('B')
+            view = np.ascontiguousarray(values).data.cast('B')
             while view:
                 view = view[os.write(self._file, view):]
         self.size += len(values)
@@ -108,7 +108,7 @@ class _AngleStore:
                 self._memory = [self._array]
             return self._array[start:start + count]
         out = np.empty(max(min(count, self.size - start), 0))
-        view = memoryview(out).cast('B')
+        view = out.data.cast('B')
         done = 0
         while done < len(view):
             got = os.preadv(self._file, [view[done:]], 8 * start + done)
@@ -186,7 +186,7 @@ class AllanAccumulator:
         window = [i for i, k in enumerate(out.m) if _SHORT_MAX_M < k <= _WINDOW_MAX_M]
         # The dot products are of cache-sized blocks: a multi-threaded BLAS spin-waits on them
         # (measured 3 ms against 0.2 ms a block on a loaded machine).
-        from threadpoolctl import threadpool_limits
+        from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
         with threadpool_limits(limits=1, user_api='blas'):
             self._windowed(out, short, _SHORT_BLOCK)
             self._windowed(out, window, _LONG_BLOCK)

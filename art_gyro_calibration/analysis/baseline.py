@@ -191,7 +191,7 @@ def node_runs(log: GyroLog, result: LoopResult, bias_samples: int = DEFAULT_SAMP
 def folds_of(t: NDArray[np.float64], block_s: float, folds: int = FOLDS) -> NDArray[np.int64]:
     """Each row's fold: blocks of ``block_s`` dealt round-robin (fewer folds when the log has fewer blocks)."""
     block = np.floor((t - t[0]) / max(block_s, 1e-9)).astype(np.int64)
-    return block % max(min(folds, int(block[-1]) + 1), 1)
+    return np.asarray(block % max(min(folds, int(block[-1]) + 1), 1), dtype=np.int64)
 
 
 def _specs(terms: Sequence[Term]) -> list[TermSpec]:

@@ -32,9 +32,10 @@ import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, Calibration, CalibrationError,
-                                              find_calibration_file, load_calibration, write_calibration)
-from art_gyro_calibration.compensation import PLAUSIBLE_TEMPERATURE_C, RunStart
+from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, PLAUSIBLE_TEMPERATURE_C, Calibration,
+                                              CalibrationError, find_calibration_file, load_calibration,
+                                              write_calibration)
+from art_gyro_calibration.compensation import RunStart
 from art_gyro_calibration.log import CutRowWarning, LogError, RawLogWriter
 from art_gyro_calibration.analysis.bags import BagTopics
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopOptions
@@ -144,6 +145,7 @@ def _allan(args: argparse.Namespace) -> int:
     with Outputs([args.log], args.force) as outputs:
         out = outputs.claim(args.out)
         plots = outputs.claim_directory(args.plots, 'allan*.png') if args.plots else None
+        total: float   # a bag's messages, or the rows a CSV's size gives
         if is_bag(args.log):
             total, chunks = rate_chunks(args.log, args.rate_topic)
         else:
@@ -215,7 +217,7 @@ def _record(args: argparse.Namespace) -> int:
         load_calibration(find_calibration_file(args.serial), expected_serial=args.serial)
     with Outputs([args.port], args.force, keep_if_killed=True) as outputs:   # rows nothing can make again
         out = outputs.claim(args.out)
-        frames: queue.SimpleQueue[tuple[int, int, int]] = queue.SimpleQueue()
+        frames: queue.SimpleQueue[tuple[int, float, float]] = queue.SimpleQueue()
         driver = Rd2100Driver(args.port, args.baud, args.protocol,
                               lambda f: frames.put((f.stamp_ns, f.sample.raw_rate, f.sample.raw_temp)))
         previous = signal.signal(signal.SIGTERM, _interrupt)   # end as on Ctrl-C: keep what was recorded
@@ -237,7 +239,7 @@ def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def _record_frames(frames: queue.SimpleQueue[tuple[int, int, int]], out: Path, port: str,
+def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Path, port: str,
                    duration_s: float | None, last_error: Callable[[], str]) -> int:
     """Write frames to ``out`` until ``duration_s`` or Ctrl-C; says on stderr when none arrive for a second."""
     last = time.monotonic()
@@ -477,7 +479,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter('always', CutRowWarning)
             warnings.showwarning = _say_warning
-            return args.run(args)
+            status: int = args.run(args)
+            return status
     except KeyboardInterrupt:
         # Ctrl-C is a stop as asked, not a failure to show a traceback for; what was staged is gone.
         print(f'calibrate{"" if args is None else " " + args.command}: interrupted: no output written',
@@ -493,7 +496,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         return 1
     except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:
-        print(f'calibrate {args.command}: error: {e}', file=sys.stderr)
+        print(f'calibrate{"" if args is None else " " + args.command}: error: {e}', file=sys.stderr)
         return 1
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -81,7 +81,7 @@ class TermSpec:
         return term_basis(self.form, signals.for_term(self), self.powers, self.time_constant_s, self.rate_powers,
                           signals.rate)
 
-    def term(self, coefficients: Sequence[float]) -> Term:
+    def term(self, coefficients: Sequence[float] | NDArray[np.float64]) -> Term:
         """The term with fitted ``coefficients``."""
         return Term(self.signal, self.form, tuple(float(c) for c in coefficients), self.powers,
                     self.time_constant_s, self.rate_powers)
@@ -233,7 +233,7 @@ class Design:
 
 def solve_normal(gram: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
     """Least-squares solution of normal equations on a scaled basis (minimum norm if rank-deficient)."""
-    return np.linalg.lstsq(gram, rhs, rcond=1e-13)[0]
+    return np.asarray(np.linalg.lstsq(gram, rhs, rcond=1e-13)[0], dtype=np.float64)
 
 
 @dataclass(frozen=True)

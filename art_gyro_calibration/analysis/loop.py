@@ -177,7 +177,8 @@ def _one_blas_thread(function: Callable[..., LoopResult]) -> Callable[..., LoopR
     """
     @functools.wraps(function)
     def wrapped(*args: Any, **kwargs: Any) -> LoopResult:
-        from threadpoolctl import threadpool_limits   # the analysis extra: imported when the loop runs
+        # The analysis extra: imported when the loop runs (untyped).
+        from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
         with threadpool_limits(limits=1, user_api='blas'):
             return function(*args, **kwargs)
     return wrapped
@@ -245,7 +246,9 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
             break
         same = [i for i, spec in enumerate(specs) if spec.signal == best.spec.signal]
         if same:   # one term per signal in a calibration file: a second form on it joins the first
-            specs[same[0]] = trace.joined(specs[same[0]], best.spec)
+            merged = trace.joined(specs[same[0]], best.spec)
+            assert merged is not None   # the screen offers a signal the model has only in a form that joins it
+            specs[same[0]] = merged
             scores[same[0]] = best
             strong[same[0]] = strong[same[0]] and _strong(found)
         else:
@@ -575,15 +578,17 @@ def shape_scores(means: NDArray[np.float64], shares: NDArray[np.float64]) -> NDA
     spread = shares @ means ** 2
     own_spread = np.sqrt(np.mean(means[:, 1:] ** 2, axis=1))
     peak = np.max(np.abs(means) / np.maximum(own_spread, 1e-300)[:, None], axis=0)
-    return np.maximum(spread / max(float(np.quantile(spread[1:], SHAPE_SCALE_QUANTILE)), 1e-300),
-                      peak / max(float(np.quantile(peak[1:], SHAPE_SCALE_QUANTILE)), 1e-300))
+    return np.asarray(np.maximum(spread / max(float(np.quantile(spread[1:], SHAPE_SCALE_QUANTILE)), 1e-300),
+                                 peak / max(float(np.quantile(peak[1:], SHAPE_SCALE_QUANTILE)), 1e-300)),
+                      dtype=np.float64)
 
 
 def _group_means(groups: NDArray[np.int64], weights: NDArray[np.float64],
                  values: NDArray[np.float64]) -> NDArray[np.float64]:
     """Weighted means of ``values`` (columns) per group, less the overall mean, shape (groups, columns)."""
-    total = np.bincount(groups, weights=weights)
-    out = np.stack([np.bincount(groups, weights=weights * v, minlength=len(total)) for v in values.T], axis=1)
+    total = np.asarray(np.bincount(groups, weights=weights), dtype=np.float64)
+    out = np.stack([np.asarray(np.bincount(groups, weights=weights * v, minlength=len(total)), dtype=np.float64)
+                    for v in values.T], axis=1)
     out /= np.maximum(total, 1e-300)[:, None]
     overall = (weights @ values) / weights.sum()
     out -= overall
@@ -625,7 +630,7 @@ def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation
     groups = [signal_groups(np.asarray(signals.get(name))[before if name in RATE_SIGNALS else rows], name == 'angle')
               for name in names]
     share = weights / weights.sum()
-    shares = [np.bincount(g, weights=share) for g in groups]
+    shares = [np.asarray(np.bincount(g, weights=share), dtype=np.float64) for g in groups]
     own = [_group_means(g, weights, residual[:, None])[:, 0] for g in groups]
     # Chance copies keep the residual's memory but not the shape under test: a function of the temperature over
     # a chamber's repeated cycles is periodic, and copies with its spectrum repeat a shape as large as it on every

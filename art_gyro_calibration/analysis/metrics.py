@@ -60,7 +60,7 @@ class Segments:
         """Mean of ``values`` (one per log row) over each segment."""
         v = np.asarray(values, dtype=float)
         csum = np.concatenate([[0.0], np.cumsum(v)])
-        return (csum[self.stops] - csum[self.starts]) / self.counts
+        return np.asarray((csum[self.stops] - csum[self.starts]) / self.counts, dtype=np.float64)
 
 
 def correlation_time_s(t: ArrayLike, residual: ArrayLike, segments: Segments, bin_s: float = 60.0) -> float:

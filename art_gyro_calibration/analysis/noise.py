@@ -68,7 +68,7 @@ class NoiseTerms:
 
     def adev(self, tau_s: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """The fitted Allan deviation at ``tau_s`` (deg/s)."""
-        return np.sqrt(self.parts(tau_s).sum(axis=0))
+        return np.asarray(np.sqrt(self.parts(tau_s).sum(axis=0)), dtype=np.float64)
 
     def parts(self, tau_s: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Each term's Allan variance at ``tau_s``, one row per term of :data:`TERMS`."""
@@ -94,7 +94,7 @@ def fit_noise_terms(allan: AllanDeviation, sample_rate_hz: float) -> NoiseTerms:
     The variance of a value with ``edf`` degrees of freedom has a relative standard deviation
     of ``sqrt(2 / edf)``: the long taus, few clusters, weigh little.
     """
-    from scipy.optimize import nnls
+    from scipy.optimize import nnls  # type: ignore[import-untyped]  # scipy ships no types
     tau, avar = allan.tau_s, allan.adev ** 2
     if len(tau) < 3:
         raise ValueError(f'{len(tau)} Allan deviation values are too few to fit the noise terms')

@@ -260,6 +260,7 @@ def still_noise(path: str, options: LoopOptions, topics: BagTopics) -> dict[str,
     """
     from art_gyro_calibration.analysis.bags import csv_rate_chunks, is_bag, rate_chunks
     from art_gyro_calibration.analysis.noise import allan_floor_dps, allan_of_record
+    total: float   # a bag's messages, or the rows a CSV's size gives
     if is_bag(path):
         total, chunks = rate_chunks(path, topics.rate)
     else:

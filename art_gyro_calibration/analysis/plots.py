@@ -19,6 +19,7 @@ import matplotlib
 
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402 (the backend must be chosen first)
+from matplotlib.axes import Axes  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
@@ -103,7 +104,7 @@ def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
     return path
 
 
-def _per_stage(path: Path, ylabel: str, draw: Callable[[plt.Axes, str], None]) -> Path:
+def _per_stage(path: Path, ylabel: str, draw: Callable[[Axes, str], None]) -> Path:
     """One panel per stage (uncalibrated, ART, extended), each drawn by ``draw(ax, stage)``."""
     fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5))
     for ax, stage in zip(axes, STAGES):
@@ -123,7 +124,7 @@ def _error_vs_rate(errors: dict[str, NDArray[np.float64]], result: LoopResult, p
     band, bands = _bands(result)
     colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
 
-    def draw(ax: plt.Axes, stage: str) -> None:
+    def draw(ax: Axes, stage: str) -> None:
         means = result.segments.means(errors[stage])
         for b, colour in zip(bands, colours):
             sel = band == b
@@ -137,7 +138,7 @@ def _heading_360(errors: dict[str, NDArray[np.float64]], result: LoopResult, pat
     turning = result.segments.rate != 0.0
     colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
 
-    def draw(ax: plt.Axes, stage: str) -> None:
+    def draw(ax: Axes, stage: str) -> None:
         rate, heading = heading_errors_360(errors[stage], result.segments)
         for b, colour in zip(bands, colours):
             sel = band[turning] == b

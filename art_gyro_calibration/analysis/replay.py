@@ -62,6 +62,7 @@ def replay(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_S
         raise LogError('the log has no ref_rate column: a replay measures against the rate table\'s true rate')
     applied = apply_calibration(log, calibration, bias_samples, max_mean_dps, max_std_dps, start=start)
     seen = log if applied.kept.all() else log.slice(applied.kept)
+    assert seen.ref_rate is not None   # the log's, sliced with it
     error = applied.corrected_dps - seen.ref_rate
     return Replay(applied, error, field_errors(seen.t, error, steady_segments(seen.t, seen.ref_rate, settle_s),
                                                bias_samples))
@@ -290,10 +291,11 @@ def _simplest(result: LoopResult, current: Calibration, errors: list[FieldErrors
         return current, errors, dropped
     pick = min(simpler, key=lambda k: (_coefficients(sets[k][0]), field_score_dps(sets[k][1])))
     chosen, chosen_errors = sets[pick]
-    alone = ', '.join(t.signal for t in chosen.terms)
+    chosen_signals = ', '.join(t.signal for t in chosen.terms)
     worst = float(np.max(per_run[pick] - per_run.min(axis=0))) * DEG_PER_H_PER_DPS
-    reason = (f'{runs_name} are as good with {alone} alone: {field_score_dps(chosen_errors) * DEG_PER_H_PER_DPS:.2f} '
-              f'deg/h, against {field_score_dps(errors) * DEG_PER_H_PER_DPS:.2f} with '
+    reason = (f'{runs_name} are as good with {chosen_signals} alone: '
+              f'{field_score_dps(chosen_errors) * DEG_PER_H_PER_DPS:.2f} deg/h, '
+              f'against {field_score_dps(errors) * DEG_PER_H_PER_DPS:.2f} with '
               f'{", ".join(t.signal for t in current.terms)}, and on each run within {worst:.2f} deg/h of the best '
               f'set (chance: {margin_dps * DEG_PER_H_PER_DPS:.2f} deg/h; fewer coefficients win)')
     kept = {t.signal for t in chosen.terms}

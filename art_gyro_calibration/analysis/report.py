@@ -36,13 +36,14 @@ STAGE_CHUNK_ROWS = 1 << 18
 
 def stage_error(log: GyroLog, result: LoopResult, bias_samples: int, stage: str) -> NDArray[np.float64]:
     """Corrected rate minus table rate, per row, for one of :data:`STAGES`, the log started as the loop took it."""
-    if log.ref_rate is None:
+    reference = log.ref_rate
+    if reference is None:
         raise LogError('the log has no ref_rate column: errors need the rate table\'s true rate')
     n = bias_samples
     if not 2 <= n <= len(log):
         raise ValueError(f'bias_samples must be between 2 and the {len(log)} rows of the log, got {n}')
     if stage == 'uncalibrated':
-        return log.rate_dps - static_bias(log.rate_dps[:n], np.zeros(n)).static_bias_drift_dps - log.ref_rate
+        return log.rate_dps - static_bias(log.rate_dps[:n], np.zeros(n)).static_bias_drift_dps - reference
     calibration = {'art': result.art, 'extended': result.extended}[stage]
     # Chunk by chunk, as ``calibrate apply`` streams (the same result): the compensation's own arrays
     # then never span the log, only the errors do.
@@ -53,7 +54,7 @@ def stage_error(log: GyroLog, result: LoopResult, bias_samples: int, stage: str)
     for start, stop in zip(edges[:-1], edges[1:]):
         part = log.slice(slice(start, stop))
         applied = apply_calibration(part, calibration, n, after=applied, start=result.start)
-        out[start:stop] = applied.corrected_dps - part.ref_rate
+        out[start:stop] = applied.corrected_dps - reference[start:stop]
     return out
 
 

@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
+from scipy.signal import lfilter  # type: ignore[import-untyped]  # scipy ships no types
 
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.gyro_physics import (ANN_ARBOR_LATITUDE_DEG, earth_rate_dps, measured_from_true, to_counts,
@@ -187,7 +187,7 @@ def chamber_profile(t: NDArray[np.float64], settings: SimulationSettings,
     dt = 1.0 / settings.rate_hz
     a = -math.expm1(-dt / settings.thermal_lag_s)
     lagged, _ = lfilter([a], [1.0, a - 1.0], chamber, zi=[(1.0 - a) * low])
-    return lagged
+    return np.asarray(lagged, dtype=np.float64)
 
 
 def self_heating(t: NDArray[np.float64], settings: SimulationSettings) -> NDArray[np.float64]:
@@ -408,7 +408,7 @@ def _supply_voltage(t: NDArray[np.float64], rng: np.random.Generator) -> NDArray
     periods = rng.uniform(1200.0, 5400.0, 3)
     phases = rng.uniform(0.0, 2 * math.pi, 3)
     wander = sum(0.2 * np.sin(2 * math.pi * t / p + ph) for p, ph in zip(periods, phases))
-    return SUPPLY_NOMINAL_V + wander + rng.normal(0.0, 0.005, len(t))
+    return np.asarray(SUPPLY_NOMINAL_V + wander + rng.normal(0.0, 0.005, len(t)), dtype=np.float64)
 
 
 def truth_path(log_path: str | os.PathLike[str]) -> Path:

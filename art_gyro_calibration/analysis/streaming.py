@@ -8,8 +8,8 @@ whole log: each chunk goes through that same function, continuing the previous o
 from __future__ import annotations
 
 import itertools
-import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import IO
 
 import numpy as np
@@ -34,7 +34,7 @@ class Streamed:
     outside_range: int    # kept rows outside the calibration's expected temperature range
 
 
-def apply_to_csv(log_path: str | os.PathLike[str], calibration: Calibration, bias_samples: int, out: IO[bytes],
+def apply_to_csv(log_path: str | Path, calibration: Calibration, bias_samples: int, out: IO[bytes],
                  max_mean_dps: float = DEFAULT_MAX_MEAN_DPS, max_std_dps: float = DEFAULT_MAX_STD_DPS,
                  chunk_rows: int = READ_CHUNK_ROWS, start: RunStart = RunStart(),
                  topics: BagTopics = BagTopics()) -> Streamed:
@@ -62,4 +62,5 @@ def apply_to_csv(log_path: str | os.PathLike[str], calibration: Calibration, bia
                       'comp_dps': applied.comp_dps, 'corrected_dps': applied.corrected_dps})
         rows += len(chunk)
         dropped += len(chunk) - len(kept_log)
+    assert applied is not None   # the loop ran: an empty log is refused by the reader
     return Streamed(rows, dropped, applied.bias, applied.outside_range)

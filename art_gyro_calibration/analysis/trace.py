@@ -32,7 +32,7 @@ every time constant then follows from small matrices and one product with the bi
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -258,7 +258,7 @@ class Binned:
 
     def _fold_of(self, t: NDArray[np.float64]) -> NDArray[np.int64]:
         """The fold of the block of time each of ``t`` falls in."""
-        return np.floor((t - self._t_bin[0]) / self.block_s).astype(np.int64) % self.n_folds
+        return np.asarray(np.floor((t - self._t_bin[0]) / self.block_s).astype(np.int64) % self.n_folds, dtype=np.int64)
 
     def _add_to_bins(self, sums: NDArray[np.float64], chunk: Chunk, values: NDArray[np.float64]) -> None:
         """Add ``values`` of the chunk's steady rows into the bin ``sums`` (a bin the chunk's edge cuts adds twice)."""
@@ -442,7 +442,7 @@ class Screen:
         contribution = self.beyond_base(self.binned.candidate_means([spec])[:, 0, :]) @ beta
         return float(0.5 * np.ptp(contribution) * DEG_PER_H_PER_DPS)
 
-    def explained(self, families: dict[str, Sequence[TermSpec]],
+    def explained(self, families: Mapping[str, Sequence[TermSpec]],
                   targets: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
         """Per family, how much each variant lowers the MSE (deg^2/s^2 per row) of each target, fitted to all bins.
 
@@ -466,7 +466,7 @@ class Screen:
             out[name] = np.stack(rows) / self.rows_total
         return out
 
-    def held_out_improvements(self, families: dict[str, Sequence[TermSpec]],
+    def held_out_improvements(self, families: Mapping[str, Sequence[TermSpec]],
                               targets: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
         """Per family, how much it lowers the held-out MSE (deg^2/s^2 per row) of each target column.
 
@@ -557,7 +557,7 @@ def phase_surrogates_alike(spectra: Sequence[NDArray[np.complex128]], count: int
     return out
 
 
-def null_spectrum(screen: Screen, families: dict[str, Sequence[TermSpec]], residual: NDArray[np.float64],
+def null_spectrum(screen: Screen, families: Mapping[str, Sequence[TermSpec]], residual: NDArray[np.float64],
                   held_out: dict[str, float]) -> NDArray[np.complex128]:
     """The amplitude spectrum of the chance residuals: the residual's, without the strongest candidate's effect.
 

@@ -21,7 +21,7 @@ from typing import Any, NamedTuple
 
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from std_srvs.srv import Trigger
+from std_srvs.srv import Trigger  # type: ignore[import-untyped]  # ROS messages: untyped
 
 from art_gyro_calibration.compensation import FrameCorrector
 from art_gyro_calibration.ros.parameters import Settings
@@ -80,6 +80,7 @@ class StaticBiasService:
         thread, before the frame that completed the collection is published) each time a bias is put in force.
         """
         self._node = node
+        self._logger = node.get_logger()   # type: ignore[no-untyped-call]  # rclpy leaves it unannotated
         self.signal_problems = signal_problems
         self._on_bias = on_bias
         self._settings = settings
@@ -97,10 +98,11 @@ class StaticBiasService:
         # (rclpy 7 re-runs a waiting coroutine callback in a busy loop, so an async callback is not used.)
         # Deep queues: the replies to every joined call go out at once, and a reliable writer keeping
         # the default last 10 would drop all but 10 of them.
+        queue = QoSProfile(depth=SERVICE_QUEUE_DEPTH)   # type: ignore[no-untyped-call]  # rclpy leaves it unannotated
         self._service = node.create_service(Trigger, 'imu/static_bias', lambda request, response: response,
-                                            qos_profile=QoSProfile(depth=SERVICE_QUEUE_DEPTH))
+                                            qos_profile=queue)
         self._send_reply = self._service.send_response
-        self._service.send_response = self._defer_reply
+        self._service.send_response = self._defer_reply   # type: ignore[method-assign]  # the deferral, above
         self._replies = node.create_guard_condition(self._send_replies)
         node.create_timer(0.5, self._watch)
 
@@ -112,8 +114,8 @@ class StaticBiasService:
                     self._settings.bias_samples, self._settings.static_bias_max_mean_dps,
                     self._settings.static_bias_max_std_dps, self._corrector.compensator.refinable)
                 self._corrector.collect(self._collection, self._collected)
-                self._node.get_logger().info(f'static bias: collecting {self._settings.bias_samples} samples; '
-                                             'keep the gyro still')
+                self._logger.info(f'static bias: collecting {self._settings.bias_samples} samples; '
+                                  'keep the gyro still')
             return self._collection
 
     def _collected(self, collection: StaticBiasCollector) -> None:
@@ -144,11 +146,11 @@ class StaticBiasService:
             if bias is not None:
                 self._outcome = 'ok'
                 self._bias_time = time.monotonic()
-                self._node.get_logger().info(f'static bias: {bias.describe()}')
+                self._logger.info(f'static bias: {bias.describe()}')
             elif not stopping:   # a stop is not a refusal: the state stays as it was, nothing is logged
                 self._outcome = 'refused'
                 self._refusal = error
-                self._node.get_logger().warning(f'static bias refused, {self._kept()}: {error}')
+                self._logger.warning(f'static bias refused, {self._kept()}: {error}')
             collection.bias = bias
             collection.error = error
             collection.kept = self._kept()
@@ -156,7 +158,8 @@ class StaticBiasService:
         if bias is not None:
             self._on_bias()
         if not stopping:
-            self._replies.trigger()   # the replies go out on the executor (at a stop, the stopping caller sends them)
+            # The replies go out on the executor (at a stop, the stopping caller sends them).
+            self._replies.trigger()   # type: ignore[no-untyped-call]  # rclpy leaves it unannotated
 
     def _kept(self) -> str:
         """What a refusal leaves in force."""
@@ -224,5 +227,5 @@ class StaticBiasService:
             try:
                 self._send_replies()
             except Exception as e:   # the context may be shut down already (SIGINT): nothing more to say
-                self._node.get_logger().warning(
+                self._logger.warning(
                     f'static bias replies not sent at shutdown: {type(e).__name__}: {e}')

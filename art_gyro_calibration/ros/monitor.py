@@ -13,12 +13,12 @@ import time
 from collections.abc import Sequence
 
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # type: ignore[import-untyped]  # untyped
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from sensor_msgs.msg import Imu
-from std_msgs.msg import Float64
-from std_srvs.srv import Trigger
+from sensor_msgs.msg import Imu  # type: ignore[import-untyped]  # ROS messages: untyped
+from std_msgs.msg import Float64  # type: ignore[import-untyped]  # ROS messages: untyped
+from std_srvs.srv import Trigger  # type: ignore[import-untyped]  # ROS messages: untyped
 
 
 class ImuEcho(Node):
@@ -60,14 +60,14 @@ def call_static_bias(timeout_s: float) -> int:
             return 1
         future = client.call_async(Trigger.Request())
         rclpy.spin_until_future_complete(node, future, timeout_sec=timeout_s)
-        if not future.done():
+        if not future.done():   # type: ignore[no-untyped-call]  # rclpy's Future is unannotated
             print(f'no reply within {timeout_s} s', file=sys.stderr)
             return 1
-        reply = future.result()
+        reply = future.result()   # type: ignore[no-untyped-call]
         print(reply.message, file=sys.stdout if reply.success else sys.stderr)
         return 0 if reply.success else 1
     finally:
-        node.destroy_node()
+        node.destroy_node()   # type: ignore[no-untyped-call]  # rclpy leaves it unannotated
 
 
 def wait_static_bias(timeout_s: float) -> int:
@@ -84,7 +84,7 @@ def wait_static_bias(timeout_s: float) -> int:
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
     try:
         deadline = time.monotonic() + timeout_s
-        while rclpy.ok() and not outcome and time.monotonic() < deadline:
+        while rclpy.utilities.ok() and not outcome and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.5)
         if not outcome:
             print(f'no static bias reported on /diagnostics within {timeout_s} s', file=sys.stderr)
@@ -94,7 +94,7 @@ def wait_static_bias(timeout_s: float) -> int:
         print(f'{status.name}: {status.message}', file=sys.stdout if applied else sys.stderr)
         return 0 if applied else 1
     finally:
-        node.destroy_node()
+        node.destroy_node()   # type: ignore[no-untyped-call]  # rclpy leaves it unannotated
 
 
 def silence_hint(topic: str, waited_s: float) -> str:
@@ -110,13 +110,13 @@ def echo(every: int, count: int, quiet_s: float) -> int:
     node = ImuEcho(max(1, every), max(0, count))
     hint_at = time.monotonic() + quiet_s
     try:
-        while rclpy.ok() and not node.done:
+        while rclpy.utilities.ok() and not node.done:
             rclpy.spin_once(node, timeout_sec=0.5)
             if hint_at and not node.received and time.monotonic() >= hint_at:
                 print(silence_hint(node.resolve_topic_name('imu/data_raw'), quiet_s), file=sys.stderr, flush=True)
                 hint_at = 0.0
     finally:
-        node.destroy_node()
+        node.destroy_node()   # type: ignore[no-untyped-call]  # rclpy leaves it unannotated
     return 0
 
 
@@ -145,7 +145,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:
-        rclpy.try_shutdown()
+        rclpy.utilities.try_shutdown()
 
 
 if __name__ == '__main__':
