@@ -1,4 +1,4 @@
-"""The pure helpers of studies/loop_validation.py's issue 20 item 6 sections: summaries, shapes, targets."""
+"""The pure helpers of research/studies/loop_validation.py's issue 20 item 6 sections: summaries, shapes, targets."""
 
 import sys
 from collections.abc import Callable
