@@ -13,13 +13,13 @@ one, and a fit that knows the true form (:func:`analysis.fit.fit_model` with the
 its time constant included; for the effects no term can express, the true signal as an
 extra log column, or for the lagging coil the true lagged temperature).
 
-Issue 20 item 6 adds three sections (``--no-item6`` skips them; ``--cold-reps``, ``--item6-nulls``,
-``--shape-reps`` and ``--item6-budget-s`` size them), each fit log written as a CSV and fitted by
-:func:`analysis.pipeline.fit_log` (what ``calibrate fit`` writes, loaded back from the file): cold starts
+Three more sections run the whole of ``calibrate fit`` (``--no-whole-fit`` skips them; ``--cold-reps``,
+``--whole-fit-nulls``, ``--shape-reps`` and ``--whole-fit-budget-s`` size them), each fit log written as a CSV and
+fitted by :func:`analysis.pipeline.fit_log` (what ``calibrate fit`` writes, loaded back from the file): cold starts
 over self-heating profiles against a fit that knows the true form and the packaged baseline; null fit logs
 judged against the baseline on cold and warm second runs; and the form-free lack-of-fit check on shapes
 injected on logged signals, sized from the null runs' materiality. Their raw results go into the same JSON
-(``item6``), their sections into the same document.
+(under the key ``whole_fit``, as saved results have it), their sections into the same document.
 """
 
 from __future__ import annotations
@@ -458,8 +458,8 @@ def comparison(summary: dict[str, Any], baseline: dict[str, Any], label: str) ->
 
 
 def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[str],
-             baseline: dict[str, Any] | None = None, item6: dict[str, Any] | None = None) -> str:
-    """research/doc/loop-validation.md (``item6``: the summaries of :func:`summarise_item6`)."""
+             baseline: dict[str, Any] | None = None, whole_fit: dict[str, Any] | None = None) -> str:
+    """research/doc/loop-validation.md (``whole_fit``: the summaries of :func:`summarise_whole_fit`)."""
     s = summary
     lines = [
         '# Loop validation: does a calibration make another run of the gyro better?', '',
@@ -468,7 +468,7 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
         f' at commit `{meta["commit"]}`; {meta["cases"]} runs, {meta["cpu_s"]:.0f} s of CPU '
         f'({meta["wall_s"]:.0f} s wall on {meta["jobs"]} processes).'
         + (f' Issue 20 item 6\'s sections run again at commit `{meta["item6_commit"]}` (`--from-results` of that '
-           'run, `--rerun-item6`); the sections before them are as that run saved them.'
+           'run, `--rerun-whole-fit`); the sections before them are as that run saved them.'
            if meta.get('item6_commit') else ''), '',
         *([meta['note'], ''] if meta.get('note') else []),
         '## Setup', '',
@@ -542,15 +542,15 @@ def document(summary: dict[str, Any], meta: dict[str, Any], figure_names: list[s
     lines += startup_check_lines(s)
     if baseline is not None:
         lines += comparison(summary, baseline['summary'], baseline['label'])
-    if item6 is not None:
-        lines += item6_lines(item6, meta)
+    if whole_fit is not None:
+        lines += whole_fit_lines(whole_fit, meta)
     lines += ['', '## Figures', '']
     lines += [f'![{n}](figures/{n})' for n in figure_names]
     lines += ['', '## Findings', '', *findings(s)]
     return '\n'.join(lines) + '\n'
 
 
-# ---- issue 20 item 6: cold starts, nulls against the baseline, the form-free check on shapes -----------------
+# ---- the whole-fit sections: cold starts, nulls against the baseline, the form-free check on shapes ----------
 
 # Self-heating of the gyro at power-on: (degC, time constant in minutes).
 SELF_HEATING_PROFILES = ((2.0, 10.0), (4.0, 25.0), (4.0, 10.0), (6.0, 5.0), (6.0, 25.0))
@@ -564,7 +564,7 @@ COLD_WARMUP_TAU_S = EFFECTS['warmup'][3]
 COLD_FIT_HOURS = 6.0
 COLD_SECOND_HOURS = 2.0
 TRUE_RATE_COLUMN = 'true_temperature_rate'
-# Targets of issue 20 item 6.
+# Targets of the whole-fit sections.
 MAX_COLD_ORACLE_RATIO = 2.0             # median written / oracle field error, per profile, for shupe, warmup, both
 SHAPE_FACTOR = 3.0                      # shapes sized at this many times the median materiality of null runs
 MIN_SHAPE_FIRE_RATE = 0.9
@@ -838,8 +838,8 @@ def run_shape(case: ShapeCase) -> dict[str, Any]:
             'cpu_s': time.process_time() - start}
 
 
-def run_item6(task: tuple[str, Any]) -> dict[str, Any]:
-    """One run of item 6's sections: ('cold', ColdCase), ('null', Case) or ('shape', ShapeCase)."""
+def run_whole_fit(task: tuple[str, Any]) -> dict[str, Any]:
+    """One run of the whole-fit sections: ('cold', ColdCase), ('null', Case) or ('shape', ShapeCase)."""
     kind, case = task
     return {'cold': run_cold, 'null': run_null6, 'shape': run_shape}[kind](case)
 
@@ -881,7 +881,7 @@ def shape_cases(reps: int, materiality: dict[float, float], factor: float = SHAP
             for k, shape in enumerate(SHAPES) for rep in range(reps)]
 
 
-# ---- item 6 summaries (pure) ---------------------------------------------------------------------------------
+# ---- whole-fit summaries (pure) ------------------------------------------------------------------------------
 
 
 def _dph(r: dict[str, Any], name: str, scenario: str | None = None) -> float:
@@ -957,7 +957,7 @@ def shape_summary(results: list[dict[str, Any]], materiality: dict[float, float]
     """Per shape: how often the alarm fired and named the shape's signal; how often it fired on null runs.
 
     Targets: over the shape runs on fit logs of :data:`MIN_TARGET_HOURS` or more (item 5's decision, as for
-    the power table), detected (fired and named) in >= ``min_rate``; fired on <= ``max_null_rate`` of item 6's
+    the power table), detected (fired and named) in >= ``min_rate``; fired on <= ``max_null_rate`` of the whole-fit
     null runs (and of the study's own, ``study_nulls``, when given: its loop, the same alarm).
     """
     shapes = [r for r in results if r.get('kind') == 'shape']
@@ -1006,17 +1006,17 @@ def shape_summary(results: list[dict[str, Any]], materiality: dict[float, float]
             'targets': targets, 'met': all(targets.values())}
 
 
-def summarise_item6(item6: dict[str, Any], study_results: list[dict[str, Any]] | None = None) -> dict[str, Any]:
-    """The three sections' summaries from item 6's saved results (``{'results': [...], 'materiality': {...}}``)."""
-    results = item6['results']
-    materiality = {float(h): m for h, m in item6['materiality'].items()}
+def summarise_whole_fit(whole_fit: dict[str, Any], study_results: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+    """The three sections' summaries from their saved results (``{'results': [...], 'materiality': {...}}``)."""
+    results = whole_fit['results']
+    materiality = {float(h): m for h, m in whole_fit['materiality'].items()}
     study_nulls = [r for r in (study_results or []) if r.get('effect') is None and 'kind' not in r]
     return {'cold': cold_summary(results), 'nulls': null6_summary(results),
             'shapes': shape_summary(results, materiality, study_nulls=study_nulls)}
 
 
-def item6_figures(s: dict[str, Any], out_dir: Path) -> list[str]:
-    """Item 6's figure: cold-start ratios per profile, and per shape how often the check fired and named it."""
+def whole_fit_figures(s: dict[str, Any], out_dir: Path) -> list[str]:
+    """Their figure: cold-start ratios per profile, and per shape how often the check fired and named it."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -1051,21 +1051,21 @@ def item6_figures(s: dict[str, Any], out_dir: Path) -> list[str]:
     axes[1].set_title('the form-free check on injected shapes')
     axes[1].legend(fontsize=8, loc='upper center', bbox_to_anchor=(0.5, -0.13), ncol=3)
     fig.tight_layout()
-    name = 'loop-item6.png'
+    name = 'loop-whole_fit.png'
     fig.savefig(out_dir / name, dpi=110)
     plt.close(fig)
     return [name]
 
 
-# ---- item 6 document -----------------------------------------------------------------------------------------
+# ---- whole-fit document ---------------------------------------------------------------------------------------
 
 
 def _met(ok: bool) -> str:
     return 'met' if ok else '**not met**'
 
 
-def item6_lines(s: dict[str, Any], meta: dict[str, Any]) -> list[str]:
-    """The three sections of issue 20 item 6 (cold starts, nulls against the baseline, shapes)."""
+def whole_fit_lines(s: dict[str, Any], meta: dict[str, Any]) -> list[str]:
+    """The three whole-fit sections (cold starts, nulls against the baseline, shapes)."""
     cold, nulls, shapes = s['cold'], s['nulls'], s['shapes']
     lines = ['', '## Issue 20 item 6: what `calibrate fit` writes, on a second run of the gyro', '',
              f'{meta.get("item6_runs", 0)} more runs ({meta.get("item6_cpu_s", 0.0):.0f} s of CPU). Each fit log '
@@ -1225,29 +1225,32 @@ def main() -> int:
     parser.add_argument('--note', help='a paragraph for the top of the document (what loop this measures)')
     parser.add_argument('--baseline', type=Path, help='saved results of another loop to compare with')
     parser.add_argument('--baseline-label', default='baseline', help='what the baseline measured')
-    parser.add_argument('--no-item6', action='store_true', help='skip the sections of issue 20 item 6')
-    parser.add_argument('--rerun-item6', action='store_true',
-                        help='with --from-results: run item 6\'s sections again on this code and keep the other '
-                             'sections as saved (they call close_loop alone; item 6 runs all of calibrate fit)')
-    parser.add_argument('--cold-reps', type=int, default=5, help='item 6: runs per self-heating profile x effects')
-    parser.add_argument('--item6-nulls', type=int, default=60, help='item 6: null fit logs (half 2 h, half 6 h)')
-    parser.add_argument('--shape-reps', type=int, default=20, help='item 6: most runs per injected shape')
-    parser.add_argument('--item6-budget-s', type=float, default=2400.0, help='item 6: CPU seconds for its runs')
+    parser.add_argument('--no-whole-fit', action='store_true',
+                        help='skip the sections that run the whole of calibrate fit (cold starts, nulls against '
+                             'the baseline, shapes)')
+    parser.add_argument('--rerun-whole-fit', action='store_true',
+                        help='with --from-results: run the whole-fit sections again on this code and keep the other '
+                             'sections as saved (they call close_loop alone; these run all of calibrate fit)')
+    parser.add_argument('--cold-reps', type=int, default=5, help='whole fit: runs per self-heating profile x effects')
+    parser.add_argument('--whole-fit-nulls', type=int, default=60, help='whole fit: null fit logs (half 2 h, half 6 h)')
+    parser.add_argument('--shape-reps', type=int, default=20, help='whole fit: most runs per injected shape')
+    parser.add_argument('--whole-fit-budget-s', type=float, default=2400.0, help='whole fit: CPU seconds for its runs')
     args = parser.parse_args()
-    if args.rerun_item6 and not args.from_results:
-        parser.error('--rerun-item6 needs --from-results: the saved run whose other sections it keeps')
+    if args.rerun_whole_fit and not args.from_results:
+        parser.error('--rerun-whole-fit needs --from-results: the saved run whose other sections it keeps')
     if args.from_results:
         saved = json.loads(args.from_results.read_text(encoding='utf-8'))
         meta = {**saved['meta'], **({'note': args.note} if args.note else {})}
-        item6 = saved.get('item6')
-        if args.rerun_item6:
-            item6, meta6 = run_item6_sections(args)
+        whole_fit = saved.get('item6')
+        if args.rerun_whole_fit:
+            whole_fit, meta6 = run_whole_fit_sections(args)
             meta.update(meta6, item6_commit=_commit())
         return write(saved['results'], meta, args.doc, args.results, _baseline(args),
-                     None if item6 is None else {'results': item6['results'], 'materiality': item6['materiality']})
+                     None if whole_fit is None
+                     else {'results': whole_fit['results'], 'materiality': whole_fit['materiality']})
     if args.quick:
         args.null_runs, args.max_reps, args.budget_s = 6, 1, 120.0
-        args.cold_reps, args.item6_nulls, args.shape_reps, args.item6_budget_s = 1, 2, 1, 120.0
+        args.cold_reps, args.whole_fit_nulls, args.shape_reps, args.whole_fit_budget_s = 1, 2, 1, 120.0
         if args.results == REPO / 'build' / 'loop-validation.json':
             args.results = REPO / 'build' / 'loop-validation-quick.json'
         if args.doc == REPO / 'research' / 'doc' / 'loop-validation.md':
@@ -1268,12 +1271,12 @@ def main() -> int:
             'cpu_s': sum(r['cpu_s'] for r in results), 'wall_s': time.time() - wall, 'jobs': args.jobs,
             'rows': truth.polynomial.rows, 'columns': truth.polynomial.columns, 'reps': reps,
             'budget_s': args.budget_s, 'note': args.note}
-    item6 = None
-    if not args.no_item6:
-        item6, meta6 = run_item6_sections(args)
+    whole_fit = None
+    if not args.no_whole_fit:
+        whole_fit, meta6 = run_whole_fit_sections(args)
         meta.update(meta6)
         meta['wall_s'] = time.time() - wall
-    return write(results, meta, args.doc, args.results, _baseline(args), item6)
+    return write(results, meta, args.doc, args.results, _baseline(args), whole_fit)
 
 
 def _baseline(args: argparse.Namespace) -> dict[str, Any] | None:
@@ -1284,52 +1287,52 @@ def _baseline(args: argparse.Namespace) -> dict[str, Any] | None:
 
 
 def write(results: list[dict[str, Any]], meta: dict[str, Any], doc: Path, results_path: Path,
-          baseline: dict[str, Any] | None = None, item6: dict[str, Any] | None = None) -> int:
+          baseline: dict[str, Any] | None = None, whole_fit: dict[str, Any] | None = None) -> int:
     """Summarise, save the raw results, draw the figures and write the document.
 
-    ``item6``: issue 20 item 6's raw results and null materiality (``{'results': ..., 'materiality': ...}``).
+    ``whole_fit``: the whole-fit sections' raw results and null materiality (``{'results': ..., 'materiality': ...}``).
     """
     summary = summarise(results)
-    summary6 = None if item6 is None else summarise_item6(item6, results)
+    summary6 = None if whole_fit is None else summarise_whole_fit(whole_fit, results)
     saved: dict[str, Any] = {'meta': meta, 'summary': summary, 'results': results}
-    if item6 is not None:
-        saved['item6'] = {'materiality': item6['materiality'], 'summary': summary6, 'results': item6['results']}
+    if whole_fit is not None:
+        saved['item6'] = {'materiality': whole_fit['materiality'], 'summary': summary6, 'results': whole_fit['results']}
     results_path.parent.mkdir(parents=True, exist_ok=True)
     results_path.write_text(json.dumps(saved, indent=1) + '\n', encoding='utf-8')
     names = figures(summary, results, doc.parent / 'figures')
     if summary6 is not None:
-        names += item6_figures(summary6, doc.parent / 'figures')
+        names += whole_fit_figures(summary6, doc.parent / 'figures')
     doc.write_text(document(summary, meta, names, baseline, summary6), encoding='utf-8')
     print(f'{doc}: {summary["false_alarms"]} false alarms in {summary["null_runs"]} null runs; '
           f'targets {summary["targets"]}; results in {results_path}')
     if summary6 is not None:
-        print(f'item 6: cold start {_met(summary6["cold"]["met"])}, nulls against the baseline '
+        print(f'whole fit: cold start {_met(summary6["cold"]["met"])}, nulls against the baseline '
               f'{_met(summary6["nulls"]["met"])}, shapes {summary6["shapes"]["targets"]}')
     return 0
 
 
-def run_item6_sections(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Item 6's runs, sized by ``args``: the cold starts and null runs, then the shapes sized from the nulls.
+def run_whole_fit_sections(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The whole-fit runs, sized by ``args``: the cold starts and null runs, then the shapes sized from the nulls.
 
-    The shapes get the repetitions ``args.item6_budget_s`` still affords (at most ``args.shape_reps``).
+    The shapes get the repetitions ``args.whole_fit_budget_s`` still affords (at most ``args.shape_reps``).
     """
     wall = time.time()
     profiles = SELF_HEATING_PROFILES[2:3] if args.quick else SELF_HEATING_PROFILES
-    tasks: list[tuple[str, Any]] = [('null', c) for c in null6_cases(args.item6_nulls)]
+    tasks: list[tuple[str, Any]] = [('null', c) for c in null6_cases(args.whole_fit_nulls)]
     tasks += [('cold', c) for c in cold_cases(args.cold_reps, profiles)]
-    first = map_jobs(run_item6, tasks, args.jobs)
+    first = map_jobs(run_whole_fit, tasks, args.jobs)
     nulls = [r for r in first if r['kind'] == 'null']
     materiality = median_materiality(nulls)
     spent = sum(r['cpu_s'] for r in first)
     per_rep = len(SHAPES) * np.mean([r['cpu_s'] for r in nulls]) * 1.2 if nulls else 1.0
-    reps = int(max(1 if args.quick else 2, min(args.shape_reps, (args.item6_budget_s - spent) // per_rep)))
-    print(f'item 6: {len(tasks)} null and cold-start runs in {spent:.0f} s CPU; {reps} repetitions per shape',
+    reps = int(max(1 if args.quick else 2, min(args.shape_reps, (args.whole_fit_budget_s - spent) // per_rep)))
+    print(f'whole fit: {len(tasks)} null and cold-start runs in {spent:.0f} s CPU; {reps} repetitions per shape',
           flush=True)
-    shapes = map_jobs(run_item6, [('shape', c) for c in shape_cases(reps, materiality)], args.jobs)
+    shapes = map_jobs(run_whole_fit, [('shape', c) for c in shape_cases(reps, materiality)], args.jobs)
     results = first + shapes
     meta = {'item6_runs': len(results), 'item6_cpu_s': sum(r['cpu_s'] for r in results),
-            'item6_wall_s': time.time() - wall, 'cold_reps': args.cold_reps, 'item6_nulls': args.item6_nulls,
-            'shape_reps': reps, 'item6_budget_s': args.item6_budget_s}
+            'item6_wall_s': time.time() - wall, 'cold_reps': args.cold_reps, 'item6_nulls': args.whole_fit_nulls,
+            'shape_reps': reps, 'item6_budget_s': args.whole_fit_budget_s}
     return {'results': results, 'materiality': {f'{h:g}': m for h, m in materiality.items()}}, meta
 
 
