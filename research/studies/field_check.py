@@ -1,6 +1,6 @@
 """Field check of the calibration loop (issue 20): a calibration judged on ANOTHER run of the same gyro.
 
-``nice -n 10 /work/main/.venv/bin/python research/studies/field_check.py`` (about 20 minutes on two cores; ``--quick``
+``nice -n 10 .venv/bin/python research/studies/field_check.py`` (about 20 minutes on two cores; ``--quick``
 for a three-minute smoke run into ``out/field-check-quick/``) simulates a KVH RD2100 with its own simulator
 (numpy only, written here from the physics, independent of ``analysis/simulate.py``), with physics the
 project's simulator lacks: self-heating at power-on, a Gauss-Markov bias wander, a rate random walk, and
