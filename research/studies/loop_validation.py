@@ -1051,7 +1051,7 @@ def whole_fit_figures(s: dict[str, Any], out_dir: Path) -> list[str]:
     axes[1].set_title('the form-free check on injected shapes')
     axes[1].legend(fontsize=8, loc='upper center', bbox_to_anchor=(0.5, -0.13), ncol=3)
     fig.tight_layout()
-    name = 'loop-whole_fit.png'
+    name = 'loop-item6.png'
     fig.savefig(out_dir / name, dpi=110)
     plt.close(fig)
     return [name]
