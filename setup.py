@@ -20,9 +20,10 @@ setup(
     ],
     python_requires='>=3.10',
     # The runtime a robot installs (the node, the driver, the fake gyro) needs only these;
-    # the offline tools (art_gyro_calibration.analysis: fit, trace, simulate, plots, importers) need the extra.
+    # the offline tools (art_gyro_calibration.analysis: fit, trace, simulate, plots) need the extra 'analysis';
+    # the studies in research/ need 'research' beside it (h5py: research/importers.py reads NetCDF-4 records).
     install_requires=['setuptools', 'numpy', 'pyyaml', 'pyserial'],
-    extras_require={'analysis': ['scipy', 'matplotlib', 'h5py', 'threadpoolctl', 'rosbags']},
+    extras_require={'analysis': ['scipy', 'matplotlib', 'threadpoolctl', 'rosbags'], 'research': ['h5py']},
     zip_safe=True,
     maintainer='art_gyro_calibration developers',
     maintainer_email='dev@art-gyro.local',

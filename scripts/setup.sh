@@ -38,4 +38,4 @@ if ! { "$VENV/bin/python" -m pip install "${REQUIREMENTS[@]}" \
     exit 1
 fi
 echo "$want" > "$VENV/.setup-done"
-echo "setup: done; console scripts in $VENV/bin (gyro_node, fake_rd2100, calibrate, imu_echo)" >&2
+echo "setup: done; console scripts in $VENV/bin (gyro_node, fake_gyro, calibrate, imu_echo)" >&2

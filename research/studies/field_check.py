@@ -1,6 +1,6 @@
 """Field check of the calibration loop (issue 20): a calibration judged on ANOTHER run of the same gyro.
 
-``nice -n 10 /work/main/.venv/bin/python studies/field_check.py`` (about 20 minutes on two cores; ``--quick``
+``nice -n 10 .venv/bin/python research/studies/field_check.py`` (about 20 minutes on two cores; ``--quick``
 for a three-minute smoke run into ``out/field-check-quick/``) simulates a KVH RD2100 with its own simulator
 (numpy only, written here from the physics, independent of ``analysis/simulate.py``), with physics the
 project's simulator lacks: self-heating at power-on, a Gauss-Markov bias wander, a rate random walk, and
@@ -15,7 +15,8 @@ Three calibrations are scored on each second run: the gyro's packaged one (``con
 gyro already has), the loop's, and a corrector that knows the true error (polynomial and effect, the static bias
 taken as the node takes it). Score: the corrected rate against the table's true rate over the whole run after
 the bias window, bias included, in deg/h: the mean, the rms of 60 s means (the systematic part) and the heading
-error after 1 h. Writes ``doc/field-check.md``, ``doc/figures/field-*.png`` and ``out/field-check/results.json``.
+error after 1 h. Writes ``research/doc/field-check.md``, ``research/doc/figures/field-*.png`` and
+``out/field-check/results.json``.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 PYTHON = os.environ.get('FIELD_CHECK_PYTHON', sys.executable)  # the interpreter with the package's CLI
 SERIAL = 'NAVC3545'
 ROWS, COLUMNS = 3, 4
@@ -342,7 +343,8 @@ What is left, none of it worse than the baseline:
 
 - **More than 2x the best corrector** in 28 of 144 second runs, all better than or equal to the baseline:
   heading_saw (a heading effect: reported, never written, the node has no heading), temp_step (a step no form has;
-  the form-free check does not see it either, doc/loop-validation.md), shupe_warmup cold runs (3.1-8.2 deg/h against
+  the form-free check does not see it either, research/doc/loop-validation.md), shupe_warmup cold runs (3.1-8.2 \
+deg/h against
   0.9-2.4: the start-up check drops the warm-up beside the Shupe term in 2 of 3 6 h fits, the fitted log's runs
   being as good without it), and fast self-heating with Shupe (cold 2.4-4.5 against 1.5-2.1).
 - **Warm second runs of Shupe cases** are 0.7-2.4x the best after a term was written (what the 120 s causal
@@ -506,7 +508,8 @@ def commit() -> str:
                               text=True, check=True).stdout.strip()
         # The code that runs: the package and the studies (not the documents this writes).
         dirty = subprocess.run(['git', '-C', str(REPO), 'status', '--porcelain', '--', 'art_gyro_calibration',
-                                'studies', 'config'], capture_output=True, text=True, check=True).stdout.strip()
+                                'research/studies', 'config'],
+                               capture_output=True, text=True, check=True).stdout.strip()
         return head + (' + uncommitted changes' if dirty else '')
     except (OSError, subprocess.CalledProcessError):
         return 'unknown'
@@ -659,7 +662,7 @@ def summary_lines(results: list[dict[str, Any]], labels: list[str]) -> list[str]
 
 
 def document(results: list[dict[str, Any]], meta: dict[str, Any], fig_name: str) -> str:
-    """doc/field-check.md."""
+    """research/doc/field-check.md."""
     labels = [lab for lab in results[0]['scores']['cold'] if lab.startswith('loop_')]
     groups = _by_case(results)
     reps = max(len(g) for g in groups.values())
@@ -675,7 +678,7 @@ def document(results: list[dict[str, Any]], meta: dict[str, Any], fig_name: str)
              + (' The run took longer than the planned 20 min: the machine was shared (load average 6-7 on its 2 '
                 'cores during the run).' if meta['minutes'] > 20.0 else ''), '',
              '## What it does', '',
-             f'`studies/field_check.py` has its own simulator of an RD2100 (numpy, independent of '
+             f'`research/studies/field_check.py` has its own simulator of an RD2100 (numpy, independent of '
              f'`analysis/simulate.py`). The gyro is {SERIAL}: its true error polynomial is its packaged calibration '
              f'({ROWS} x {COLUMNS}, `config/{SERIAL}.yaml`), evaluated at the reading (a fixed point, as the node '
              'evaluates it at the measured rate). The reading is the table rate + Earth rate '
@@ -812,10 +815,10 @@ def document(results: list[dict[str, Any]], meta: dict[str, Any], fig_name: str)
 
 def write_outputs(results: list[dict[str, Any]], meta: dict[str, Any], quick: bool, out: Path) -> tuple[Path, Path]:
     """The figure and the document (into out/ for --quick, doc/ otherwise)."""
-    fig_dir = out if quick else REPO / 'doc' / 'figures'
+    fig_dir = out if quick else REPO / 'research' / 'doc' / 'figures'
     figure(results, fig_dir / 'field-errors.png')
     figure_range(results, fig_dir / 'field-range.png')
-    doc_dir = out if quick else REPO / 'doc'
+    doc_dir = out if quick else REPO / 'research' / 'doc'
     (doc_dir / 'field-check.md').write_text(document(results, meta, 'field-errors.png'))
     return fig_dir, doc_dir
 
@@ -877,7 +880,7 @@ def main() -> int:
     jobs = [(c, rep) for c in cases for rep in range(reps)]
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         results = list(pool.map(lambda j: run_case(j[0], j[1], fit_hours, out), jobs))
-    meta = {'command': 'nice -n 10 ' + ' '.join(['python', 'studies/field_check.py', *sys.argv[1:]]),
+    meta = {'command': 'nice -n 10 ' + ' '.join(['python', 'research/studies/field_check.py', *sys.argv[1:]]),
             'commit': head, 'minutes': (time.time() - t0) / 60.0, 'jobs': args.jobs, 'reps': reps,
             'fit_hours': list(fit_hours)}
     (out / 'results.json').write_text(json.dumps({'meta': meta, 'results': results}, indent=1))

@@ -18,7 +18,6 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.analysis.allan import AllanDeviation, allan_deviation
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
-from art_gyro_calibration.analysis.importers import segment_labels
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, LoopOptions, LoopResult, close_loop
 from art_gyro_calibration.analysis.replay import startup_check
 from art_gyro_calibration.analysis.metrics import FieldErrors, field_errors, heading_error_deg
@@ -30,6 +29,7 @@ from art_gyro_calibration.static_bias import static_bias
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
+from importers import segment_labels
 from measured_record import BLOCK_S, RUN_GAP_S, block_segments, settled_start
 
 ROWS, COLUMNS = 3, 1  # the report's three temperature powers; a still gyro has only rate power 0

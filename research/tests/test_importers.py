@@ -5,10 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from art_gyro_calibration.analysis.importers import (DEG_PER_MRAD, RecordError, StaticRecord, read_cats_netcdf,
-                                                     read_phone_netcdf, runs, segment_labels, static_log, still_mask,
-                                                     write_static_log)
 from art_gyro_calibration.log import read_log
+from importers import (DEG_PER_MRAD, RecordError, StaticRecord, read_cats_netcdf, read_phone_netcdf, runs,
+                       segment_labels, static_log, still_mask, write_static_log)
 
 HOUR = 3600.0
 

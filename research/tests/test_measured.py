@@ -1,27 +1,24 @@
 """The measured-data study: its parts on small synthetic records offline, on the real records when they can be had."""
 
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-# The study is a script beside the package, not part of what a robot installs.
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'studies'))
-import measured_data as measured  # noqa: E402
-import measured_folds as folds  # noqa: E402
-import measured_injection as injection  # noqa: E402
-import measured_phone as phone  # noqa: E402
-import measured_record as record_  # noqa: E402
-from art_gyro_calibration.analysis.importers import StaticRecord, static_log, write_static_log  # noqa: E402
-from art_gyro_calibration.analysis.loop import RATE_SIGNALS  # noqa: E402
-from art_gyro_calibration.analysis.metrics import Segments  # noqa: E402
-from art_gyro_calibration.analysis.report import STAGES  # noqa: E402
-from art_gyro_calibration.log import GyroLog, read_log  # noqa: E402
-from art_gyro_calibration.model import ArtPolynomial, ErrorModel  # noqa: E402
-from art_gyro_calibration.signals import SignalFilters, compute_signals  # noqa: E402
-from art_gyro_calibration.terms import Term  # noqa: E402
+from art_gyro_calibration.analysis.loop import RATE_SIGNALS
+from art_gyro_calibration.analysis.metrics import Segments
+from art_gyro_calibration.analysis.report import STAGES
+from art_gyro_calibration.log import GyroLog, read_log
+from art_gyro_calibration.model import ArtPolynomial, ErrorModel
+from art_gyro_calibration.signals import SignalFilters, compute_signals
+from art_gyro_calibration.terms import Term
+from importers import StaticRecord, static_log, write_static_log
+import measured_data as measured
+import measured_folds as folds
+import measured_injection as injection
+import measured_phone as phone
+import measured_record as record_
 
 HOUR = 3600.0
 DATA_DIR = Path(__file__).resolve().parents[2] / 'data'  # gitignored download cache

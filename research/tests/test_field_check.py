@@ -4,11 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import field_check as fc
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'studies'))
-
-import field_check as fc  # noqa: E402
 
 
 def test_polynomial_is_the_report_form() -> None:
@@ -38,7 +35,7 @@ def test_packaged_calibration_removes_the_simulated_polynomial(tmp_path: Path) -
 
 def test_the_study_never_imports_the_package() -> None:
     """It drives the package through its command line only."""
-    code = 'import sys; sys.path.insert(0, "studies"); import field_check; ' \
+    code = 'import sys; sys.path.insert(0, "research/studies"); import field_check; ' \
            'print(any(m.startswith("art_gyro_calibration") for m in sys.modules))'
     done = subprocess.run([sys.executable, '-c', code], cwd=fc.REPO, capture_output=True, text=True, check=True)
     assert done.stdout.strip() == 'False'

@@ -1,4 +1,4 @@
-"""The pure helpers of studies/drift_null.py: telling the two worlds apart, and the summary of the runs."""
+"""The pure helpers of research/studies/drift_null.py: telling the two worlds apart, and the summary of the runs."""
 
 from collections.abc import Callable
 from types import ModuleType

@@ -1,4 +1,4 @@
-"""The pure helpers of studies/loop_validation.py's issue 20 item 6 sections: summaries, shapes, targets."""
+"""The pure helpers of research/studies/loop_validation.py's whole-fit sections: summaries, shapes, targets."""
 
 import sys
 from collections.abc import Callable
@@ -121,13 +121,13 @@ def test_the_shape_target_is_on_long_fit_logs(lv: ModuleType) -> None:
 
 def test_the_document_marks_unmet_targets(lv: ModuleType) -> None:
     """The section's target table says **not met** where a target fails, met where it holds."""
-    item6 = {'results': [_cold('shupe', 6.0, 2.0, 9.0), _cold('none', 2.0, 2.0, 2.0),
+    saved = {'results': [_cold('shupe', 6.0, 2.0, 9.0), _cold('none', 2.0, 2.0, 2.0),
                          _null(2.0, {'cold': 2.0, 'warm': 2.0}, {'cold': 2.0, 'warm': 2.0}),
                          _shape('temperature_step', False, ['temperature'])],
              'materiality': {'2': 0.5}}
-    s = lv.summarise_item6(item6)
+    s = lv.summarise_whole_fit(saved)
     assert not s['cold']['met'] and s['nulls']['met'] and s['shapes']['met']
-    text = '\n'.join(lv.item6_lines(s, {'item6_runs': 4, 'item6_cpu_s': 1.0}))
+    text = '\n'.join(lv.whole_fit_lines(s, {'item6_runs': 4, 'item6_cpu_s': 1.0}))
     rows = {line.split('|')[1].strip(): line for line in text.splitlines() if line.startswith('| ')}
     assert '**not met**' in rows['cold start']
     assert rows['nulls against the baseline'].rstrip(' |').endswith('met')
@@ -220,11 +220,11 @@ def test_the_power_target_covers_long_fit_logs_from_a_quarter_magnitude(lv: Modu
     assert not lv.targeted_cell({'magnitude': 0.1, 'hours': 6.0})
 
 
-def test_rerunning_item6_without_saved_results_is_refused(lv: ModuleType, monkeypatch: pytest.MonkeyPatch,
-                                                          capsys: pytest.CaptureFixture[str]) -> None:
-    """--rerun-item6 keeps the other sections of a saved run: without one it is an error, not a whole study."""
-    monkeypatch.setattr(sys, 'argv', ['loop_validation.py', '--rerun-item6'])
+def test_rerunning_the_whole_fit_without_saved_results_is_refused(lv: ModuleType, monkeypatch: pytest.MonkeyPatch,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """--rerun-whole-fit keeps the other sections of a saved run: without one it is an error, not a whole study."""
+    monkeypatch.setattr(sys, 'argv', ['loop_validation.py', '--rerun-whole-fit'])
     with pytest.raises(SystemExit) as exit_info:
         lv.main()
     assert exit_info.value.code == 2
-    assert '--rerun-item6 needs --from-results' in capsys.readouterr().err
+    assert '--rerun-whole-fit needs --from-results' in capsys.readouterr().err

@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.analysis.importers import StaticRecord, runs
 from art_gyro_calibration.analysis.report import STAGES
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
+from importers import StaticRecord, runs
 from measured_folds import STAGE_TITLES, Fold
 from measured_injection import EFFECT_TITLES, Cell
 from measured_phone import STREAMS, PhoneAxis

@@ -14,9 +14,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.analysis.allan import AllanDeviation, allan_deviation
-from art_gyro_calibration.analysis.importers import StaticRecord, segment_labels, static_log
 from art_gyro_calibration.log import GyroLog
 
+from importers import StaticRecord, segment_labels, static_log
 from measured_folds import Fold, run_fold, sample_rate_hz
 from measured_record import AXES, RUN_GAP_S
 

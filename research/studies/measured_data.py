@@ -1,11 +1,11 @@
 """The calibration loop on real gyros' logs: a CATS tag's MEMS IMU lying still for three days, and a phone.
 
-``python studies/measured_data.py`` downloads the records (they ship in the
+``python research/studies/measured_data.py`` downloads the records (they ship in the
 scikit-diveMove 0.4.0 wheel; AGPL, so they are fetched at run time and never committed),
 holds out each day of the CATS record in turn and runs the package's loop
 (``loop.close_loop``, the code of ``calibrate fit``) on the others, adds known effects to
 the real readings and runs the loop blind again, sets the phone's noise beside the tag's,
-and writes ``doc/measured-data.md`` with its figures. ``--quick`` is a smoke run of every part.
+and writes ``research/doc/measured-data.md`` with its figures. ``--quick`` is a smoke run of every part.
 """
 
 from __future__ import annotations
@@ -25,13 +25,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.analysis.allan import AllanDeviation
-from art_gyro_calibration.analysis.importers import StaticRecord, runs, static_log
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS
 from art_gyro_calibration.analysis.report import STAGES
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+# The study's parts beside it, and the research's importers one folder up (neither folder is a package).
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]
+from importers import StaticRecord, runs, static_log  # noqa: E402
 import measured_figures as figures  # noqa: E402
 from measured_folds import (AGREEMENT_SIGMAS, BIAS_SAMPLES, LOOP_BIN_S, ROWS, SETTLED_C_PER_H,  # noqa: E402
                             STAGE_TITLES, TIME_SIGNALS, WAY_TITLES, WAYS, Fold, record_allan, run_fold)
@@ -258,7 +259,7 @@ def baseline_claims(study: Study) -> str:
 
 
 def markdown(study: Study, figs: dict[str, Any]) -> str:
-    """The text of doc/measured-data.md."""
+    """The text of research/doc/measured-data.md."""
     record, still = study.record, study.still
     hours = float(still.sum()) / SECONDS_PER_HOUR
     every = [f for day in study.folds for f in study.folds[day]]
@@ -270,7 +271,7 @@ def markdown(study: Study, figs: dict[str, Any]) -> str:
     lines = [
         '# Real gyros\' logs: a CATS tag\'s MEMS IMU lying still for three days, and a phone for six hours',
         '',
-        f'_Written by `nice -n 10 .venv/bin/python studies/measured_data.py`{study.version} in '
+        f'_Written by `nice -n 10 .venv/bin/python research/studies/measured_data.py`{study.version} in '
         f'{study.cpu_s / 60:.1f} min of CPU; every number below comes from that run._',
         '',
         '## What these records can and cannot test',
@@ -512,16 +513,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Download, run every part, write the figures and the document."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--data-dir', default=str(DEFAULT_DATA_DIR), help='download cache (default %(default)s)')
-    parser.add_argument('--doc', help='document to write (default doc/measured-data.md, '
+    parser.add_argument('--doc', help='document to write (default research/doc/measured-data.md, '
                                       'out/measured-quick/measured-data.md with --quick)')
     parser.add_argument('--figures', help='directory of the figures (default: figures/ beside a quick document, '
-                                          'doc/figures otherwise)')
+                                          'research/doc/figures otherwise)')
     parser.add_argument('--quick', action='store_true',
                         help='smoke run: day 3 held out, one injected axis at one size, one phone axis')
     parser.add_argument('--max-effects', type=int, default=DEFAULT_MAX_EFFECTS)
     args = parser.parse_args(argv)
-    doc = Path(args.doc or ('out/measured-quick/measured-data.md' if args.quick else 'doc/measured-data.md'))
-    fig_dir = Path(args.figures or (doc.parent / 'figures' if args.quick or args.doc else 'doc/figures'))
+    doc = Path(args.doc or ('out/measured-quick/measured-data.md' if args.quick else 'research/doc/measured-data.md'))
+    fig_dir = Path(args.figures or (doc.parent / 'figures' if args.quick or args.doc else 'research/doc/figures'))
     try:
         paths = fetch_records(args.data_dir)
     except DataUnavailable as e:

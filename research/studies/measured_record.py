@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.analysis.importers import (StaticRecord, read_cats_netcdf, read_phone_netcdf,
-                                                     segment_labels, still_mask)
 from art_gyro_calibration.analysis.metrics import Segments
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.units import SECONDS_PER_HOUR
+
+from importers import StaticRecord, read_cats_netcdf, read_phone_netcdf, segment_labels, still_mask
 
 PACKAGE_SPEC = 'scikit-diveMove==0.4.0'
 # Members of the wheel and their sha256, as the wheel's RECORD lists them.
