@@ -440,7 +440,7 @@ def _positive_int(text: str) -> int:
 
 
 # What the offline tools need beyond the node's runtime: the pip extra "analysis".
-ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl', 'rosbags')
+ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'threadpoolctl', 'rosbags')
 
 
 # glibc's mallopt parameter, and the size from which a block is mapped on its own (returned when freed).
@@ -491,7 +491,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         # A robot's install has the node's runtime only: say what to add instead of a traceback.
         print(f'calibrate: error: the offline tools need {e.name}, which this installation lacks: '
-              'from the repository, pip install ".[analysis]" (scipy, matplotlib, h5py, threadpoolctl, rosbags; the '
+              'from the repository, pip install ".[analysis]" (scipy, matplotlib, threadpoolctl, rosbags; the '
               'package is not on PyPI), or scripts/setup.sh',
               file=sys.stderr)
         return 1

@@ -30,7 +30,7 @@ def test_nothing_found_when_nothing_is_there(seed):
     """Nothing that matters is claimed on a run without an effect.
 
     Each round tests at the 1 % level, so one null run in a hundred may claim something by
-    chance (doc/loop-validation.md counts them over 100 runs); such a claim must stay under
+    chance (research/doc/loop-validation.md counts them over 100 runs); such a claim must stay under
     1 deg/h, which no robot tells from its gyro's wander, and the model must be adequate.
     """
     _, result = run_loop('NAVC3545', seed=seed)
@@ -67,7 +67,7 @@ def test_all_effects_together():
     """Shupe, warm-up and supply voltage at once, over 12 h: each named, and the model at the noise floor, held out.
 
     Twelve hours are six chamber cycles. In 6 h the chance level, the residual's own spectrum with
-    the other effects still in it, can hide the supply term behind the warm-up (doc/simulated-run.md).
+    the other effects still in it, can hide the supply term behind the warm-up (research/doc/simulated-run.md).
     """
     cal = load_packaged_calibration('NAVC3545')
     sim = simulate_run(cal, SimulationSettings(hours=12.0, rate_hz=RATE_HZ, seed=8,
@@ -117,7 +117,7 @@ def test_a_small_warm_up_is_not_diluted_by_a_long_log(seed):
     Materiality is in deg/h, not a share of the log (the per-sample materiality missed a
     3e-3 warm-up in 6 h logs). At 2 Hz such a warm-up is at the edge of chance (p = 0.01
     and 0.025 with these seeds; a 3e-3 one is found in 4 of 10 seeds): tested at the 5 %
-    level, as the materiality is what this test is about; doc/loop-validation.md measures
+    level, as the materiality is what this test is about; research/doc/loop-validation.md measures
     the power at the default level.
     """
     _, result = _loop_with_columns(('warmup',), {}, seed=seed, effect_sizes={'warmup': 0.005}, alpha=0.05)
@@ -155,7 +155,7 @@ def test_round_threshold_is_a_maximum_over_candidates():
     assert first.threshold_dps2 == min(c.threshold_dps2 for c in first.candidates)
 
 
-# A gyro with slow noise as the loop study's (doc/loop-validation.md): a bias wander of 1.1 deg/h over an hour and
+# A gyro with slow noise as the loop study's (research/doc/loop-validation.md): a bias wander of 1.1 deg/h over an hour and
 # a rate random walk, logged 2 h at 10 Hz: one chamber cycle.
 WANDERING = dict(hours=2.0, rate_hz=10.0, wander_dps=3e-4, wander_tau_s=3600.0, rate_random_walk_dph_rthr=0.5)
 
@@ -239,7 +239,7 @@ def test_a_quarter_size_scale_factor_in_t_cubed_is_found(seed):
     """A scale factor in T**3 of 50 ppm at the range's ends (a quarter of the simulated one) is found in a 6 h log.
 
     Scored held out, with a threshold set by the candidates whose chance scores are largest
-    (slow ones, wide ones), it was found in 45 % of such runs (doc/loop-validation.md). Each
+    (slow ones, wide ones), it was found in 45 % of such runs (research/doc/loop-validation.md). Each
     candidate is now judged against its own chance, and the next temperature row is tried
     one rate power at a time: a scale factor is one column, not four.
     """
