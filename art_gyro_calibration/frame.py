@@ -1,9 +1,9 @@
 """What every wire protocol shares: the sample as sent, the stamped frame, parser statistics and bases.
 
-Pure: no I/O, no ROS. Each protocol is a module beside this one (:mod:`.rd2100_binary`,
-:mod:`.ascii_lines`, :mod:`.kvh_fog`) with its own rejection reasons; :mod:`.protocols` picks
-one by name. Parsers take bytes in arbitrary chunks (a frame may straddle reads), resynchronise
-after garbage or a bad frame, and count every rejection by reason.
+Pure: no I/O, no ROS. Each protocol is a module of :mod:`.protocols` (``rd2100_binary``,
+``rd2100_ascii``, ``kvh_fog``) with its own rejection reasons; :mod:`.protocols` picks one by
+name. Parsers take bytes in arbitrary chunks (a frame may straddle reads), resynchronise after
+garbage or a bad frame, and count every rejection by reason.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from typing import Protocol
 
 INT16_MIN = -0x8000
 INT16_MAX = 0x7FFF
+BITS_PER_BYTE = 10   # on a serial line: start + 8 data + stop
 
 # Reasons more than one place counts (the keys of ParserStats.rejected_by_reason, and the node's drops).
 GARBAGE = 'garbage'             # binary, kvh_fog: a run of bytes that cannot start a frame (counted once per run)

@@ -135,7 +135,7 @@ class Writer:
     """Writes frame ``seq`` at its deadline and records when each write returned."""
 
     def __init__(self, master: int, capacity: int) -> None:
-        from art_gyro_calibration.rd2100_binary import encode_binary
+        from art_gyro_calibration.protocols.rd2100_binary import encode_binary
         self.master = master
         self.frames = [encode_binary(int(r), RAW_TEMP) for r in raw_rates()]
         self.mono_ns = np.zeros(capacity, dtype=np.int64)
@@ -238,8 +238,8 @@ def run(args: argparse.Namespace) -> int:
     tty.setraw(slave)   # no byte translated
     port = os.ttyname(slave)
     writer = Writer(master, capacity)
-    from art_gyro_calibration.driver import WireStamper
-    from art_gyro_calibration.rd2100_binary import BINARY_FRAME_BYTES
+    from art_gyro_calibration.protocols.rd2100_binary import BINARY_FRAME_BYTES
+    from art_gyro_calibration.stamper import WireStamper
     frame_ns = WireStamper(args.baud, BINARY_FRAME_BYTES).frame_ns   # the wire time the node subtracts
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / 'node.log'

@@ -6,10 +6,11 @@ import time
 import numpy as np
 import pytest
 
-from art_gyro_calibration.driver import RATE_JUMP, STANDARD_BAUDS, Rd2100Driver, WireStamper
-from art_gyro_calibration.fake_rd2100 import FakeRd2100
+from art_gyro_calibration.driver import RATE_JUMP, STANDARD_BAUDS, SerialGyroDriver
+from art_gyro_calibration.fake_gyro import FakeGyro
 from art_gyro_calibration.frame import GARBAGE, LOCK_FRAMES, UNLOCKED, Frame
-from art_gyro_calibration.rd2100_binary import encode_binary
+from art_gyro_calibration.protocols.rd2100_binary import encode_binary
+from art_gyro_calibration.stamper import WireStamper
 
 TIMEOUT_S = 10.0   # generous: the machine is shared; nothing asserts how fast, only that it happens
 
@@ -59,8 +60,8 @@ def make_driver(recorder):
     drivers = []
 
     def make(port, protocol='binary', baud=115200, reopen_period_s=0.05):
-        driver = Rd2100Driver(port, baud, protocol, recorder.on_frame, reopen_period_s=reopen_period_s,
-                              on_link=recorder.on_link)
+        driver = SerialGyroDriver(port, baud, protocol, recorder.on_frame, reopen_period_s=reopen_period_s,
+                                  on_link=recorder.on_link)
         drivers.append(driver)
         driver.start()
         return driver
@@ -72,8 +73,8 @@ def make_driver(recorder):
 
 @pytest.mark.parametrize('protocol', ['binary', 'ascii'])
 def test_frames_arrive_with_the_values_sent(make_driver, recorder, protocol):
-    with FakeRd2100('NAVC3545', protocol=protocol, rate_hz=50, profile='30', temperature=31.5,
-                    noise_dps=0.0, turn_on_bias_dps=0.01) as fake:
+    with FakeGyro('NAVC3545', protocol=protocol, rate_hz=50, profile='30', temperature=31.5,
+                  noise_dps=0.0, turn_on_bias_dps=0.01) as fake:
         expected = tuple(int(v[0]) for v in fake.simulator.counts([0.0]))
         driver = make_driver(fake.path, protocol)
         assert wait_for(recorder.more_than(20))
@@ -88,7 +89,7 @@ def test_frames_arrive_with_the_values_sent(make_driver, recorder, protocol):
 
 
 def test_stamps_are_non_decreasing_and_close_to_host_time(make_driver, recorder):
-    with FakeRd2100('NAVC4361', rate_hz=200, seed=1) as fake:
+    with FakeGyro('NAVC4361', rate_hz=200, seed=1) as fake:
         make_driver(fake.path)
         assert wait_for(recorder.more_than(100))
     with recorder.lock:
@@ -230,9 +231,9 @@ def test_driver_stamps_a_stalled_burst_by_the_period_and_reports_a_clock_step(re
             time.sleep(1.0)
             stalled.set()
 
-    with FakeRd2100('NAVC3545', rate_hz=50, seed=8) as fake:
-        driver = Rd2100Driver(fake.path, 9600, 'binary', on_frame, on_warning=warnings.append,
-                              clock_ns=lambda: time.time_ns() + offset[0])
+    with FakeGyro('NAVC3545', rate_hz=50, seed=8) as fake:
+        driver = SerialGyroDriver(fake.path, 9600, 'binary', on_frame, on_warning=warnings.append,
+                                  clock_ns=lambda: time.time_ns() + offset[0])
         driver.start()
         try:
             assert wait_for(stalled.is_set)
@@ -260,9 +261,9 @@ def test_driver_stamps_a_stalled_burst_by_the_period_and_reports_a_clock_step(re
 def test_no_frames_after_opening_is_warned_once(garbage, expected, tmp_path):
     """A wrong baud or protocol used to give "gyro link up" and then nothing on the console (issue 9)."""
     warnings = []
-    silent = FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: no frames
+    silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: no frames
     try:
-        driver = Rd2100Driver(silent.path, 9600, 'binary', lambda f: None, on_warning=warnings.append)
+        driver = SerialGyroDriver(silent.path, 9600, 'binary', lambda f: None, on_warning=warnings.append)
         driver.start()
         try:
             assert wait_for(lambda: driver.stats.connected)
@@ -279,7 +280,7 @@ def test_no_frames_after_opening_is_warned_once(garbage, expected, tmp_path):
 
 
 def test_garbage_is_counted_and_frames_keep_flowing(make_driver, recorder):
-    with FakeRd2100('NAVC4058', rate_hz=100, seed=2) as fake:
+    with FakeGyro('NAVC4058', rate_hz=100, seed=2) as fake:
         driver = make_driver(fake.path)
         assert wait_for(recorder.more_than(5))
         for run, garbage in enumerate((b'\x00\x01\xfe\x7f', b'\xff\x10\x11'), start=1):
@@ -297,8 +298,8 @@ def test_garbage_is_counted_and_frames_keep_flowing(make_driver, recorder):
 def test_the_baud_hint_fires_when_the_valid_share_falls_after_frames_came(recorder):
     """The hint fired only before the first frame: a link turned to garbage later was not said (issue 25)."""
     warnings = []
-    with FakeRd2100('NAVC3545', rate_hz=100, seed=4) as fake:
-        driver = Rd2100Driver(fake.path, 115200, 'binary', recorder.on_frame, on_warning=warnings.append)
+    with FakeGyro('NAVC3545', rate_hz=100, seed=4) as fake:
+        driver = SerialGyroDriver(fake.path, 115200, 'binary', recorder.on_frame, on_warning=warnings.append)
         driver.start()
         try:
             assert wait_for(recorder.more_than(20))
@@ -316,9 +317,9 @@ def test_the_baud_hint_fires_when_the_valid_share_falls_after_frames_came(record
 
 def test_a_frame_is_delivered_only_once_the_stream_is_locked(recorder, tmp_path):
     """Garbage with a valid frame now and then (a checksum passing by chance) went out as rates (issue 25)."""
-    silent = FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
+    silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
     try:
-        driver = Rd2100Driver(silent.path, 115200, 'binary', recorder.on_frame)
+        driver = SerialGyroDriver(silent.path, 115200, 'binary', recorder.on_frame)
         driver.start()
         try:
             assert wait_for(lambda: driver.stats.connected)
@@ -343,7 +344,7 @@ def test_port_missing_at_start_then_appearing(make_driver, recorder, tmp_path):
     time.sleep(0.3)   # several retries: the loss is reported once, not per retry
     assert recorder.links == [(False, recorder.links[0][1])] and link in recorder.links[0][1]
     assert not driver.stats.connected and 'cannot open' in driver.stats.last_error
-    with FakeRd2100('NAVC4377', rate_hz=50, link=link, seed=3):
+    with FakeGyro('NAVC4377', rate_hz=50, link=link, seed=3):
         assert wait_for(recorder.more_than(5))
     assert recorder.links[1][0] is True
     assert driver.stats.reopens == 0   # the first open is not a reopen
@@ -351,7 +352,7 @@ def test_port_missing_at_start_then_appearing(make_driver, recorder, tmp_path):
 
 def test_unplug_and_replug_survived_several_times(make_driver, recorder, tmp_path):
     link = str(tmp_path / 'rd2100')
-    with FakeRd2100('NAVC4253', rate_hz=100, link=link, seed=4) as fake:
+    with FakeGyro('NAVC4253', rate_hz=100, link=link, seed=4) as fake:
         driver = make_driver(link)
         assert wait_for(recorder.more_than(5))
         for cycle in range(1, 4):
@@ -367,11 +368,11 @@ def test_unplug_and_replug_survived_several_times(make_driver, recorder, tmp_pat
 
 def test_port_renamed_to_another_device_is_reopened(make_driver, recorder, tmp_path):
     link = str(tmp_path / 'rd2100')
-    silent = FakeRd2100('NAVC3545', link=link)   # not started: the port is open but sends nothing
+    silent = FakeGyro('NAVC3545', link=link)   # not started: the port is open but sends nothing
     try:
         driver = make_driver(link)
         assert wait_for(lambda: driver.stats.connected)
-        with FakeRd2100('NAVC3545', rate_hz=50, link=link, seed=5):   # re-points the link
+        with FakeGyro('NAVC3545', rate_hz=50, link=link, seed=5):   # re-points the link
             assert wait_for(recorder.more_than(5))
             assert driver.stats.reopens == 1
         assert [up for up, _ in recorder.links[:3]] == [True, False, True]
@@ -381,15 +382,15 @@ def test_port_renamed_to_another_device_is_reopened(make_driver, recorder, tmp_p
 
 
 def test_stop_is_prompt_while_reading_and_while_retrying(recorder, tmp_path):
-    with FakeRd2100('NAVC3545', rate_hz=20, seed=6) as fake:
-        reading = Rd2100Driver(fake.path, 115200, 'binary', recorder.on_frame)
+    with FakeGyro('NAVC3545', rate_hz=20, seed=6) as fake:
+        reading = SerialGyroDriver(fake.path, 115200, 'binary', recorder.on_frame)
         reading.start()
         assert wait_for(recorder.more_than(2))
         t0 = time.monotonic()
         reading.stop()
         assert time.monotonic() - t0 < 1.0
         assert not reading.stats.connected
-    retrying = Rd2100Driver(str(tmp_path / 'absent'), 115200, 'binary', recorder.on_frame, reopen_period_s=30.0)
+    retrying = SerialGyroDriver(str(tmp_path / 'absent'), 115200, 'binary', recorder.on_frame, reopen_period_s=30.0)
     retrying.start()
     time.sleep(0.1)
     t0 = time.monotonic()
@@ -402,8 +403,8 @@ def test_callback_exception_stops_the_reader_and_says_why(recorder):
     def broken(frame):
         raise RuntimeError('boom')
 
-    with FakeRd2100('NAVC3545', rate_hz=50, seed=7) as fake:
-        driver = Rd2100Driver(fake.path, 115200, 'binary', broken)
+    with FakeGyro('NAVC3545', rate_hz=50, seed=7) as fake:
+        driver = SerialGyroDriver(fake.path, 115200, 'binary', broken)
         driver.start()
         assert wait_for(lambda: 'boom' in driver.stats.last_error)
         driver.stop()
@@ -419,13 +420,13 @@ def test_callback_exception_stops_the_reader_and_says_why(recorder):
 def test_constructor_refuses_bad_arguments(kwargs, message):
     args = {'port': '/dev/ttyUSB0', 'baud': 115200, 'protocol': 'binary'} | kwargs
     with pytest.raises(ValueError, match=message):
-        Rd2100Driver(args['port'], args['baud'], args['protocol'], lambda f: None,
-                     reopen_period_s=kwargs.get('reopen_period_s', 0.5))
+        SerialGyroDriver(args['port'], args['baud'], args['protocol'], lambda f: None,
+                         reopen_period_s=kwargs.get('reopen_period_s', 0.5))
 
 
 def test_standard_bauds_are_accepted():
     for baud in STANDARD_BAUDS:
-        Rd2100Driver('/dev/ttyUSB0', baud, 'ascii', lambda f: None)
+        SerialGyroDriver('/dev/ttyUSB0', baud, 'ascii', lambda f: None)
 
 
 def test_stamps_never_run_ahead_when_bytes_come_faster_than_the_baud():
@@ -471,9 +472,9 @@ def test_a_late_read_alone_is_not_warned_as_too_fast():
 
 def test_a_rate_jump_beyond_the_gyro_in_one_period_is_counted_not_delivered(recorder, tmp_path):
     """A frame of 91.5 deg/s between frames of 0, 0.7 ms apart, passed as a rate (issue 25)."""
-    silent = FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
+    silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
     try:
-        driver = Rd2100Driver(silent.path, 115200, 'binary', recorder.on_frame, rate_scale_dps=0.00305)
+        driver = SerialGyroDriver(silent.path, 115200, 'binary', recorder.on_frame, rate_scale_dps=0.00305)
         driver.start()
         try:
             assert wait_for(lambda: driver.stats.connected)

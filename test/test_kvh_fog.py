@@ -9,10 +9,10 @@ import zlib
 import pytest
 
 from art_gyro_calibration.frame import NOT_FINITE, RawSample
-from art_gyro_calibration.kvh_fog import (AXIS_INVALID, BAD_CRC, BAD_TIMESTAMP, KVH_FORMATS, NO_INTERVAL,
-                                          NO_TEMPERATURE_YET, OTHER_FORMAT, REPEATED_SEQUENCE, KvhFogConfig,
-                                          KvhFogParser, UnitClock, crc32_mpeg2, encode_kvh_fog)
 from art_gyro_calibration.protocols import make_encoder, make_parser
+from art_gyro_calibration.protocols.kvh_fog import (AXIS_INVALID, BAD_CRC, BAD_TIMESTAMP, KVH_FORMATS, NO_INTERVAL,
+                                                    NO_TEMPERATURE_YET, OTHER_FORMAT, REPEATED_SEQUENCE, KvhFogConfig,
+                                                    KvhFogParser, UnitClock, crc32_mpeg2, encode_kvh_fog)
 
 
 # The 1775 IMU technical manual's sample message (section 5.2.1), Format A, all sensors valid.

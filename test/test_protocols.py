@@ -4,9 +4,9 @@ import itertools
 
 import pytest
 
-from art_gyro_calibration.ascii_lines import encode_ascii
 from art_gyro_calibration.protocols import make_encoder, make_parser
-from art_gyro_calibration.rd2100_binary import encode_binary
+from art_gyro_calibration.protocols.rd2100_ascii import encode_ascii
+from art_gyro_calibration.protocols.rd2100_binary import encode_binary
 
 EXTREMES = (-32768, -32767, -256, -129, -128, -1, 0, 1, 127, 128, 255, 256, 12345, 32766, 32767)
 PAIRS = list(itertools.product(EXTREMES, repeat=2))

@@ -20,10 +20,10 @@ from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, PLAUSIBLE_TEMPERATURE_C, FrameCorrector
-from art_gyro_calibration.driver import Rd2100Driver
+from art_gyro_calibration.driver import SerialGyroDriver
 from art_gyro_calibration.frame import NOT_FINITE
-from art_gyro_calibration.kvh_fog import AXIS_INVALID, RATE_TOLERANCE
 from art_gyro_calibration.protocols import KVH_FOG
+from art_gyro_calibration.protocols.kvh_fog import AXIS_INVALID, RATE_TOLERANCE
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.parameters import EXTRA_SIGNAL_MESSAGES, ExtraSignal, Settings, ros_type_name
 from art_gyro_calibration.ros.raw_log import LOG_RETRY_S, RawLog
@@ -39,7 +39,7 @@ class DiagnosedNode(Protocol):
     settings: Settings
     calibration: Calibration
     corrector: FrameCorrector
-    driver: Rd2100Driver
+    driver: SerialGyroDriver
     bias_service: StaticBiasService
     raw_log: RawLog
     published: int

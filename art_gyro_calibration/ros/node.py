@@ -61,10 +61,10 @@ from std_msgs.msg import Bool, Float64
 
 from art_gyro_calibration.calibration import CalibrationError
 from art_gyro_calibration.compensation import FrameCorrector, RunStart
-from art_gyro_calibration.driver import Rd2100Driver
+from art_gyro_calibration.driver import SerialGyroDriver
 from art_gyro_calibration.frame import Frame, RawSample
-from art_gyro_calibration.kvh_fog import STANDARD_GRAVITY, KvhSample
 from art_gyro_calibration.protocols import KVH_FOG
+from art_gyro_calibration.protocols.kvh_fog import STANDARD_GRAVITY, KvhSample
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
 from art_gyro_calibration.ros.parameters import (EXTRA_SIGNAL_MESSAGES, IMU_TOPIC, NODE_NAME, ExtraSignal,
@@ -159,10 +159,10 @@ class GyroNode(Node):
         self.get_logger().info(
             f'calibration loaded: {self.calibration.serial_number} from {self.calibration_source}; '
             f'reading {self.settings.port} at {self.settings.baud} baud ({self.settings.protocol})')
-        self.driver = Rd2100Driver(self.settings.port, self.settings.baud, self.settings.protocol,
-                                   self._on_frame, on_link=self._on_link, on_warning=self._on_driver_warning,
-                                   clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog,
-                                   rate_scale_dps=self.calibration.rate_scale_factor)
+        self.driver = SerialGyroDriver(self.settings.port, self.settings.baud, self.settings.protocol,
+                                       self._on_frame, on_link=self._on_link, on_warning=self._on_driver_warning,
+                                       clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog,
+                                       rate_scale_dps=self.calibration.rate_scale_factor)
         self.driver.start()
 
     # --- per frame (driver reader thread) ------------------------------------------------

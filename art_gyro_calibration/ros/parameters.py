@@ -24,8 +24,8 @@ from art_gyro_calibration.calibration import (CALIBRATION_KEYS, EXTRA_SIGNAL_TYP
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
                                               load_calibration, read_yaml, resolve_calibration_url)
 from art_gyro_calibration.driver import BAUDS
-from art_gyro_calibration.kvh_fog import KVH_DEFAULT_BAUD, KvhFogConfig
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
+from art_gyro_calibration.protocols.kvh_fog import KVH_DEFAULT_BAUD, KvhFogConfig
 from art_gyro_calibration.signals import SIGNALS
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES
 

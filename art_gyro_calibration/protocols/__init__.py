@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from art_gyro_calibration.ascii_lines import AsciiFrameParser, encode_ascii
 from art_gyro_calibration.frame import FrameParser
-from art_gyro_calibration.kvh_fog import KvhFogConfig, KvhFogEncoder, KvhFogParser
-from art_gyro_calibration.rd2100_binary import BinaryFrameParser, encode_binary
+from art_gyro_calibration.protocols.kvh_fog import KvhFogConfig, KvhFogEncoder, KvhFogParser
+from art_gyro_calibration.protocols.rd2100_ascii import AsciiFrameParser, encode_ascii
+from art_gyro_calibration.protocols.rd2100_binary import BinaryFrameParser, encode_binary
 
 KVH_FOG = 'kvh_fog'
 PROTOCOLS = ('binary', 'ascii', KVH_FOG)

@@ -19,7 +19,7 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-from art_gyro_calibration.frame import NOT_FINITE, ChunkParser, RawSample, check_int16
+from art_gyro_calibration.frame import BITS_PER_BYTE, NOT_FINITE, ChunkParser, RawSample, check_int16
 
 # Rejection reasons, the keys of ParserStats.rejected_by_reason (with NOT_FINITE, of frame.py): each is one message.
 BAD_CRC = 'bad_crc'             # a header and a message's length of bytes whose CRC is wrong
@@ -49,7 +49,6 @@ UNIT_CLOCK_SLEW = 1e-3
 # The unit's baud rates (=BAUD, 1775 manual section 8.3).
 KVH_BAUDS = (9600, 19200, 38400, 57600, 115200, 460800, 576000, 921600, 4147200)
 KVH_DEFAULT_BAUD = 921600
-BITS_PER_BYTE = 10   # start + 8 data + stop
 # The stream's message interval (formats without the unit's clock) is used once measured over this long: arrival
 # jitter of a few ms (a USB adapter's latency timer) then errs by a few parts in 1000, and less as it goes on.
 STREAM_BASELINE_S = 1.0

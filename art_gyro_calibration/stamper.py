@@ -1,0 +1,152 @@
+"""Stamps of serial frames from the reads that returned them: the wire time taken off, the gyro's period kept.
+
+Frame times are kept on the monotonic clock (the arrival of the chunk less its time on the
+wire, frames of one chunk spaced by the gyro's own period, estimated from the stream) and put
+on the caller's clock (wall or ROS time) by its offset from the monotonic clock. A step of that
+clock (set by hand, NTP, a simulation reset) re-anchors the stamps to it once, instead of
+freezing them or spreading it. Pure: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+
+from art_gyro_calibration.frame import BITS_PER_BYTE
+
+# A change of the clock's offset from the monotonic clock between two reads beyond this is a step
+# (NTP slews at most 0.5 ms/s). A simulated /clock published at 100 Hz reaches the node's clock
+# late, by up to a few hundred ms when its executor is busy (measured: 0.29 and 0.36 s): within
+# this it is jitter, which stamps never follow backwards.
+CLOCK_STEP_NS = 1_000_000_000
+# A measured interval per frame this far from the period estimate is a lost frame or a reopen, not the period.
+PERIOD_ACCEPT = (0.6, 1.6)
+PERIOD_SMOOTHING = 16   # the estimate averages about this many chunks
+
+
+class WireStamper:
+    """Stamps of the frames of each read chunk: wire time subtracted, spaced by the gyro's period, on a clock.
+
+    Times are kept on the monotonic clock and moved onto the caller's clock by its current
+    offset; the period is the mean, over about PERIOD_SMOOTHING chunks, of the time between the
+    last frames of consecutive chunks divided by the frames in the later one, which stays right
+    when frames queued during a stall arrive in one burst.
+    """
+
+    __slots__ = ('byte_ns', 'frame_ns', 'period_ns', '_updates', '_last_steady', '_last_stamp', '_last_out',
+                 '_offset_ns', '_pending_ns', 'steps_ns', 'step_ns', '_frame_bytes', '_bytes', '_first_ns', 'baud',
+                 'too_fast', 'ahead')
+
+    def __init__(self, baud: int, frame_bytes: int) -> None:
+        self.byte_ns = BITS_PER_BYTE * 1_000_000_000 // baud
+        self.frame_ns = frame_bytes * self.byte_ns
+        self.period_ns = 0.0            # 0: not known yet
+        self._updates = 0
+        self._last_steady: int | None = None   # monotonic time of the last frame stamped
+        self._last_stamp = 0
+        self._last_out = 0                     # the last steady time handed out
+        self._offset_ns: int | None = None     # caller's clock minus the monotonic clock
+        self._pending_ns: int | None = None    # an offset one read saw beyond a step, not yet confirmed
+        self.steps_ns = 0               # sum of the clock steps re-anchored to
+        self.step_ns = 0                # the step found by the latest chunk, 0 if none
+        self.baud = baud
+        self._frame_bytes = frame_bytes
+        self._bytes = 0                 # bytes read, and when the first chunk's read returned: the byte rate
+        self._first_ns: int | None = None
+        self.too_fast = ''              # set once, when frames first came faster than the baud allows: why
+        self.ahead = 0                  # frames that would have been stamped after they arrived (fell back)
+
+    def restart(self) -> None:
+        """After a reopen: the next chunk does not measure the period (the link was down meanwhile)."""
+        self._last_steady = None
+
+    @property
+    def offset_ns(self) -> int:
+        """The caller's clock less the monotonic clock, as the latest chunk was stamped with."""
+        return self._offset_ns or 0
+
+    def stamp(self, clock_ns: int, monotonic_ns: int, chunk_bytes: int,
+              ends: list[int]) -> list[tuple[int, int]]:
+        """(stamp, steady) of the frames ending at ``ends`` of a chunk whose read returned at the given times."""
+        offset = clock_ns - monotonic_ns
+        self.step_ns = 0
+        if self._offset_ns is not None and abs(offset - self._offset_ns) > CLOCK_STEP_NS:
+            # A step is taken when a second read agrees on it: one read of a clock that goes back and
+            # forth (a simulated /clock whose messages two executor threads apply out of order) is none.
+            if self._pending_ns is not None and abs(offset - self._pending_ns) <= CLOCK_STEP_NS:
+                self.step_ns = offset - self._offset_ns
+                self.steps_ns += self.step_ns
+                self._pending_ns = None
+            else:
+                self._pending_ns, offset = offset, self._offset_ns   # this chunk stays on the clock as it was
+        else:
+            self._pending_ns = None
+        self._offset_ns = offset
+        n = len(ends)
+        if not n:
+            return []
+        # The read returned when the chunk's last byte arrived: the last frame's first byte left
+        # the gyro its own and every later byte's wire time earlier.
+        last = monotonic_ns - (chunk_bytes - ends[-1]) * self.byte_ns - self.frame_ns
+        previous = self._last_steady
+        spacing: list[float] = [(ends[i + 1] - ends[i]) * self.byte_ns for i in range(n - 1)]
+        step = self.period_ns
+        if previous is not None and last > previous:
+            per_frame = (last - previous) / n
+            self._update_period(per_frame)
+            # Never so far apart that the first would go before the previous chunk's last.
+            step = min(self.period_ns, per_frame)
+        # Frames queued by a stall (or before an open) left the gyro a period apart, not a wire time apart.
+        spacing = [max(s, step) for s in spacing]
+        steady = [last] * n
+        for i in range(n - 2, -1, -1):
+            steady[i] = steady[i + 1] - int(spacing[i])
+        if previous is not None:
+            floor = previous + self.frame_ns   # frames are at least their wire time apart
+            for i in range(n):
+                if steady[i] < floor:
+                    steady[i] = floor
+                floor = steady[i] + self.frame_ns
+        # Never after the frame arrived: bytes faster than the baud allows (a pty, USB-CDC, a wrong baud) pushed
+        # each frame a wire time after the last, without bound. Then each is stamped at its arrival less its
+        # wire time at the byte rate measured (at most the baud's).
+        measured = self._byte_ns(monotonic_ns, chunk_bytes)
+        byte_ns = min(float(self.byte_ns), measured)
+        for i in range(n):
+            ceiling = monotonic_ns - int((chunk_bytes - ends[i] + self._frame_bytes) * byte_ns)
+            if steady[i] > ceiling:
+                steady[i] = ceiling
+                self.ahead += 1
+                if not self.too_fast and measured < self.byte_ns:   # not a late read alone: bytes beyond the baud
+                    self.too_fast = (f'frames arrive faster than {self.baud} baud allows ({1e9 / byte_ns:.0f} '
+                                     f'bytes/s measured, {self.baud // BITS_PER_BYTE} at most): stamped at arrival '
+                                     'less their wire time at the measured rate; check the baud parameter')
+        self._last_steady = steady[-1]
+        out = []
+        for t in steady:
+            stamp = t + offset
+            if not self.step_ns and stamp <= self._last_stamp:   # jitter of a coarse clock: never back
+                stamp = self._last_stamp + 1
+            self._last_stamp = stamp
+            # The steady time never goes back either, a step's chunk included: the stamps before it may have
+            # been held up by a stale clock read (a /clock 50 ms late, then a step: the raw log went 20 ms back).
+            clean = max(stamp - self.steps_ns, self._last_out + 1)
+            self._last_out = clean
+            out.append((stamp, clean))
+        return out
+
+    def _byte_ns(self, monotonic_ns: int, chunk_bytes: int) -> float:
+        """Mean time per byte received since the first read (idle time included: an upper bound)."""
+        if self._first_ns is None:
+            self._first_ns = monotonic_ns
+            return math.inf
+        self._bytes += chunk_bytes
+        return (monotonic_ns - self._first_ns) / self._bytes
+
+    def _update_period(self, per_frame: float) -> None:
+        period = self.period_ns
+        # Outliers are refused only once the estimate has settled: a wrong first measure (queued frames read in
+        # two chunks a wire time apart) would otherwise refuse every right one after it, for good.
+        if self._updates >= PERIOD_SMOOTHING and not PERIOD_ACCEPT[0] < per_frame / period < PERIOD_ACCEPT[1]:
+            return
+        self._updates += 1
+        self.period_ns = period + (per_frame - period) / min(self._updates, PERIOD_SMOOTHING)
