@@ -21,6 +21,19 @@ CLOCK_STEP_NS = 1_000_000_000
 # A measured interval per frame this far from the period estimate is a lost frame or a reopen, not the period.
 PERIOD_ACCEPT = (0.6, 1.6)
 PERIOD_SMOOTHING = 16   # the estimate averages about this many chunks
+# A unit's clock (kvh_fog Format B) is mapped once the mapping spans this long.
+UNIT_CLOCK_BASELINE_S = 1.0
+# The unit's clock is mapped to the host's over about this long: the drift a temperature change brings is followed.
+UNIT_CLOCK_MEMORY_S = 60.0
+# The lower envelope of the arrivals (the least delayed message) may rise this fast (s/s): a slowly shrinking delay.
+UNIT_CLOCK_RELAX = 1e-4
+# The mapping is slewed, never stepped, at most this fast (s/s): stamps stay the unit's period apart within 0.1 %.
+UNIT_CLOCK_SLEW = 1e-3
+
+
+def wire_byte_ns(baud: int) -> int:
+    """The wire time of a byte at ``baud``, in whole nanoseconds."""
+    return BITS_PER_BYTE * 1_000_000_000 // baud
 
 
 class WireStamper:
@@ -37,7 +50,7 @@ class WireStamper:
                  'too_fast', 'ahead')
 
     def __init__(self, baud: int, frame_bytes: int) -> None:
-        self.byte_ns = BITS_PER_BYTE * 1_000_000_000 // baud
+        self.byte_ns = wire_byte_ns(baud)
         self.frame_ns = frame_bytes * self.byte_ns
         self.period_ns = 0.0            # 0: not known yet
         self._updates = 0
@@ -150,3 +163,79 @@ class WireStamper:
             return
         self._updates += 1
         self.period_ns = period + (per_frame - period) / min(self._updates, PERIOD_SMOOTHING)
+
+
+class UnitClock:
+    """Format B's microsecond clock mapped onto the host's monotonic clock: drift and offset tracked.
+
+    A line through (unit time, arrival) by least squares with exponential forgetting over about
+    UNIT_CLOCK_MEMORY_S (so a drift that changes with temperature is followed), lowered to the
+    envelope of the least delayed arrivals (a stamp is when the message left the unit, not when a
+    busy host read it), that envelope taken from half of UNIT_CLOCK_BASELINE_S on. Ready once it has
+    spanned UNIT_CLOCK_BASELINE_S; :meth:`reset` when the
+    clock is broken (a reopen, a clock fault), after which the driver stamps by arrival again.
+    """
+
+    __slots__ = ('_w', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_low', '_first_ns', '_last_ns',
+                 '_mapped')
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the mapping."""
+        self._w = 0.0
+        self._n0 = self._t0 = 0
+        self._mean_n = self._mean_t = self._c_nt = self._c_nn = 0.0
+        self._low = math.inf
+        self._first_ns = self._last_ns = 0
+        self._mapped: tuple[int, float] | None = None   # the last (unit time, mapped time) given
+
+    @property
+    def ready(self) -> bool:
+        """The mapping spans UNIT_CLOCK_BASELINE_S."""
+        return math.isfinite(self._low) and self._last_ns - self._first_ns >= UNIT_CLOCK_BASELINE_S * 1e9
+
+    def add(self, unit_us: int, arrival_ns: int) -> None:
+        """A message of unit time ``unit_us`` (unwrapped) arrived at ``arrival_ns`` (monotonic, wire time less)."""
+        if not self._w:
+            self._n0, self._t0, self._first_ns = unit_us, arrival_ns, arrival_ns
+            self._last_ns = arrival_ns
+        n = float(unit_us - self._n0)
+        t = float(arrival_ns - self._t0)
+        decay = math.exp(-(arrival_ns - self._last_ns) * 1e-9 / UNIT_CLOCK_MEMORY_S)
+        self._low += (arrival_ns - self._last_ns) * UNIT_CLOCK_RELAX
+        self._last_ns = arrival_ns
+        self._w = self._w * decay + 1.0
+        dn = n - self._mean_n
+        self._mean_n += dn / self._w
+        self._mean_t += (t - self._mean_t) / self._w
+        self._c_nt = self._c_nt * decay + dn * (t - self._mean_t)
+        self._c_nn = self._c_nn * decay + dn * (n - self._mean_n)
+        if self._c_nn > 0.0 and self._last_ns - self._first_ns >= UNIT_CLOCK_BASELINE_S * 0.5e9:
+            # Over the half second before it is ready: earlier, the line is too loose for its residuals.
+            self._low = min(self._low, t - self._line(n))
+
+    def _line(self, n: float) -> float:
+        return self._mean_t + self._c_nt / self._c_nn * (n - self._mean_n)
+
+    @property
+    def ns_per_us(self) -> float:
+        """Host nanoseconds per unit microsecond (1000 less the unit clock's drift)."""
+        return self._c_nt / self._c_nn if self._c_nn > 0.0 else math.nan
+
+    def map(self, unit_us: int) -> int:
+        """The monotonic time at which the message of unit time ``unit_us`` left the unit (call when ready).
+
+        The line and its envelope move as arrivals come: the mapping follows them by at most
+        UNIT_CLOCK_SLEW from the last time it gave, so stamps never jump.
+        """
+        n = float(unit_us - self._n0)
+        target = self._line(n) + (self._low if math.isfinite(self._low) else 0.0)
+        if self._mapped is not None and unit_us > self._mapped[0]:
+            elapsed_us = unit_us - self._mapped[0]
+            predicted = self._mapped[1] + elapsed_us * self.ns_per_us
+            step = UNIT_CLOCK_SLEW * elapsed_us * 1e3
+            target = predicted + min(step, max(-step, target - predicted))
+        self._mapped = (unit_us, target)
+        return self._t0 + int(target)

@@ -329,7 +329,7 @@ def test_kvh_fog_messages_on_the_pty_carry_the_simulated_reading(config):
     # The port may open mid-message (one garbage run) and, in Format C, before a temperature (up to 3 messages).
     reasons = parser.stats.rejected_by_reason
     assert len(got) >= 30 and parser.stats.lost_frames == reasons['bad_crc'] == 0
-    assert parser.garbage_runs <= 1 and reasons['no_temperature_yet'] <= 3
+    assert parser.stats.garbage_runs <= 1 and reasons['no_temperature_yet'] <= 3
     assert [r for r, _ in got] == pytest.approx([reading] * len(got), rel=1e-6)
     assert [t for _, t in got] == pytest.approx([18.25 if config.temperature_units == 'C_100' else 18.0] * len(got))
 

@@ -8,11 +8,12 @@ import zlib
 
 import pytest
 
-from art_gyro_calibration.frame import NOT_FINITE, RawSample
+from art_gyro_calibration.frame import AXIS_INVALID, NOT_FINITE, RawSample
 from art_gyro_calibration.protocols import make_encoder, make_parser
-from art_gyro_calibration.protocols.kvh_fog import (AXIS_INVALID, BAD_CRC, BAD_TIMESTAMP, KVH_FORMATS, NO_INTERVAL,
+from art_gyro_calibration.protocols.kvh_fog import (BAD_CRC, BAD_TIMESTAMP, KVH_FORMATS, NO_INTERVAL,
                                                     NO_TEMPERATURE_YET, OTHER_FORMAT, REPEATED_SEQUENCE, KvhFogConfig,
-                                                    KvhFogParser, UnitClock, crc32_mpeg2, encode_kvh_fog)
+                                                    KvhFogParser, crc32_mpeg2, encode_kvh_fog)
+from art_gyro_calibration.stamper import UnitClock
 
 
 # The 1775 IMU technical manual's sample message (section 5.2.1), Format A, all sensors valid.
@@ -62,8 +63,9 @@ def test_kvh_parser_takes_the_manual_sample_on_each_axis(axis, value):
     parser = make_parser('kvh_fog', KvhFogConfig(yaw_axis=axis, rotation='rate', angle_units='deg'))
     [(sample, end)] = parser.feed(MANUAL_SAMPLE)
     assert (RawSample(sample.raw_rate, sample.raw_temp), end) == (RawSample(pytest.approx(value, rel=1e-4), 40.0), 36)
-    assert sample.rates_dps == pytest.approx(MANUAL_ROTATION, rel=1e-4)
-    assert sample.acceleration_g == pytest.approx(MANUAL_ACCELERATION, rel=1e-4) and sample.status == 0x77
+    assert sample.imu.rates_dps == pytest.approx(MANUAL_ROTATION, rel=1e-4)
+    assert sample.imu.acceleration_g == pytest.approx(MANUAL_ACCELERATION, rel=1e-4)
+    assert sample.imu.rate_valid == sample.imu.acceleration_valid == (True, True, True)   # status 0x77
     down = KvhFogParser(KvhFogConfig(yaw_axis=f'-{axis}', rotation='rate', angle_units='rad'))
     assert kvh_samples(down, MANUAL_SAMPLE) == [(pytest.approx(-math.degrees(value), rel=1e-4), 40.0)]
     assert parser.frame_bytes == 36 and parser.stats.rejected == 0 and parser.stats.lost_frames == 0
@@ -103,7 +105,7 @@ def test_kvh_stream_with_the_sample_cut_repeated_bit_flipped_and_a_sequence_gap(
         got = [s for i in range(0, len(stream), size) for s in kvh_samples(parser, stream[i:i + size])]
         stats = parser.stats
         results[size] = (got, stats.rejected_by_reason, stats.lost_frames, stats.frames, stats.bytes_skipped,
-                         parser.garbage_runs)
+                         parser.stats.garbage_runs)
     got, reasons, lost, frames, skipped, garbage_runs = results[len(stream)]
     assert all(r == results[len(stream)] for r in results.values())
     assert got == [(pytest.approx(-1.3111e-05, rel=1e-4), 40.0)] + [(pytest.approx(0.001), 40.0)] * 3
@@ -165,7 +167,7 @@ def test_kvh_other_formats_are_counted_and_skipped():
     data = kvh_message(0, message_format='C') + kvh_message(1) + kvh_message(2, message_format='B') + kvh_message(3)
     assert len(parser.feed(data)) == 2
     assert parser.stats.rejected_by_reason[OTHER_FORMAT] == 2
-    assert parser.garbage_runs == 0 and parser.stats.rejected_by_reason[BAD_CRC] == 0
+    assert parser.stats.garbage_runs == 0 and parser.stats.rejected_by_reason[BAD_CRC] == 0
     assert parser.stats.bytes_skipped == 38 + 40
     assert parser.stats.lost_frames == 1   # 2 came in a format this parser does not read
 
@@ -370,7 +372,7 @@ def test_kvh_bad_crc_is_one_rejected_frame_not_also_a_lost_one():
     assert len(got) == 4
     assert parser.stats.rejected_by_reason[BAD_CRC] == 2 and parser.stats.lost_frames == 1
     assert parser.stats.frames + parser.stats.rejected + parser.stats.lost_frames == 7
-    assert parser.garbage_runs == 4
+    assert parser.stats.garbage_runs == 4
 
 
 # --- stamps from Format B's clock (issue 22) ----------------------------------------------------------------------

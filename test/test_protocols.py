@@ -4,7 +4,7 @@ import itertools
 
 import pytest
 
-from art_gyro_calibration.protocols import make_encoder, make_parser
+from art_gyro_calibration.protocols import PROTOCOLS, make_encoder, make_parser
 from art_gyro_calibration.protocols.rd2100_ascii import encode_ascii
 from art_gyro_calibration.protocols.rd2100_binary import encode_binary
 
@@ -55,3 +55,20 @@ def test_unknown_protocol_is_a_clear_error():
         make_parser('nmea')
     with pytest.raises(ValueError, match='unknown protocol'):
         make_encoder('')
+
+
+def test_the_driver_node_and_diagnostics_see_protocols_only_through_the_seam():
+    """They import no protocol module (only the registry) and name no protocol: a new one needs no change there."""
+    import ast
+    from pathlib import Path
+
+    package = Path(__file__).resolve().parent.parent / 'art_gyro_calibration'
+    for path in (package / 'driver.py', package / 'ros' / 'node.py', package / 'ros' / 'diagnostics.py'):
+        source = path.read_text(encoding='utf-8')
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, ast.ImportFrom):
+                assert not (node.module or '').startswith('art_gyro_calibration.protocols.'), (path.name, node.module)
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                assert node.value not in PROTOCOLS, (path.name, node.value)
+            if isinstance(node, ast.Name):
+                assert node.id not in ('KVH_FOG', 'KvhFogParser', 'KvhSample'), (path.name, node.id)

@@ -1,4 +1,4 @@
-"""ROS 2 node ``gyro_node``: the RD2100 on a serial port as a compensated yaw-rate source.
+"""ROS 2 node ``gyro_node``: a serial gyro (an RD2100, or a KVH FOG) as a compensated yaw-rate source.
 
 Per frame (on the driver's reader thread, so latency is one serial read) the core's
 :class:`~art_gyro_calibration.compensation.FrameCorrector` scales, drops, compensates, feeds
@@ -62,9 +62,8 @@ from std_msgs.msg import Bool, Float64
 from art_gyro_calibration.calibration import CalibrationError
 from art_gyro_calibration.compensation import FrameCorrector, RunStart
 from art_gyro_calibration.driver import SerialGyroDriver
-from art_gyro_calibration.frame import Frame, RawSample
-from art_gyro_calibration.protocols import KVH_FOG
-from art_gyro_calibration.protocols.kvh_fog import STANDARD_GRAVITY, KvhSample
+from art_gyro_calibration.frame import STANDARD_GRAVITY, Frame, ImuReading, RawSample
+from art_gyro_calibration.protocols import describe
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
 from art_gyro_calibration.ros.parameters import (EXTRA_SIGNAL_MESSAGES, IMU_TOPIC, NODE_NAME, ExtraSignal,
@@ -121,11 +120,10 @@ class GyroNode(Node):
         self._imu.angular_velocity_covariance[0] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[8] = UNCORRECTED_YAW_VARIANCE   # until a static bias is in force
-        # kvh_fog: for the robot's x, y, z, the unit axis and its sign (REP 103 axes from the mounting).
-        self._axes: tuple[tuple[int, float], ...] = ()
-        if self.settings.protocol == KVH_FOG:
-            self._axes = tuple((max(range(3), key=lambda i: abs(row[i])), sum(row))
-                               for row in self.kvh_fog.mounting)
+        self.description = describe(self.settings.protocol, self.kvh_fog)
+        # A whole IMU (kvh_fog): for the robot's x, y, z, the unit axis and its sign (REP 103 axes from the mounting).
+        self._axes = self.description.imu_axes
+        if self._axes:
             self._rate_variance = parameters.kvh_rate_stddev ** 2
             self._acceleration_variance = parameters.kvh_acceleration_stddev ** 2
         self._temperature = Float64()
@@ -192,8 +190,8 @@ class GyroNode(Node):
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
         imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
         imu.angular_velocity.z = math.radians(corrector.rate_dps)
-        if self._axes and isinstance(sample, KvhSample):
-            self._fill_imu(imu, sample)
+        if self._axes and sample is not None and sample.imu is not None:
+            self._fill_imu(imu, sample.imu)
         if self.feeds:   # an extra signal missing or stale: flagged as before a static bias
             imu.angular_velocity_covariance[8] = (self._yaw_variance if self.is_calibrated and
                                                   corrector.compensator.current else UNCORRECTED_YAW_VARIANCE)
@@ -243,21 +241,21 @@ class GyroNode(Node):
         problems = ((feed.problem(), topic) for feed, topic in zip(self.feeds, self.extra_topics))
         return '; '.join(f'{problem} on {topic}' for problem, topic in problems if problem)
 
-    def _fill_imu(self, imu: Imu, sample: KvhSample) -> None:
-        """The x and y rates and the accelerations of a kvh_fog IMU in REP 103 axes (z is the calibrated yaw)."""
+    def _fill_imu(self, imu: Imu, reading: ImuReading) -> None:
+        """The x and y rates and the accelerations of a whole IMU in REP 103 axes (z is the calibrated yaw)."""
         (ix, sx), (iy, sy), _ = self._axes
-        rates, status = sample.rates_dps, sample.status
+        rates, rate_valid = reading.rates_dps, reading.rate_valid
         covariance = imu.angular_velocity_covariance
-        valid = status >> ix & 1 and math.isfinite(rates[ix])
+        valid = rate_valid[ix] and math.isfinite(rates[ix])
         imu.angular_velocity.x = math.radians(sx * rates[ix]) if valid else 0.0
         covariance[0] = self._rate_variance if valid else UNMEASURED_VARIANCE
-        valid = status >> iy & 1 and math.isfinite(rates[iy])
+        valid = rate_valid[iy] and math.isfinite(rates[iy])
         imu.angular_velocity.y = math.radians(sy * rates[iy]) if valid else 0.0
         covariance[4] = self._rate_variance if valid else UNMEASURED_VARIANCE
         acceleration = imu.linear_acceleration
-        g = sample.acceleration_g
-        # Bits 4-6: the three accelerometers valid (and a CRC-checked NaN is still no acceleration).
-        if status & 0x70 == 0x70 and math.isfinite(g[0] + g[1] + g[2]):
+        g = reading.acceleration_g
+        # The three accelerometers valid (and a CRC-checked NaN is still no acceleration).
+        if all(reading.acceleration_valid) and math.isfinite(g[0] + g[1] + g[2]):
             (ix, sx), (iy, sy), (iz, sz) = self._axes
             acceleration.x = sx * g[ix] * STANDARD_GRAVITY
             acceleration.y = sy * g[iy] * STANDARD_GRAVITY
