@@ -43,6 +43,19 @@ class WireStamper:
     offset; the period is the mean, over about PERIOD_SMOOTHING chunks, of the time between the
     last frames of consecutive chunks divided by the frames in the later one, which stays right
     when frames queued during a stall arrive in one burst.
+
+    :meth:`stamp` takes these steps, each a method with one reason:
+
+    1. :meth:`_clock_offset`: the caller's clock against the monotonic one; a step of it is taken
+       once two reads agree on it.
+    2. :meth:`_last_departure`: when the chunk's last frame left the gyro (its arrival less the wire
+       time of it and of the bytes after it).
+    3. :meth:`_spread`: the chunk's earlier frames before it, a period apart at least (frames queued
+       by a stall left the gyro a period apart, not a wire time apart).
+    4. :meth:`_floor`: none before the previous chunk's last frame and its wire time.
+    5. :meth:`_ceiling`: none after it arrived (bytes faster than the baud allows), less its wire
+       time at the byte rate measured.
+    6. :meth:`_hand_out`: on the caller's clock, never back; the steady time never back either.
     """
 
     __slots__ = ('byte_ns', 'frame_ns', 'period_ns', '_updates', '_last_steady', '_last_stamp', '_last_out',
@@ -80,7 +93,19 @@ class WireStamper:
     def stamp(self, clock_ns: int, monotonic_ns: int, chunk_bytes: int,
               ends: list[int]) -> list[tuple[int, int]]:
         """(stamp, steady) of the frames ending at ``ends`` of a chunk whose read returned at the given times."""
-        offset = clock_ns - monotonic_ns
+        offset = self._clock_offset(clock_ns - monotonic_ns)
+        if not ends:
+            return []
+        previous = self._last_steady
+        steady = self._spread(self._last_departure(monotonic_ns, chunk_bytes, ends[-1]), previous, ends)
+        if previous is not None:
+            self._floor(steady, previous)
+        self._ceiling(steady, monotonic_ns, chunk_bytes, ends)
+        self._last_steady = steady[-1]
+        return self._hand_out(steady, offset)
+
+    def _clock_offset(self, offset: int) -> int:
+        """The offset to stamp this chunk with: ``offset`` read now, or the one before while a step is unconfirmed."""
         self.step_ns = 0
         if self._offset_ns is not None and abs(offset - self._offset_ns) > CLOCK_STEP_NS:
             # A step is taken when a second read agrees on it: one read of a clock that goes back and
@@ -94,37 +119,50 @@ class WireStamper:
         else:
             self._pending_ns = None
         self._offset_ns = offset
-        n = len(ends)
-        if not n:
-            return []
+        return offset
+
+    def _last_departure(self, monotonic_ns: int, chunk_bytes: int, last_end: int) -> int:
+        """When the chunk's last frame (ending at ``last_end``) left the gyro, on the monotonic clock."""
         # The read returned when the chunk's last byte arrived: the last frame's first byte left
         # the gyro its own and every later byte's wire time earlier.
-        last = monotonic_ns - (chunk_bytes - ends[-1]) * self.byte_ns - self.frame_ns
-        previous = self._last_steady
-        spacing: list[float] = [(ends[i + 1] - ends[i]) * self.byte_ns for i in range(n - 1)]
+        return monotonic_ns - (chunk_bytes - last_end) * self.byte_ns - self.frame_ns
+
+    def _spread(self, last: int, previous: int | None, ends: list[int]) -> list[int]:
+        """The chunk's frames, the last at ``last``, each earlier one its wire spacing or a period before the next.
+
+        The period is measured here (from the previous chunk's last frame), and the step between two
+        frames is never more than that measure, so the first never goes before the previous chunk's last.
+        """
+        n = len(ends)
         step = self.period_ns
         if previous is not None and last > previous:
             per_frame = (last - previous) / n
             self._update_period(per_frame)
-            # Never so far apart that the first would go before the previous chunk's last.
             step = min(self.period_ns, per_frame)
         # Frames queued by a stall (or before an open) left the gyro a period apart, not a wire time apart.
-        spacing = [max(s, step) for s in spacing]
+        spacing = [max(float((ends[i + 1] - ends[i]) * self.byte_ns), step) for i in range(n - 1)]
         steady = [last] * n
         for i in range(n - 2, -1, -1):
             steady[i] = steady[i + 1] - int(spacing[i])
-        if previous is not None:
-            floor = previous + self.frame_ns   # frames are at least their wire time apart
-            for i in range(n):
-                if steady[i] < floor:
-                    steady[i] = floor
-                floor = steady[i] + self.frame_ns
-        # Never after the frame arrived: bytes faster than the baud allows (a pty, USB-CDC, a wrong baud) pushed
-        # each frame a wire time after the last, without bound. Then each is stamped at its arrival less its
-        # wire time at the byte rate measured (at most the baud's).
+        return steady
+
+    def _floor(self, steady: list[int], previous: int) -> None:
+        """Frames at least their wire time after the previous chunk's last (``previous``) and after each other."""
+        floor = previous + self.frame_ns
+        for i in range(len(steady)):
+            if steady[i] < floor:
+                steady[i] = floor
+            floor = steady[i] + self.frame_ns
+
+    def _ceiling(self, steady: list[int], monotonic_ns: int, chunk_bytes: int, ends: list[int]) -> None:
+        """Never after a frame arrived, less its wire time at the byte rate measured (at most the baud's).
+
+        Bytes faster than the baud allows (a pty, USB-CDC, a wrong baud) pushed each frame a wire
+        time after the last, without bound; such frames are counted (``ahead``) and said once (``too_fast``).
+        """
         measured = self._byte_ns(monotonic_ns, chunk_bytes)
         byte_ns = min(float(self.byte_ns), measured)
-        for i in range(n):
+        for i in range(len(steady)):
             ceiling = monotonic_ns - int((chunk_bytes - ends[i] + self._frame_bytes) * byte_ns)
             if steady[i] > ceiling:
                 steady[i] = ceiling
@@ -133,7 +171,9 @@ class WireStamper:
                     self.too_fast = (f'frames arrive faster than {self.baud} baud allows ({1e9 / byte_ns:.0f} '
                                      f'bytes/s measured, {self.baud // BITS_PER_BYTE} at most): stamped at arrival '
                                      'less their wire time at the measured rate; check the baud parameter')
-        self._last_steady = steady[-1]
+
+    def _hand_out(self, steady: list[int], offset: int) -> list[tuple[int, int]]:
+        """(stamp, steady) on the caller's clock by ``offset``: neither goes back (but a stamp at a clock step)."""
         out = []
         for t in steady:
             stamp = t + offset
