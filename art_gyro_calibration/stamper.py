@@ -15,7 +15,7 @@ from art_gyro_calibration.frame import BITS_PER_BYTE
 
 # A change of the clock's offset from the monotonic clock between two reads beyond this is a step
 # (NTP slews at most 0.5 ms/s). A simulated /clock published at 100 Hz reaches the node's clock
-# late, by up to a few hundred ms when its executor is busy (measured: 0.29 and 0.36 s): within
+# late, by up to a few hundred ms when its executor is busy: within
 # this it is jitter, which stamps never follow backwards.
 CLOCK_STEP_NS = 1_000_000_000
 # A measured interval per frame this far from the period estimate is a lost frame or a reopen, not the period.

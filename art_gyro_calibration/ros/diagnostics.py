@@ -11,20 +11,22 @@ import math
 import time
 from typing import Any, Protocol
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+# The message wheels ship no type hints.
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue   # type: ignore[import-untyped]
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock
 from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 
-from art_gyro_calibration.calibration import Calibration
-from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, PLAUSIBLE_TEMPERATURE_C, FrameCorrector
+from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibration
+from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, FrameCorrector
 from art_gyro_calibration.driver import DriverStats, SerialGyroDriver
 from art_gyro_calibration.frame import AXIS_INVALID, NOT_FINITE, ProtocolDescription
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.parameters import EXTRA_SIGNAL_MESSAGES, ExtraSignal, Settings, ros_type_name
 from art_gyro_calibration.ros.raw_log import LOG_RETRY_S, RawLog
+from art_gyro_calibration.ros.rclpy_typed import Logger
 from art_gyro_calibration.signals import SignalFeed
 
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -49,6 +51,9 @@ class DiagnosedNode(Protocol):
 
     def get_clock(self) -> Clock:
         """The node's clock: the stamp of each report."""
+
+    def get_logger(self) -> Logger:
+        """The node's logger: a wrong output rate is said on the console too."""
 
     def get_fully_qualified_name(self) -> str:
         """The node's name with its namespace: the prefix of each status."""
@@ -86,13 +91,14 @@ class Diagnostics:
         self._window_start = time.monotonic()
         self._frames = SinceLastReport()
         self._dropped = {reason: SinceLastReport() for reason in node.corrector.dropped}
-        self._lost = SinceLastReport()                # kvh_fog: sequence gaps
-        self._invalid = SinceLastReport()             # kvh_fog: frames the gyro flagged invalid
+        self._lost = SinceLastReport()                # gaps in the gyro's sequence numbers (kvh_fog numbers them)
+        self._invalid = SinceLastReport()             # frames the gyro flagged invalid (AXIS_INVALID)
         self._outside_range = SinceLastReport()       # frames outside the expected range (Compensator.outside_range)
         self._implausible = SinceLastReport()
         self._not_finite = [SinceLastReport() for _ in node.feeds]   # per extra signal: values refused
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        node.create_timer(DIAGNOSTICS_PERIOD_S, self._publish, callback_group=MutuallyExclusiveCallbackGroup())
+        group = MutuallyExclusiveCallbackGroup()   # type: ignore[no-untyped-call]  # rclpy: __init__ unannotated
+        node.create_timer(DIAGNOSTICS_PERIOD_S, self._publish, callback_group=group)
 
     def _publish(self) -> None:
         node = self._node
