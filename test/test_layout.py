@@ -13,6 +13,7 @@ REPO = Path(__file__).resolve().parent.parent
 PACKAGE = REPO / 'art_gyro_calibration'
 ANALYSIS_ONLY = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl', 'rosbags')
 RUNTIME_MODULES = ('ros.node', 'ros.parameters', 'ros.bias_service', 'ros.raw_log', 'ros.diagnostics', 'ros.monitor',
+                   'ros.rclpy_typed',
                    'driver', 'stamper', 'frame', 'protocols', 'protocols.rd2100_binary', 'protocols.rd2100_ascii',
                    'protocols.kvh_fog', 'fake_gyro', 'gyro_physics', 'compensation', 'calibration', 'static_bias',
                    'signals', 'terms', 'model', 'log')
