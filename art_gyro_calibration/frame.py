@@ -29,8 +29,6 @@ UNLOCKED = 'unlocked'
 # starting where the last ended, is what a gyro sends and noise does not (about 1 in 256**3 windows).
 LOCK_FRAMES = 3
 STANDARD_GRAVITY = 9.80665   # m/s^2 per g (an IMU's acceleration unit)
-# Why a temperature outside the plausible range may come from an RD2100 (beside a corrupt frame).
-RD2100_TEMPERATURE_HINT = 'the temperature field is not m[3]:m[4] on this unit'
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,7 +119,7 @@ class ProtocolDescription:
     stamps_by_unit_clock: bool = False
     imu_axes: tuple[tuple[int, float], ...] = ()
     reports_rate: bool = False
-    temperature_hint: str = RD2100_TEMPERATURE_HINT
+    temperature_hint: str = 'the temperature field is not m[3]:m[4] on this unit'   # m: the RD2100's 7-bit groups
 
     def rate_error(self, measured_hz: float | None) -> str:
         """Why the unit is not sending at the rate it is said to ('' when it is, or nothing is said or measured)."""
