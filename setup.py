@@ -33,7 +33,8 @@ setup(
     entry_points={
         'console_scripts': [
             'gyro_node = art_gyro_calibration.ros.node:main',
-            'fake_rd2100 = art_gyro_calibration.fake_rd2100:main',
+            'fake_gyro = art_gyro_calibration.fake_gyro:main',
+            'fake_rd2100 = art_gyro_calibration.fake_gyro:main',   # its name before it simulated KVH units too
             'calibrate = art_gyro_calibration.analysis.cli:main',
             'imu_echo = art_gyro_calibration.ros.monitor:main',
         ],

@@ -1,4 +1,4 @@
-"""The RD2100 serial driver: reads frames on its own thread and stamps them (no ROS).
+"""The serial gyro driver: reads frames of any protocol on its own thread and stamps them (no ROS).
 
 The reader thread owns the port: it opens it, reads what is available, parses and
 stamps frames, and when the port is missing or disappears (unplugged) it closes it,
@@ -23,23 +23,14 @@ from dataclasses import dataclass
 import serial
 
 from art_gyro_calibration.frame import LOCK_FRAMES, Frame, RawSample
-from art_gyro_calibration.kvh_fog import KVH_BAUDS, KvhFogConfig, KvhFogParser, KvhSample, UnitClock
-from art_gyro_calibration.protocols import make_parser
+from art_gyro_calibration.protocols import KVH_BAUDS, KvhFogConfig, make_parser
+from art_gyro_calibration.stamper import UnitClock, WireStamper, wire_byte_ns
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 # Every rate the driver opens: the standard ones and a KVH unit's (576000, 4147200: pyserial sets them on Linux).
 BAUDS = tuple(sorted(set(STANDARD_BAUDS) | set(KVH_BAUDS)))
 # A read returns after this long without data: bounds how late stop() and an unplug are seen.
 READ_TIMEOUT_S = 0.1
-BITS_PER_BYTE = 10   # start + 8 data + stop
-# A change of the clock's offset from the monotonic clock between two reads beyond this is a step
-# (NTP slews at most 0.5 ms/s). A simulated /clock published at 100 Hz reaches the node's clock
-# late, by up to a few hundred ms when its executor is busy (measured: 0.29 and 0.36 s): within
-# this it is jitter, which stamps never follow backwards.
-CLOCK_STEP_NS = 1_000_000_000
-# A measured interval per frame this far from the period estimate is a lost frame or a reopen, not the period.
-PERIOD_ACCEPT = (0.6, 1.6)
-PERIOD_SMOOTHING = 16   # the estimate averages about this many chunks
 # After the port opens, this long without a valid frame means the wrong baud rate or protocol (or no gyro).
 NO_FRAMES_WARNING_S = 2.0
 # Once frames came: more than this share of the bytes of a NO_FRAMES_WARNING_S window skipped (garbage, bad or
@@ -67,142 +58,47 @@ class DriverStats:
     last_error: str
     port: str
     lost_frames: int = 0   # numbered by the gyro but never received whole (kvh_fog sequence gaps)
-    measured_rate_hz: float | None = None   # kvh_fog: messages per second, measured (None until known)
-    garbage_runs: int = 0   # kvh_fog: runs of bytes that were no message (not counted as rejected messages)
+    measured_rate_hz: float | None = None   # frames per second as the parser measures them (kvh_fog), else None
+    garbage_runs: int = 0   # runs of bytes that were no message, where not counted as rejected messages (kvh_fog)
     stamp_source: str = 'arrival'   # where the latest stamps came from: arrival, or unit_clock (kvh_fog Format B)
 
 
-class WireStamper:
-    """Stamps of the frames of each read chunk: wire time subtracted, spaced by the gyro's period, on a clock.
+class RateJumpGuard:
+    """Refuses a frame whose raw rate moved from the last one delivered faster than MAX_ANGULAR_ACCEL_DPS2 allows.
 
-    Times are kept on the monotonic clock and moved onto the caller's clock by its current
-    offset; the period is the mean, over about PERIOD_SMOOTHING chunks, of the time between the
-    last frames of consecutive chunks divided by the frames in the later one, which stays right
-    when frames queued during a stall arrive in one burst.
+    For counts behind a weak checksum (the RD2100's): a corrupt frame whose checksum passed. It counts
+    what it refuses (``rejected``); the driver delivers the rest.
     """
 
-    __slots__ = ('byte_ns', 'frame_ns', 'period_ns', '_updates', '_last_steady', '_last_stamp', '_last_out',
-                 '_offset_ns', '_pending_ns', 'steps_ns', 'step_ns', '_frame_bytes', '_bytes', '_first_ns', 'baud',
-                 'too_fast', 'ahead')
+    __slots__ = ('_counts_per_ns', '_min_elapsed_ns', '_trusted', 'rejected')
 
-    def __init__(self, baud: int, frame_bytes: int) -> None:
-        self.byte_ns = BITS_PER_BYTE * 1_000_000_000 // baud
-        self.frame_ns = frame_bytes * self.byte_ns
-        self.period_ns = 0.0            # 0: not known yet
-        self._updates = 0
-        self._last_steady: int | None = None   # monotonic time of the last frame stamped
-        self._last_stamp = 0
-        self._last_out = 0                     # the last steady time handed out
-        self._offset_ns: int | None = None     # caller's clock minus the monotonic clock
-        self._pending_ns: int | None = None    # an offset one read saw beyond a step, not yet confirmed
-        self.steps_ns = 0               # sum of the clock steps re-anchored to
-        self.step_ns = 0                # the step found by the latest chunk, 0 if none
-        self.baud = baud
-        self._frame_bytes = frame_bytes
-        self._bytes = 0                 # bytes read, and when the first chunk's read returned: the byte rate
-        self._first_ns: int | None = None
-        self.too_fast = ''              # set once, when frames first came faster than the baud allows: why
-        self.ahead = 0                  # frames that would have been stamped after they arrived (fell back)
+    def __init__(self, rate_scale_dps: float, min_elapsed_ns: int) -> None:
+        """``rate_scale_dps``: deg/s per count; ``min_elapsed_ns``: a frame's wire time (frames are that far apart)."""
+        self._counts_per_ns = MAX_ANGULAR_ACCEL_DPS2 * 1e-9 / rate_scale_dps
+        self._min_elapsed_ns = min_elapsed_ns
+        self._trusted: tuple[float, int] | None = None   # (raw rate, steady ns) of the last frame delivered
+        self.rejected = 0
 
-    def restart(self) -> None:
-        """After a reopen: the next chunk does not measure the period (the link was down meanwhile)."""
-        self._last_steady = None
+    def reset(self) -> None:
+        """After a reopen: the next frame is trusted."""
+        self._trusted = None
 
-    @property
-    def offset_ns(self) -> int:
-        """The caller's clock less the monotonic clock, as the latest chunk was stamped with."""
-        return self._offset_ns or 0
-
-    def stamp(self, clock_ns: int, monotonic_ns: int, chunk_bytes: int,
-              ends: list[int]) -> list[tuple[int, int]]:
-        """(stamp, steady) of the frames ending at ``ends`` of a chunk whose read returned at the given times."""
-        offset = clock_ns - monotonic_ns
-        self.step_ns = 0
-        if self._offset_ns is not None and abs(offset - self._offset_ns) > CLOCK_STEP_NS:
-            # A step is taken when a second read agrees on it: one read of a clock that goes back and
-            # forth (a simulated /clock whose messages two executor threads apply out of order) is none.
-            if self._pending_ns is not None and abs(offset - self._pending_ns) <= CLOCK_STEP_NS:
-                self.step_ns = offset - self._offset_ns
-                self.steps_ns += self.step_ns
-                self._pending_ns = None
-            else:
-                self._pending_ns, offset = offset, self._offset_ns   # this chunk stays on the clock as it was
-        else:
-            self._pending_ns = None
-        self._offset_ns = offset
-        n = len(ends)
-        if not n:
-            return []
-        # The read returned when the chunk's last byte arrived: the last frame's first byte left
-        # the gyro its own and every later byte's wire time earlier.
-        last = monotonic_ns - (chunk_bytes - ends[-1]) * self.byte_ns - self.frame_ns
-        previous = self._last_steady
-        spacing: list[float] = [(ends[i + 1] - ends[i]) * self.byte_ns for i in range(n - 1)]
-        step = self.period_ns
-        if previous is not None and last > previous:
-            per_frame = (last - previous) / n
-            self._update_period(per_frame)
-            # Never so far apart that the first would go before the previous chunk's last.
-            step = min(self.period_ns, per_frame)
-        # Frames queued by a stall (or before an open) left the gyro a period apart, not a wire time apart.
-        spacing = [max(s, step) for s in spacing]
-        steady = [last] * n
-        for i in range(n - 2, -1, -1):
-            steady[i] = steady[i + 1] - int(spacing[i])
-        if previous is not None:
-            floor = previous + self.frame_ns   # frames are at least their wire time apart
-            for i in range(n):
-                if steady[i] < floor:
-                    steady[i] = floor
-                floor = steady[i] + self.frame_ns
-        # Never after the frame arrived: bytes faster than the baud allows (a pty, USB-CDC, a wrong baud) pushed
-        # each frame a wire time after the last, without bound. Then each is stamped at its arrival less its
-        # wire time at the byte rate measured (at most the baud's).
-        measured = self._byte_ns(monotonic_ns, chunk_bytes)
-        byte_ns = min(float(self.byte_ns), measured)
-        for i in range(n):
-            ceiling = monotonic_ns - int((chunk_bytes - ends[i] + self._frame_bytes) * byte_ns)
-            if steady[i] > ceiling:
-                steady[i] = ceiling
-                self.ahead += 1
-                if not self.too_fast and measured < self.byte_ns:   # not a late read alone: bytes beyond the baud
-                    self.too_fast = (f'frames arrive faster than {self.baud} baud allows ({1e9 / byte_ns:.0f} '
-                                     f'bytes/s measured, {self.baud // BITS_PER_BYTE} at most): stamped at arrival '
-                                     'less their wire time at the measured rate; check the baud parameter')
-        self._last_steady = steady[-1]
-        out = []
-        for t in steady:
-            stamp = t + offset
-            if not self.step_ns and stamp <= self._last_stamp:   # jitter of a coarse clock: never back
-                stamp = self._last_stamp + 1
-            self._last_stamp = stamp
-            # The steady time never goes back either, a step's chunk included: the stamps before it may have
-            # been held up by a stale clock read (a /clock 50 ms late, then a step: the raw log went 20 ms back).
-            clean = max(stamp - self.steps_ns, self._last_out + 1)
-            self._last_out = clean
-            out.append((stamp, clean))
-        return out
-
-    def _byte_ns(self, monotonic_ns: int, chunk_bytes: int) -> float:
-        """Mean time per byte received since the first read (idle time included: an upper bound)."""
-        if self._first_ns is None:
-            self._first_ns = monotonic_ns
-            return math.inf
-        self._bytes += chunk_bytes
-        return (monotonic_ns - self._first_ns) / self._bytes
-
-    def _update_period(self, per_frame: float) -> None:
-        period = self.period_ns
-        # Outliers are refused only once the estimate has settled: a wrong first measure (queued frames read in
-        # two chunks a wire time apart) would otherwise refuse every right one after it, for good.
-        if self._updates >= PERIOD_SMOOTHING and not PERIOD_ACCEPT[0] < per_frame / period < PERIOD_ACCEPT[1]:
-            return
-        self._updates += 1
-        self.period_ns = period + (per_frame - period) / min(self._updates, PERIOD_SMOOTHING)
+    def passes(self, raw_rate: float, steady_ns: int) -> bool:
+        """Whether a frame is delivered; one that is not is counted in ``rejected``."""
+        trusted = self._trusted
+        if trusted is not None:
+            # At least a frame's wire time apart: the stamps are estimates (one pushed back to its arrival may come
+            # closer to the last), the wire is not.
+            elapsed = max(steady_ns - trusted[1], self._min_elapsed_ns)
+            if abs(raw_rate - trusted[0]) > self._counts_per_ns * elapsed:
+                self.rejected += 1
+                return False
+        self._trusted = (raw_rate, steady_ns)
+        return True
 
 
-class Rd2100Driver:
-    """Reads an RD2100 on ``port``, calling ``on_frame`` for every valid frame (on the reader thread)."""
+class SerialGyroDriver:
+    """Reads a gyro of any protocol on ``port``, calling ``on_frame`` for every valid frame (on the reader thread)."""
 
     def __init__(self, port: str, baud: int, protocol: str, on_frame: Callable[[Frame], None], *,
                  clock_ns: Callable[[], int] = time.time_ns, reopen_period_s: float = 0.5,
@@ -211,8 +107,9 @@ class Rd2100Driver:
                  monotonic_ns: Callable[[], int] = time.monotonic_ns, rate_scale_dps: float | None = None) -> None:
         """``clock_ns`` is the stamps' clock; ``on_warning`` hears of clock steps and of no frames after an open.
 
-        ``rate_scale_dps`` (deg/s per count, the calibration's rate_scale_factor) turns on the RD2100 protocols'
-        rate-jump check (MAX_ANGULAR_ACCEL_DPS2); None: no check (kvh_fog is left to its CRC-32).
+        ``rate_scale_dps`` (deg/s per count, the calibration's rate_scale_factor) turns on the rate-jump check
+        (:class:`RateJumpGuard`) of the protocols whose description asks for it (the RD2100's; kvh_fog is left to
+        its CRC-32); None: no check.
         """
         if not isinstance(port, str) or not port:
             raise ValueError(f'port must be a device path such as /dev/ttyUSB0, got {port!r}')
@@ -221,16 +118,15 @@ class Rd2100Driver:
                              f'one of {", ".join(map(str, BAUDS))}')
         if not (isinstance(reopen_period_s, (int, float)) and math.isfinite(reopen_period_s) and reopen_period_s > 0):
             raise ValueError(f'reopen_period_s must be a positive number of seconds, got {reopen_period_s!r}')
-        self._parser = make_parser(protocol, kvh_fog, LOCK_FRAMES)   # a frame is trusted once the stream is locked
+        # A frame is trusted once the stream is locked.
+        self._parser = make_parser(protocol, kvh_fog, LOCK_FRAMES, wire_byte_ns(baud))
         if rate_scale_dps is not None and not (isinstance(rate_scale_dps, (int, float))
                                                and math.isfinite(rate_scale_dps) and rate_scale_dps > 0):
             raise ValueError(f'rate_scale_dps must be a positive number of deg/s per count, got {rate_scale_dps!r}')
-        # Counts per nanosecond between frames that the rate may change by, or 0: no check.
-        self._jump_counts_per_ns = (MAX_ANGULAR_ACCEL_DPS2 * 1e-9 / rate_scale_dps
-                                    if rate_scale_dps is not None and protocol != 'kvh_fog' else 0.0)
-        if self._jump_counts_per_ns:
-            self._parser.stats.rejected_by_reason[RATE_JUMP] = 0
-        self._trusted: tuple[float, int] | None = None   # (raw rate, steady ns) of the last frame delivered
+        self._stamper = WireStamper(baud, self._parser.frame_bytes)
+        description = self._parser.description
+        self._jump_guard = (RateJumpGuard(rate_scale_dps, self._stamper.frame_ns)
+                            if rate_scale_dps is not None and description.checks_rate_jumps else None)
         self.port = port
         self.baud = baud
         self.protocol = protocol
@@ -247,14 +143,9 @@ class Rd2100Driver:
         self._window_bytes = 0
         self._window_skipped = 0
         self._reopen_period_s = float(reopen_period_s)
-        self._stamper = WireStamper(baud, self._parser.frame_bytes)
         self._too_fast_said = False
-        # kvh_fog: its delta angles need the stream's arrival times.
-        self._kvh = self._parser if isinstance(self._parser, KvhFogParser) else None
-        if self._kvh is not None:
-            self._kvh.byte_ns = self._stamper.byte_ns
-        # kvh_fog timestamp_source unit_clock: Format B's clock mapped onto the monotonic clock.
-        self._unit_clock = UnitClock() if kvh_fog is not None and kvh_fog.timestamp_source == 'unit_clock' else None
+        # Samples stamped by the unit's clock (kvh_fog Format B's) mapped onto the monotonic clock.
+        self._unit_clock = UnitClock() if description.stamps_by_unit_clock else None
         self._clock_faults = 0
         self._stamp_source = 'arrival'
         self._last_stamp = 0
@@ -269,21 +160,32 @@ class Rd2100Driver:
 
     @property
     def stats(self) -> DriverStats:
-        """Counters so far and whether the port is open now."""
+        """Counters so far and whether the port is open now: ``frames`` those delivered."""
         p = self._parser.stats
-        return DriverStats(frames=p.frames, rejected=p.rejected, rejected_by_reason=dict(p.rejected_by_reason),
+        reasons = self._rejected_by_reason()
+        return DriverStats(frames=self._delivered(), rejected=sum(reasons.values()), rejected_by_reason=reasons,
                            bytes_skipped=p.bytes_skipped, reopens=self._reopens, connected=self._connected,
                            last_error=self._last_error, port=self.port, lost_frames=p.lost_frames,
-                           measured_rate_hz=None if self._kvh is None else self._kvh.measured_rate_hz,
-                           garbage_runs=0 if self._kvh is None else self._kvh.garbage_runs,
+                           measured_rate_hz=self._parser.measured_rate_hz, garbage_runs=p.garbage_runs,
                            stamp_source=self._stamp_source)
+
+    def _delivered(self) -> int:
+        """Frames handed to ``on_frame`` (or being handed): the parser's, less those the rate-jump guard refused."""
+        return self._parser.stats.frames - (self._jump_guard.rejected if self._jump_guard is not None else 0)
+
+    def _rejected_by_reason(self) -> dict[str, int]:
+        """The parser's rejections by reason, and the rate-jump guard's if it checks."""
+        reasons = dict(self._parser.stats.rejected_by_reason)
+        if self._jump_guard is not None:
+            reasons[RATE_JUMP] = self._jump_guard.rejected
+        return reasons
 
     def start(self) -> None:
         """Start the reader thread; returns at once, even if the port is missing (it retries)."""
         if self._thread is not None:
-            raise RuntimeError('Rd2100Driver already started')
+            raise RuntimeError('SerialGyroDriver already started')
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f'rd2100 {self.port}', daemon=True)
+        self._thread = threading.Thread(target=self._run, name=f'gyro {self.port}', daemon=True)
         self._thread.start()
 
     def stop(self, timeout_s: float = 2.0) -> None:
@@ -321,12 +223,13 @@ class Rd2100Driver:
         self._serial, self._identity = port, (st.st_dev, st.st_ino)
         self._parser.reset()
         self._stamper.restart()
-        self._trusted = None
+        if self._jump_guard is not None:
+            self._jump_guard.reset()
         if self._unit_clock is not None:
             self._unit_clock.reset()   # the unit's clock is read anew from 0: the mapping too
             self._stamp_source = 'arrival'
         self._opened_ns = self._monotonic_ns()
-        self._frames_at_open = self._parser.stats.frames
+        self._frames_at_open = self._delivered()
         self._quiet_warned = False
         self._window_ns, self._window_bytes = self._opened_ns, 0
         self._window_skipped = self._parser.stats.bytes_skipped
@@ -374,7 +277,7 @@ class Rd2100Driver:
             self._check_path()
             self._check_quiet(monotonic_ns)
             return
-        frames = self._parser.feed(data) if self._kvh is None else self._kvh.feed(data, monotonic_ns)
+        frames = self._parser.feed(data, monotonic_ns)
         self._window_bytes += len(data)
         if monotonic_ns - self._window_ns >= NO_FRAMES_WARNING_S * 1e9:
             self._check_share(monotonic_ns)
@@ -387,39 +290,25 @@ class Rd2100Driver:
                        'stamps re-anchored to it')
         if self._unit_clock is not None and frames:
             stamps = self._unit_clock_stamps(frames, stamps, monotonic_ns, len(data))
+        guard = self._jump_guard
         for (sample, _), (stamp, steady) in zip(frames, stamps):
-            if self._jump_counts_per_ns and self._jumped(sample.raw_rate, steady):
-                continue
-            self._on_frame(Frame(sample, stamp, steady))
+            if guard is None or guard.passes(sample.raw_rate, steady):
+                self._on_frame(Frame(sample, stamp, steady))
         if not frames:
             self._check_quiet(monotonic_ns)
-
-    def _jumped(self, raw_rate: float, steady_ns: int) -> bool:
-        """Whether the rate changed beyond MAX_ANGULAR_ACCEL_DPS2 since the last frame delivered (then counted)."""
-        trusted = self._trusted
-        # At least a frame's wire time apart: the stamps are estimates (one pushed back to its arrival may come
-        # closer to the last), the wire is not.
-        elapsed = max(steady_ns - trusted[1], self._stamper.frame_ns) if trusted is not None else 0
-        if trusted is not None and abs(raw_rate - trusted[0]) > self._jump_counts_per_ns * elapsed:
-            stats = self._parser.stats
-            stats.rejected_by_reason[RATE_JUMP] += 1
-            stats.frames -= 1
-            return True
-        self._trusted = (raw_rate, steady_ns)
-        return False
 
     def _unit_clock_stamps(self, frames: list[tuple[RawSample, int]], stamps: list[tuple[int, int]],
                            monotonic_ns: int, chunk_bytes: int) -> list[tuple[int, int]]:
         """Stamps by Format B's clock once it is mapped (never after the arrival's, never back), else by arrival."""
-        clock, parser = self._unit_clock, self._kvh
-        assert clock is not None and parser is not None
-        if parser.clock_faults != self._clock_faults:
-            self._clock_faults = parser.clock_faults
+        clock, faults = self._unit_clock, self._parser.stats.clock_faults
+        assert clock is not None
+        if faults != self._clock_faults:
+            self._clock_faults = faults
             clock.reset()
             if self._stamp_source == 'unit_clock':
                 self._warn('kvh_fog: the unit\'s clock went back or leapt: stamps by arrival until it is mapped again')
         sample, end = frames[-1]
-        if isinstance(sample, KvhSample) and sample.unit_time_us is not None:
+        if sample.unit_time_us is not None:
             # As the stamper: the message's first byte left the unit its wire time before its last byte arrived.
             stamper = self._stamper
             clock.add(sample.unit_time_us, monotonic_ns - (chunk_bytes - end) * stamper.byte_ns - stamper.frame_ns)
@@ -433,7 +322,7 @@ class Rd2100Driver:
         out = []
         for (sample, _), (arrival, _steady) in zip(frames, stamps):
             stamp = arrival
-            if isinstance(sample, KvhSample) and sample.unit_time_us is not None:
+            if sample.unit_time_us is not None:
                 stamp = min(latest, clock.map(sample.unit_time_us) + offset)
             if stamp <= self._last_stamp and not self._stamper.step_ns:   # never back, but a clock step
                 stamp = self._last_stamp + 1
@@ -448,12 +337,12 @@ class Rd2100Driver:
     def _check_quiet(self, monotonic_ns: int) -> None:
         """Warn once per open when no frame came for NO_FRAMES_WARNING_S: say what did come and the likely cause."""
         stats = self._parser.stats
-        if (self._quiet_warned or stats.frames != self._frames_at_open
+        if (self._quiet_warned or self._delivered() != self._frames_at_open
                 or monotonic_ns - self._opened_ns < NO_FRAMES_WARNING_S * 1e9):
             return
         self._quiet_warned = True
         if stats.bytes_skipped:
-            rejected = ', '.join(f'{count} {reason}' for reason, count in stats.rejected_by_reason.items() if count)
+            rejected = ', '.join(f'{count} {reason}' for reason, count in self._rejected_by_reason().items() if count)
             self._warn(f'no valid frame from {self.port} in {NO_FRAMES_WARNING_S:g} s after opening it; '
                        f'{stats.bytes_skipped} bytes skipped so far ({rejected}): check the baud rate '
                        f'({self.baud}) and the protocol ({self.protocol}) against the gyro\'s settings')
@@ -469,11 +358,11 @@ class Rd2100Driver:
         seconds = (monotonic_ns - self._window_ns) * 1e-9
         total = self._window_bytes
         self._window_ns, self._window_bytes, self._window_skipped = monotonic_ns, 0, stats.bytes_skipped
-        if stats.frames == self._frames_at_open:
+        if self._delivered() == self._frames_at_open:
             return   # no frame since the open: _check_quiet says so
         if share > BAD_SHARE_WARNING and not self._share_warned:
             self._share_warned = True
-            rejected = ', '.join(f'{count} {reason}' for reason, count in stats.rejected_by_reason.items() if count)
+            rejected = ', '.join(f'{count} {reason}' for reason, count in self._rejected_by_reason().items() if count)
             self._warn(f'{100 * share:.0f} % of the {total} bytes from {self.port} in the last {seconds:.1f} s were '
                        f'no valid frame (rejected so far: {rejected}): check the baud rate ({self.baud}) and the '
                        f'protocol ({self.protocol}) against the gyro\'s settings, and the cable')

@@ -1,6 +1,6 @@
 """What a calibrated gyro reads: the physics the runtime fake gyro and the rate-table simulator share.
 
-Numpy only (no ROS, no scipy): the fake gyro (:mod:`art_gyro_calibration.fake_rd2100`) runs on a
+Numpy only (no ROS, no scipy): the fake gyro (:mod:`art_gyro_calibration.fake_gyro`) runs on a
 robot's runtime install. Each simulator keeps its own defaults (noise level, turn-on bias,
 temperature profile); the Earth's rate, the site, the inverse of the ART model, the white
 noise per sample and the counts are the same in both.

@@ -25,12 +25,12 @@ import numpy as np
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.compensation import FrameCorrector
 from art_gyro_calibration.frame import LOCK_FRAMES
-from art_gyro_calibration.rd2100_binary import BinaryFrameParser, encode_binary
+from art_gyro_calibration.protocols.rd2100_binary import BinaryFrameParser, encode_binary
 
 GOOD_TEMP = 500   # counts: 25 degC; the valid frames carry this and a rate count of 7, garbage rarely does
 
 
-def run(name: str, data: bytes, lock_frames: int = LOCK_FRAMES) -> dict:
+def run(name: str, data: bytes, lock_frames: int = LOCK_FRAMES) -> dict[str, object]:
     """Parse ``data`` in 4 KiB reads and correct every frame; the counts."""
     parser = BinaryFrameParser(lock_frames)
     corrector = FrameCorrector(load_packaged_calibration('NAVC3545'))

@@ -33,16 +33,16 @@ def main() -> int:
     sys.path[:0] = [args.source, str(Path(args.source) / 'test')]
     os.environ['PYTHONPATH'] = args.source
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    from rosproc import REPO, domain_id, node_with_listener
+    from rosproc import REPO, domain_id, node_with_listener   # type: ignore[import-not-found]  # test/: sys.path
 
-    from art_gyro_calibration.fake_rd2100 import FakeRd2100
-    from art_gyro_calibration.kvh_fog import KvhFogConfig
+    from art_gyro_calibration.fake_gyro import FakeGyro
+    from art_gyro_calibration.protocols.kvh_fog import KvhFogConfig
     extra = ['-p', f'kvh_fog.message_format:={args.format}']
     if args.format == 'B':
         extra += ['-p', 'kvh_fog.timestamp_source:=unit_clock']
     out = Path('/tmp') / f'bench_kvh_node_{os.getpid()}.log'
-    with (FakeRd2100('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=1000, profile='0', seed=1,
-                     kvh_fog=KvhFogConfig(message_format=args.format)) as fake,
+    with (FakeGyro('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=1000, profile='0', seed=1,
+                   kvh_fog=KvhFogConfig(message_format=args.format)) as fake,
           node_with_listener(domain_id(), out, '--params-file', str(REPO / 'config' / 'kvh_fog.params.yaml'),
                              '-p', f'port:={fake.path}', *extra) as (proc, listener)):
         time.sleep(5.0)

@@ -61,10 +61,13 @@ def raw_rates() -> np.ndarray:
 def run_subscriber(out: str) -> int:
     """Record (arrival ns, rate, stamp) of every Imu message and the node's last link status; 'stop' on stdin ends."""
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
+    from diagnostic_msgs.msg import DiagnosticArray   # type: ignore[import-untyped]  # the message wheels: no hints
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import Imu
+    from rclpy.qos import ReliabilityPolicy
+    from rclpy.utilities import try_shutdown
+    from sensor_msgs.msg import Imu   # type: ignore[import-untyped]
+
+    from art_gyro_calibration.ros.rclpy_typed import qos_profile
 
     rclpy.init()
     node = rclpy.create_node('bench_subscriber')
@@ -88,7 +91,7 @@ def run_subscriber(out: str) -> int:
                 link.clear()
                 link.update({kv.key: kv.value for kv in s.values}, message=s.message)
 
-    reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    reliable = qos_profile(1000, reliability=ReliabilityPolicy.RELIABLE)
     node.create_subscription(Imu, 'imu/data_raw', on_imu, reliable)
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
     executor = SingleThreadedExecutor()
@@ -102,8 +105,8 @@ def run_subscriber(out: str) -> int:
     np.savez(out, arrival=np.array(arrival, dtype=np.int64), rate=np.array(rate),
              stamp=np.array(stamp, dtype=np.int64))
     Path(out + '.json').write_text(json.dumps({'link': link, 'cpu_s': usage.user + usage.system}))
-    node.destroy_node()
-    rclpy.try_shutdown()
+    node.destroy_node()   # type: ignore[no-untyped-call]  # rclpy: destroy_node unannotated
+    try_shutdown()
     return 0
 
 
@@ -135,7 +138,7 @@ class Writer:
     """Writes frame ``seq`` at its deadline and records when each write returned."""
 
     def __init__(self, master: int, capacity: int) -> None:
-        from art_gyro_calibration.rd2100_binary import encode_binary
+        from art_gyro_calibration.protocols.rd2100_binary import encode_binary
         self.master = master
         self.frames = [encode_binary(int(r), RAW_TEMP) for r in raw_rates()]
         self.mono_ns = np.zeros(capacity, dtype=np.int64)
@@ -238,8 +241,8 @@ def run(args: argparse.Namespace) -> int:
     tty.setraw(slave)   # no byte translated
     port = os.ttyname(slave)
     writer = Writer(master, capacity)
-    from art_gyro_calibration.driver import WireStamper
-    from art_gyro_calibration.rd2100_binary import BINARY_FRAME_BYTES
+    from art_gyro_calibration.protocols.rd2100_binary import BINARY_FRAME_BYTES
+    from art_gyro_calibration.stamper import WireStamper
     frame_ns = WireStamper(args.baud, BINARY_FRAME_BYTES).frame_ns   # the wire time the node subtracts
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / 'node.log'
@@ -252,6 +255,7 @@ def run(args: argparse.Namespace) -> int:
                 env=child_env(domain), cwd=REPO, stdout=node_out, stderr=subprocess.STDOUT)
         sub = subprocess.Popen([sys.executable, __file__, '--subscriber', out], env=child_env(domain), cwd=REPO,
                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        assert sub.stdin is not None and sub.stdout is not None   # both piped
         try:
             # Warm-up at 10 Hz until the subscriber hears the node (discovery, imports).
             heard = threading.Event()

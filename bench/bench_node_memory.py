@@ -23,7 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from art_gyro_calibration.fake_rd2100 import FakeRd2100
+from art_gyro_calibration.fake_gyro import FakeGyro
 
 STAGES = '''
 import json, os, sys, threading, time
@@ -112,7 +112,7 @@ def run_node(seconds: float, subscriber: bool = False, floor: bool = False) -> d
 
     ``floor``: the bare node of :data:`FLOOR` instead of ``gyro_node``.
     """
-    with tempfile.TemporaryDirectory() as tmp, FakeRd2100('NAVC3545', profile='0', seed=1) as fake:
+    with tempfile.TemporaryDirectory() as tmp, FakeGyro('NAVC3545', profile='0', seed=1) as fake:
         env = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
         echo = (subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--every', '1000000'],
                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -13,9 +13,11 @@ from __future__ import annotations
 from typing import Any
 
 import yaml
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
-from launch_ros.actions import Node
+# ROS 2's launch and launch_ros are no pip wheels: without a ROS install (the venv), mypy finds no module (or this
+# launch/ folder) in their place.
+from launch import LaunchDescription   # type: ignore[attr-defined]
+from launch.actions import DeclareLaunchArgument, OpaqueFunction   # type: ignore[import-not-found]
+from launch_ros.actions import Node   # type: ignore[import-not-found]
 
 # name: (description, the node parameter's type); every default is '' (not given).
 ARGUMENTS = {

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Demo without hardware: a simulated RD2100 (fake_rd2100) on a pseudo-terminal, gyro_node
+# Demo without hardware: a simulated RD2100 (fake_gyro) on a pseudo-terminal, gyro_node
 # compensating its frames, and imu_echo printing the compensated yaw rate in deg/s.
 # Runs for DEMO_SECONDS (default 60) or until Ctrl-C. SERIAL picks the gyro (default NAVC3545).
 # The simulated gyro stays still until the node reports its startup static bias, then turns;
@@ -28,11 +28,11 @@ trap cleanup EXIT
 # The simulated gyro: still until SIGUSR1, then +30, 0, -45, 0 deg/s for 6 s each, repeating.
 .venv/bin/python - "$SERIAL" "$link" <<'PY' >/dev/null &
 import signal, sys, threading
-from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile
+from art_gyro_calibration.fake_gyro import FakeGyro, RateProfile
 turn, done = threading.Event(), threading.Event()
 signal.signal(signal.SIGUSR1, lambda *_: turn.set())
 signal.signal(signal.SIGTERM, lambda *_: done.set())
-with FakeRd2100(sys.argv[1], link=sys.argv[2], profile='0', seed=1) as fake:
+with FakeGyro(sys.argv[1], link=sys.argv[2], profile='0', seed=1) as fake:
     while not (turn.wait(0.2) or done.is_set()):
         pass
     # The profile runs on the fake's clock (period 24 s): rotate it so the turn starts now.

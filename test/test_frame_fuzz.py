@@ -25,10 +25,11 @@ from hypothesis import assume, given, strategies as st
 
 from test_kvh_fog import crc32_mpeg2_bitwise
 
-from art_gyro_calibration.ascii_lines import MAX_LINE_BYTES, AsciiFrameParser, encode_ascii
 from art_gyro_calibration.frame import INT16_MAX, INT16_MIN
-from art_gyro_calibration.kvh_fog import KVH_HEADER_PREFIX, KvhFogConfig, KvhFogParser, crc32_mpeg2, encode_kvh_fog
-from art_gyro_calibration.rd2100_binary import BinaryFrameParser, encode_binary
+from art_gyro_calibration.protocols.kvh_fog import (KVH_HEADER_PREFIX, KvhFogConfig, KvhFogParser, crc32_mpeg2,
+                                                    encode_kvh_fog)
+from art_gyro_calibration.protocols.rd2100_ascii import MAX_LINE_BYTES, AsciiFrameParser, encode_ascii
+from art_gyro_calibration.protocols.rd2100_binary import BinaryFrameParser, encode_binary
 
 int16 = st.integers(INT16_MIN, INT16_MAX)
 good_frames = st.builds(encode_binary, int16, int16)

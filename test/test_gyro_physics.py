@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from art_gyro_calibration.fake_rd2100 import default_noise_dps
+from art_gyro_calibration.fake_gyro import default_noise_dps
 from art_gyro_calibration.gyro_physics import earth_rate_dps, to_counts, white_noise_dps
 
 

@@ -7,10 +7,10 @@ import pytest
 
 from test_driver import wait_for
 
-from art_gyro_calibration.driver import BITS_PER_BYTE, Rd2100Driver
-from art_gyro_calibration.fake_rd2100 import FakeRd2100
-from art_gyro_calibration.frame import Frame
-from art_gyro_calibration.kvh_fog import KvhFogConfig
+from art_gyro_calibration.driver import SerialGyroDriver
+from art_gyro_calibration.fake_gyro import FakeGyro
+from art_gyro_calibration.frame import BITS_PER_BYTE, Frame
+from art_gyro_calibration.protocols.kvh_fog import KvhFogConfig
 
 
 def test_driver_reads_kvh_fog_counts_lost_frames_and_stamps_with_the_message_length():
@@ -22,9 +22,9 @@ def test_driver_reads_kvh_fog_counts_lost_frames_and_stamps_with_the_message_len
             frames.append(frame)
 
     config = KvhFogConfig(message_format='C', yaw_axis='y', rotation='rate', angle_units='deg')
-    with FakeRd2100('NAVC4361', protocol='kvh_fog', rate_hz=200, profile='12.5', temperature=22.0,
-                    noise_dps=0.0, turn_on_bias_dps=0.0, kvh_fog=config) as fake:
-        driver = Rd2100Driver(fake.path, 921600, 'kvh_fog', on_frame, kvh_fog=fake.kvh_fog)
+    with FakeGyro('NAVC4361', protocol='kvh_fog', rate_hz=200, profile='12.5', temperature=22.0,
+                  noise_dps=0.0, turn_on_bias_dps=0.0, kvh_fog=config) as fake:
+        driver = SerialGyroDriver(fake.path, 921600, 'kvh_fog', on_frame, kvh_fog=fake.kvh_fog)
         # The stamp's wire-time correction: the whole 38-byte message of Format C at 921600 baud.
         assert driver._stamper.frame_ns == 38 * (BITS_PER_BYTE * 1_000_000_000 // 921600)
         driver.start()
@@ -49,8 +49,8 @@ def test_driver_opens_a_kvh_unit_at_its_own_bauds(baud):
     """The unit's =BAUD list has rates no RD2100 uses: pyserial sets them on Linux and frames come through."""
     frames: list[Frame] = []
     config = KvhFogConfig(rotation='rate')
-    with FakeRd2100('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=100, kvh_fog=config) as fake:
-        driver = Rd2100Driver(fake.path, baud, 'kvh_fog', frames.append, kvh_fog=fake.kvh_fog)
+    with FakeGyro('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=100, kvh_fog=config) as fake:
+        driver = SerialGyroDriver(fake.path, baud, 'kvh_fog', frames.append, kvh_fog=fake.kvh_fog)
         driver.start()
         try:
             assert wait_for(lambda: len(frames) > 5)
@@ -62,10 +62,10 @@ def test_driver_opens_a_kvh_unit_at_its_own_bauds(baud):
 def test_driver_gives_delta_angles_rates_by_the_measured_interval_not_the_configured_one():
     """A 200 Hz unit, the driver told 1000 Hz: 30 deg/s read as 30 (the stream's interval), after a second."""
     frames: list[Frame] = []
-    with FakeRd2100('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=200, profile='30', noise_dps=0.0,
-                    turn_on_bias_dps=0.0, temperature=25.0) as fake:
+    with FakeGyro('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=200, profile='30', noise_dps=0.0,
+                  turn_on_bias_dps=0.0, temperature=25.0) as fake:
         told = KvhFogConfig()   # output_rate_hz 1000
-        driver = Rd2100Driver(fake.path, 921600, 'kvh_fog', frames.append, kvh_fog=told)
+        driver = SerialGyroDriver(fake.path, 921600, 'kvh_fog', frames.append, kvh_fog=told)
         driver.start()
         try:
             assert wait_for(lambda: len(frames) > 200, timeout_s=20.0)
@@ -91,8 +91,9 @@ def test_driver_stamps_format_b_by_the_units_clock_and_falls_back_to_arrival_on_
             frames.append(frame)
 
     config = KvhFogConfig(message_format='B', rotation='rate', timestamp_source='unit_clock')
-    with FakeRd2100('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=200, kvh_fog=config) as fake:
-        driver = Rd2100Driver(fake.path, 921600, 'kvh_fog', on_frame, kvh_fog=fake.kvh_fog, on_warning=warnings.append)
+    with FakeGyro('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=200, kvh_fog=config) as fake:
+        driver = SerialGyroDriver(fake.path, 921600, 'kvh_fog', on_frame, kvh_fog=fake.kvh_fog,
+                                  on_warning=warnings.append)
         driver.start()
         try:
             assert wait_for(lambda: driver.stats.stamp_source == 'unit_clock', timeout_s=20.0)

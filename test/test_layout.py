@@ -13,8 +13,10 @@ REPO = Path(__file__).resolve().parent.parent
 PACKAGE = REPO / 'art_gyro_calibration'
 ANALYSIS_ONLY = ('scipy', 'matplotlib', 'h5py', 'threadpoolctl', 'rosbags')
 RUNTIME_MODULES = ('ros.node', 'ros.parameters', 'ros.bias_service', 'ros.raw_log', 'ros.diagnostics', 'ros.monitor',
-                   'driver', 'frame', 'rd2100_binary', 'ascii_lines', 'kvh_fog', 'protocols', 'fake_rd2100',
-                   'gyro_physics', 'compensation', 'calibration', 'static_bias', 'signals', 'terms', 'model', 'log')
+                   'ros.rclpy_typed',
+                   'driver', 'stamper', 'frame', 'protocols', 'protocols.rd2100_binary', 'protocols.rd2100_ascii',
+                   'protocols.kvh_fog', 'fake_gyro', 'gyro_physics', 'compensation', 'calibration', 'static_bias',
+                   'signals', 'terms', 'model', 'log')
 # Imports of the analysis-only packages fail in the child, as on a robot without the extra.
 BLOCK = f'''
 import importlib.abc, sys

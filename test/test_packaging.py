@@ -15,7 +15,7 @@ pytest.importorskip('rclpy')
 
 from rosproc import TIMEOUT_S, Listener, domain_id, node_env, stop_node  # noqa: E402
 
-from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = 'art_gyro_calibration'
@@ -45,7 +45,7 @@ def installed_env(install: Path, domain: int) -> dict[str, str]:
 
 def test_colcon_installs_the_ros_layout(install: Path) -> None:
     """Executables in lib/<package>, the ament index marker, package.xml and every calibration."""
-    for exe in ('gyro_node', 'fake_rd2100', 'calibrate', 'imu_echo'):
+    for exe in ('gyro_node', 'fake_gyro', 'fake_rd2100', 'calibrate', 'imu_echo'):
         assert os.access(install / 'lib' / PACKAGE / exe, os.X_OK), exe
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages' / PACKAGE).is_file()
     assert (install / 'share' / PACKAGE / 'package.xml').is_file()
@@ -75,7 +75,7 @@ def test_installed_package_finds_its_calibrations_through_ament(install: Path, t
     assert Path(share) == install / 'share' / PACKAGE
 
 
-@pytest.mark.parametrize('exe', ['fake_rd2100', 'calibrate', 'imu_echo'])
+@pytest.mark.parametrize('exe', ['fake_gyro', 'fake_rd2100', 'calibrate', 'imu_echo'])
 def test_installed_console_scripts_run(install: Path, tmp_path: Path, exe: str) -> None:
     """Each installed console script reaches its entry point (its --help)."""
     result = subprocess.run([str(install / 'lib' / PACKAGE / exe), '--help'], cwd=tmp_path,
@@ -90,7 +90,7 @@ def test_installed_gyro_node_publishes_with_a_params_file_calibration(install: P
     domain = domain_id()
     output = tmp_path / 'node.log'
     params = install / 'share' / PACKAGE / 'config' / 'NAVC4058.yaml'
-    with FakeRd2100('NAVC4058', profile='0', seed=5) as fake:
+    with FakeGyro('NAVC4058', profile='0', seed=5) as fake:
         listener = Listener(domain)
         with open(output, 'wb') as out:
             proc = subprocess.Popen([str(install / 'lib' / PACKAGE / 'gyro_node'), '--ros-args',

@@ -3,7 +3,7 @@
 from test_protocols import samples
 
 from art_gyro_calibration.frame import GARBAGE, UNLOCKED, RawSample
-from art_gyro_calibration.rd2100_binary import ALL_ZERO, BAD_CHECKSUM, BinaryFrameParser, encode_binary
+from art_gyro_calibration.protocols.rd2100_binary import ALL_ZERO, BAD_CHECKSUM, BinaryFrameParser, encode_binary
 
 
 def test_binary_frame_layout_follows_the_e_core_description():

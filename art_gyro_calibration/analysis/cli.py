@@ -212,14 +212,14 @@ RECORD_SILENCE_S = 1.0
 
 
 def _record(args: argparse.Namespace) -> int:
-    from art_gyro_calibration.driver import Rd2100Driver
+    from art_gyro_calibration.driver import SerialGyroDriver
     if args.serial:
         load_calibration(find_calibration_file(args.serial), expected_serial=args.serial)
     with Outputs([args.port], args.force, keep_if_killed=True) as outputs:   # rows nothing can make again
         out = outputs.claim(args.out)
         frames: queue.SimpleQueue[tuple[int, float, float]] = queue.SimpleQueue()
-        driver = Rd2100Driver(args.port, args.baud, args.protocol,
-                              lambda f: frames.put((f.stamp_ns, f.sample.raw_rate, f.sample.raw_temp)))
+        driver = SerialGyroDriver(args.port, args.baud, args.protocol,
+                                  lambda f: frames.put((f.stamp_ns, f.sample.raw_rate, f.sample.raw_temp)))
         previous = signal.signal(signal.SIGTERM, _interrupt)   # end as on Ctrl-C: keep what was recorded
         driver.start()   # opens the port on its thread; the log is created at the first frame
         try:

@@ -11,35 +11,36 @@ import math
 import time
 from typing import Any, Protocol
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+# The message wheels ship no type hints.
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue   # type: ignore[import-untyped]
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock
 from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 
-from art_gyro_calibration.calibration import Calibration
-from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, PLAUSIBLE_TEMPERATURE_C, FrameCorrector
-from art_gyro_calibration.driver import Rd2100Driver
-from art_gyro_calibration.frame import NOT_FINITE
-from art_gyro_calibration.kvh_fog import AXIS_INVALID, RATE_TOLERANCE
-from art_gyro_calibration.protocols import KVH_FOG
+from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibration
+from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, FrameCorrector
+from art_gyro_calibration.driver import DriverStats, SerialGyroDriver
+from art_gyro_calibration.frame import AXIS_INVALID, NOT_FINITE, ProtocolDescription
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.parameters import EXTRA_SIGNAL_MESSAGES, ExtraSignal, Settings, ros_type_name
 from art_gyro_calibration.ros.raw_log import LOG_RETRY_S, RawLog
+from art_gyro_calibration.ros.rclpy_typed import Logger
 from art_gyro_calibration.signals import SignalFeed
 
 DIAGNOSTICS_PERIOD_S = 1.0
-RATE_MISMATCH_CONSOLE_PERIOD_S = 60.0   # the console repeats a wrong kvh_fog.output_rate_hz this often
+RATE_MISMATCH_CONSOLE_PERIOD_S = 60.0   # the console repeats a wrong output rate parameter this often
 
 
 class DiagnosedNode(Protocol):
     """What the statuses read of the gyro node: its parts, and the rclpy calls that publish them."""
 
     settings: Settings
+    description: ProtocolDescription    # the gyro's protocol, beyond its frames
     calibration: Calibration
     corrector: FrameCorrector
-    driver: Rd2100Driver
+    driver: SerialGyroDriver
     bias_service: StaticBiasService
     raw_log: RawLog
     published: int
@@ -50,6 +51,9 @@ class DiagnosedNode(Protocol):
 
     def get_clock(self) -> Clock:
         """The node's clock: the stamp of each report."""
+
+    def get_logger(self) -> Logger:
+        """The node's logger: a wrong output rate is said on the console too."""
 
     def get_fully_qualified_name(self) -> str:
         """The node's name with its namespace: the prefix of each status."""
@@ -87,13 +91,14 @@ class Diagnostics:
         self._window_start = time.monotonic()
         self._frames = SinceLastReport()
         self._dropped = {reason: SinceLastReport() for reason in node.corrector.dropped}
-        self._lost = SinceLastReport()                # kvh_fog: sequence gaps
-        self._invalid = SinceLastReport()             # kvh_fog: frames the gyro flagged invalid
+        self._lost = SinceLastReport()                # gaps in the gyro's sequence numbers (kvh_fog numbers them)
+        self._invalid = SinceLastReport()             # frames the gyro flagged invalid (AXIS_INVALID)
         self._outside_range = SinceLastReport()       # frames outside the expected range (Compensator.outside_range)
         self._implausible = SinceLastReport()
         self._not_finite = [SinceLastReport() for _ in node.feeds]   # per extra signal: values refused
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        node.create_timer(DIAGNOSTICS_PERIOD_S, self._publish, callback_group=MutuallyExclusiveCallbackGroup())
+        group = MutuallyExclusiveCallbackGroup()   # type: ignore[no-untyped-call]  # rclpy: __init__ unannotated
+        node.create_timer(DIAGNOSTICS_PERIOD_S, self._publish, callback_group=group)
 
     def _publish(self) -> None:
         node = self._node
@@ -111,8 +116,7 @@ class Diagnostics:
         node = self._node
         # The fully qualified name: two gyros in two namespaces report apart.
         return DiagnosticStatus(level=level, name=f'{node.get_fully_qualified_name()}: {name}', message=message,
-                                hardware_id=f'KVH {"FOG" if node.settings.protocol == KVH_FOG else "RD2100"} '
-                                            f'{node.calibration.serial_number}',
+                                hardware_id=f'{node.description.hardware} {node.calibration.serial_number}',
                                 values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
 
     def _link_status(self) -> DiagnosticStatus:
@@ -137,12 +141,12 @@ class Diagnostics:
             values[f'dropped_{reason}'] = count
         if dropped[NOT_FINITE]:
             values['last_not_finite_error'] = corrector.last_drop_error or 'a non-finite compensated rate'
-        # kvh_fog: frames the gyro numbered but that never came, and frames it flagged invalid, since the last report.
+        # Frames the gyro numbered but that never came, and frames it flagged invalid, since the last report.
         lost = self._lost.take(stats.lost_frames)
         flagged = self._invalid.take(stats.rejected_by_reason.get(AXIS_INVALID, 0))
         if not stats.connected:
             return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
-        mismatch = self._kvh_fog_rate_error(stats.measured_rate_hz, values)
+        mismatch = self._rate_error(stats, values)
         if mismatch:
             return self._status('link', DiagnosticStatus.ERROR, mismatch, values)
         if rate_hz == 0.0:
@@ -158,21 +162,18 @@ class Diagnostics:
                                 f'gaps), {flagged} flagged invalid by the gyro', values)
         return self._status('link', DiagnosticStatus.OK, f'connected, {rate_hz:.1f} Hz', values)
 
-    def _kvh_fog_rate_error(self, measured: float | None, values: dict[str, Any]) -> str:
-        """kvh_fog: its values added; why the configured output rate is wrong (also said on the console), or ''."""
+    def _rate_error(self, stats: DriverStats, values: dict[str, Any]) -> str:
+        """A unit whose rate is measured: its values added; why its set output rate is wrong (also said), or ''."""
         node = self._node
-        if node.settings.protocol != KVH_FOG:
+        if not node.description.reports_rate:
             return ''
+        measured = stats.measured_rate_hz
         values['measured_rate_hz'] = 'not yet' if measured is None else f'{measured:.3f}'
-        values['garbage_runs'] = node.driver.stats.garbage_runs
-        values['stamp_source'] = node.driver.stats.stamp_source
-        configured = node.kvh_fog.output_rate_hz
-        if measured is None or abs(configured / measured - 1.0) <= RATE_TOLERANCE:
-            return ''
-        source = 'its clock' if node.kvh_fog.message_format == 'B' else 'the stream'
-        message = (f'kvh_fog.output_rate_hz is {configured:g} Hz but the unit sends {measured:.2f} messages/s '
-                   f'(measured by {source}): set the parameter to the unit\'s =DR; rates use the measured interval')
-        node.get_logger().error(message, throttle_duration_sec=RATE_MISMATCH_CONSOLE_PERIOD_S)
+        values['garbage_runs'] = stats.garbage_runs
+        values['stamp_source'] = stats.stamp_source
+        message = node.description.rate_error(measured)
+        if message:
+            node.get_logger().error(message, throttle_duration_sec=RATE_MISMATCH_CONSOLE_PERIOD_S)
         return message
 
     def _log_status(self) -> DiagnosticStatus:
@@ -272,7 +273,5 @@ class Diagnostics:
             level = DiagnosticStatus.ERROR
             parts.append(f'{dropped} frames since the last report claimed a temperature outside '
                          f'{PLAUSIBLE_TEMPERATURE_C[0]:g}..{PLAUSIBLE_TEMPERATURE_C[1]:g} degC and were dropped: '
-                         'corrupt frames, or ' + ('kvh_fog.temperature_units is not what the unit sends'
-                                                  if node.settings.protocol == KVH_FOG
-                                                  else 'the temperature field is not m[3]:m[4] on this unit'))
+                         'corrupt frames, or ' + node.description.temperature_hint)
         return self._status('temperature', level, '; '.join(parts), values)

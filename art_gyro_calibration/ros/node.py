@@ -1,4 +1,4 @@
-"""ROS 2 node ``gyro_node``: the RD2100 on a serial port as a compensated yaw-rate source.
+"""ROS 2 node ``gyro_node``: a serial gyro (an RD2100, or a KVH FOG) as a compensated yaw-rate source.
 
 Per frame (on the driver's reader thread, so latency is one serial read) the core's
 :class:`~art_gyro_calibration.compensation.FrameCorrector` scales, drops, compensates, feeds
@@ -55,22 +55,22 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import Imu
-from rclpy.qos import DurabilityPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Bool, Float64
+from rclpy.qos import DurabilityPolicy, QoSPolicyKind, ReliabilityPolicy
+from rclpy.utilities import ok, try_shutdown
+from sensor_msgs.msg import Imu   # type: ignore[import-untyped]  # the message wheels ship no type hints
+from std_msgs.msg import Bool, Float64   # type: ignore[import-untyped]  # the message wheels ship no type hints
 
-from art_gyro_calibration.calibration import CalibrationError
+from art_gyro_calibration.calibration import CalibrationError, extra_signal_parameter
 from art_gyro_calibration.compensation import FrameCorrector, RunStart
-from art_gyro_calibration.driver import Rd2100Driver
-from art_gyro_calibration.frame import Frame, RawSample
-from art_gyro_calibration.kvh_fog import STANDARD_GRAVITY, KvhSample
-from art_gyro_calibration.protocols import KVH_FOG
+from art_gyro_calibration.driver import SerialGyroDriver
+from art_gyro_calibration.frame import STANDARD_GRAVITY, Frame, ImuReading, RawSample
+from art_gyro_calibration.protocols import describe
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
 from art_gyro_calibration.ros.parameters import (EXTRA_SIGNAL_MESSAGES, IMU_TOPIC, NODE_NAME, ExtraSignal,
-                                                 NodeParameters, ParameterError, check_params_files,
-                                                 extra_signal_parameter, usage)
+                                                 NodeParameters, ParameterError, check_params_files, usage)
 from art_gyro_calibration.ros.raw_log import RawLog
+from art_gyro_calibration.ros.rclpy_typed import logger, qos_profile
 from art_gyro_calibration.signals import SignalFeed
 
 # Variance (rad/s)^2 given to the x and y rates, which a single-axis gyro does not measure:
@@ -85,18 +85,21 @@ UNCORRECTED_YAW_VARIANCE = math.radians(1.0) ** 2
 IMU_QOS_OVERRIDES = QoSOverridingOptions(policy_kinds=(QoSPolicyKind.RELIABILITY, QoSPolicyKind.HISTORY,
                                                        QoSPolicyKind.DEPTH, QoSPolicyKind.DURABILITY))
 # imu/is_calibrated: the last value kept for subscribers that join later.
-LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
+LATCHED_QOS = qos_profile(1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
 # An out-of-range temperature is said on the console at most this often.
 TEMPERATURE_WARNING_PERIOD_S = 60.0
 # An extra signal's topic: only the latest value matters; best effort matches reliable and best-effort publishers.
-EXTRA_SIGNAL_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+EXTRA_SIGNAL_QOS = qos_profile(1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 class GyroNode(Node):
     """Owns the serial driver; corrects and publishes every frame; wires the service, raw log and diagnostics."""
 
+    driver: SerialGyroDriver   # made last: it starts the frames
+
     def __init__(self, argv: Sequence[str] = ()) -> None:
         super().__init__(NODE_NAME)
+        self._log = logger(self)
         parameters = NodeParameters(self, argv)
         self.settings, self.kvh_fog = parameters.settings, parameters.kvh_fog
         self.calibration, self.calibration_source = parameters.calibration, parameters.calibration_source
@@ -121,11 +124,10 @@ class GyroNode(Node):
         self._imu.angular_velocity_covariance[0] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
         self._imu.angular_velocity_covariance[8] = UNCORRECTED_YAW_VARIANCE   # until a static bias is in force
-        # kvh_fog: for the robot's x, y, z, the unit axis and its sign (REP 103 axes from the mounting).
-        self._axes: tuple[tuple[int, float], ...] = ()
-        if self.settings.protocol == KVH_FOG:
-            self._axes = tuple((max(range(3), key=lambda i: abs(row[i])), sum(row))
-                               for row in self.kvh_fog.mounting)
+        self.description = describe(self.settings.protocol, self.kvh_fog)
+        # A whole IMU (kvh_fog): for the robot's x, y, z, the unit axis and its sign (REP 103 axes from the mounting).
+        self._axes = self.description.imu_axes
+        if self._axes:
             self._rate_variance = parameters.kvh_rate_stddev ** 2
             self._acceleration_variance = parameters.kvh_acceleration_stddev ** 2
         self._temperature = Float64()
@@ -147,8 +149,8 @@ class GyroNode(Node):
             self._uncalibrated_pub = self.create_publisher(Imu, 'imu/uncalibrated', 10)
         self.extra_topics = tuple(self._subscribe(extra, feed) for extra, feed in zip(self.extra_signals, self.feeds))
         for extra in parameters.unused_extra_signals:
-            self.get_logger().warning(f'parameters extra_signals.{extra.signal}.*: the calibration has no term on '
-                                      f'{extra.signal}; {extra.topic} is not subscribed')
+            self._log.warning(f'parameters extra_signals.{extra.signal}.*: the calibration has no term on '
+                              f'{extra.signal}; {extra.topic} is not subscribed')
         self.bias_service = StaticBiasService(self, self.settings, self.corrector, self._closing,
                                               lambda: self.driver.stats.last_error, self._on_bias,
                                               self.extra_signal_problems)
@@ -156,13 +158,13 @@ class GyroNode(Node):
 
         if self.settings.static_bias_on_startup:
             self.bias_service.start()
-        self.get_logger().info(
+        self._log.info(
             f'calibration loaded: {self.calibration.serial_number} from {self.calibration_source}; '
             f'reading {self.settings.port} at {self.settings.baud} baud ({self.settings.protocol})')
-        self.driver = Rd2100Driver(self.settings.port, self.settings.baud, self.settings.protocol,
-                                   self._on_frame, on_link=self._on_link, on_warning=self._on_driver_warning,
-                                   clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog,
-                                   rate_scale_dps=self.calibration.rate_scale_factor)
+        self.driver = SerialGyroDriver(self.settings.port, self.settings.baud, self.settings.protocol,
+                                       self._on_frame, on_link=self._on_link, on_warning=self._on_driver_warning,
+                                       clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog,
+                                       rate_scale_dps=self.calibration.rate_scale_factor)
         self.driver.start()
 
     # --- per frame (driver reader thread) ------------------------------------------------
@@ -172,8 +174,8 @@ class GyroNode(Node):
             self._handle_frame(frame)
         except Exception as e:   # an exception here would end the driver's reader thread
             if not self._closing.is_set() and self.context.ok():
-                self.get_logger().error(f'frame not published: {type(e).__name__}: {e}',
-                                        throttle_duration_sec=5.0)
+                self._log.error(f'frame not published: {type(e).__name__}: {e}',
+                                throttle_duration_sec=5.0)
 
     def _handle_frame(self, frame: Frame) -> None:
         sample = frame.sample
@@ -192,8 +194,8 @@ class GyroNode(Node):
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
         imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
         imu.angular_velocity.z = math.radians(corrector.rate_dps)
-        if self._axes and isinstance(sample, KvhSample):
-            self._fill_imu(imu, sample)
+        if self._axes and sample is not None and sample.imu is not None:
+            self._fill_imu(imu, sample.imu)
         if self.feeds:   # an extra signal missing or stale: flagged as before a static bias
             imu.angular_velocity_covariance[8] = (self._yaw_variance if self.is_calibrated and
                                                   corrector.compensator.current else UNCORRECTED_YAW_VARIANCE)
@@ -209,9 +211,9 @@ class GyroNode(Node):
         self.last_temp_c = temp_c
         low, high = self._temp_range
         if not low <= temp_c <= high:   # the Compensator counted it (and clamped it if the range is calibrated)
-            self.get_logger().warning(f'gyro temperature {temp_c:.2f} degC is outside the calibrated range '
-                                      f'{low:g}..{high:g} degC: {self._outside_range_effect}',
-                                      throttle_duration_sec=TEMPERATURE_WARNING_PERIOD_S)
+            self._log.warning(f'gyro temperature {temp_c:.2f} degC is outside the calibrated range '
+                              f'{low:g}..{high:g} degC: {self._outside_range_effect}',
+                              throttle_duration_sec=TEMPERATURE_WARNING_PERIOD_S)
         self.published += 1
 
     def _on_bias(self) -> None:
@@ -233,31 +235,32 @@ class GyroNode(Node):
             subscription = self.create_subscription(kind, extra.topic, received, EXTRA_SIGNAL_QOS)
         except Exception as e:   # rclpy raises several types for a bad topic name
             raise ParameterError(f'parameter {extra_signal_parameter(extra.signal)}: {e}') from None
-        self.get_logger().info(f'{extra.signal} from {subscription.topic_name} ({extra.type}): the calibration\'s '
-                               f'term on it is applied with the latest value, flagged when older than '
-                               f'{extra.max_age_s:g} s')
-        return subscription.topic_name
+        self._log.info(f'{extra.signal} from {subscription.topic_name} ({extra.type}): the calibration\'s '
+                       f'term on it is applied with the latest value, flagged when older than '
+                       f'{extra.max_age_s:g} s')
+        name: str = subscription.topic_name
+        return name
 
     def extra_signal_problems(self) -> str:
         """Why the extra signals are not all current now ('' when they are), for a static bias that waits."""
         problems = ((feed.problem(), topic) for feed, topic in zip(self.feeds, self.extra_topics))
         return '; '.join(f'{problem} on {topic}' for problem, topic in problems if problem)
 
-    def _fill_imu(self, imu: Imu, sample: KvhSample) -> None:
-        """The x and y rates and the accelerations of a kvh_fog IMU in REP 103 axes (z is the calibrated yaw)."""
+    def _fill_imu(self, imu: Imu, reading: ImuReading) -> None:
+        """The x and y rates and the accelerations of a whole IMU in REP 103 axes (z is the calibrated yaw)."""
         (ix, sx), (iy, sy), _ = self._axes
-        rates, status = sample.rates_dps, sample.status
+        rates, rate_valid = reading.rates_dps, reading.rate_valid
         covariance = imu.angular_velocity_covariance
-        valid = status >> ix & 1 and math.isfinite(rates[ix])
+        valid = rate_valid[ix] and math.isfinite(rates[ix])
         imu.angular_velocity.x = math.radians(sx * rates[ix]) if valid else 0.0
         covariance[0] = self._rate_variance if valid else UNMEASURED_VARIANCE
-        valid = status >> iy & 1 and math.isfinite(rates[iy])
+        valid = rate_valid[iy] and math.isfinite(rates[iy])
         imu.angular_velocity.y = math.radians(sy * rates[iy]) if valid else 0.0
         covariance[4] = self._rate_variance if valid else UNMEASURED_VARIANCE
         acceleration = imu.linear_acceleration
-        g = sample.acceleration_g
-        # Bits 4-6: the three accelerometers valid (and a CRC-checked NaN is still no acceleration).
-        if status & 0x70 == 0x70 and math.isfinite(g[0] + g[1] + g[2]):
+        g = reading.acceleration_g
+        # The three accelerometers valid (and a CRC-checked NaN is still no acceleration).
+        if all(reading.acceleration_valid) and math.isfinite(g[0] + g[1] + g[2]):
             (ix, sx), (iy, sy), (iz, sz) = self._axes
             acceleration.x = sx * g[ix] * STANDARD_GRAVITY
             acceleration.y = sy * g[iy] * STANDARD_GRAVITY
@@ -270,12 +273,12 @@ class GyroNode(Node):
 
     def _on_link(self, connected: bool, message: str) -> None:
         if connected:
-            self.get_logger().info(f'gyro link up: {message}')
+            self._log.info(f'gyro link up: {message}')
         else:
-            self.get_logger().warning(f'gyro link down: {message}')
+            self._log.warning(f'gyro link down: {message}')
 
     def _on_driver_warning(self, message: str) -> None:
-        self.get_logger().warning(message)
+        self._log.warning(message)
 
     # --- shutdown ------------------------------------------------------------------------
 
@@ -327,15 +330,16 @@ def main(args: list[str] | None = None) -> int:
         print(usage(__doc__.splitlines()[0]))
         return 0
     node: GyroNode | None = None
-    # rosidl_generator_py's __init__ imports its code generator (lark, empy, hashlib with OpenSSL: 6.8 MiB resident,
-    # doc/benchmark.md) to offer generate_py, which only a package build uses, and takes an ImportError there as
+    # rosidl_generator_py's __init__ imports its code generator (lark, empy, hashlib with OpenSSL: megabytes resident)
+    # to offer generate_py, which only a package build uses, and takes an ImportError there as
     # "not available". The node builds nothing: the message type supports it imports need only import_type_support.
-    sys.modules.setdefault(_ROSIDL_GENERATOR, None)
+    # None in sys.modules makes an import raise ImportError (importlib's documented rule; typeshed allows modules only).
+    sys.modules.setdefault(_ROSIDL_GENERATOR, None)   # type: ignore[arg-type]
     use_own_fastdds_profile()
     # SIGINT stops the node through rclpy's handler, which shuts the context down and the executor with it.
     # Python's own handler would also raise KeyboardInterrupt wherever the main thread is: inside the thread
     # pool's `with lock:` it leaves the lock held, the pool's workers wait on it, and the exit waits on them
-    # for ever (seen about once in 25 SIGINTs; faulthandler showed the three workers in Semaphore.release).
+    # for ever (seen under repeated SIGINTs; faulthandler showed the three workers in Semaphore.release).
     _INTERRUPTED.clear()
     signal.signal(signal.SIGINT, _stop_through_rclpy)
     try:
@@ -350,7 +354,7 @@ def main(args: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as e:
-        if not rclpy.ok() and (_INTERRUPTED.is_set() or node is not None and isinstance(e, _rclpy.RCLError)):
+        if not ok() and (_INTERRUPTED.is_set() or node is not None and isinstance(e, _rclpy.RCLError)):
             # A signal shut the context down under a call to it: between two waits of the executor ("failed to
             # initialize wait set: the given context is not valid") or while the node was being built ("rclpy.init()
             # has not been called"). A stop as asked, not a failure.
@@ -365,8 +369,8 @@ def main(args: list[str] | None = None) -> int:
             try:
                 node.close()
             finally:
-                node.destroy_node()
-        rclpy.try_shutdown()
+                node.destroy_node()   # type: ignore[no-untyped-call]  # rclpy: destroy_node unannotated
+        try_shutdown()
     return 0
 
 

@@ -14,18 +14,19 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+# The message wheels ship no type hints.
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor   # type: ignore[import-untyped]
 from rclpy.node import Node
-from sensor_msgs.msg import BatteryState
-from std_msgs.msg import Float64
+from sensor_msgs.msg import BatteryState   # type: ignore[import-untyped]
+from std_msgs.msg import Float64   # type: ignore[import-untyped]
 
 from art_gyro_calibration.calibration import (CALIBRATION_KEYS, EXTRA_SIGNAL_TYPES, SIGNAL_PATTERN, Calibration,
                                               CalibrationError, check_fed, closest, extra_signal_parameter,
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
                                               load_calibration, read_yaml, resolve_calibration_url)
 from art_gyro_calibration.driver import BAUDS
-from art_gyro_calibration.kvh_fog import KVH_DEFAULT_BAUD, KvhFogConfig
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
+from art_gyro_calibration.protocols.kvh_fog import KVH_DEFAULT_BAUD, KvhFogConfig
 from art_gyro_calibration.signals import SIGNALS
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES
 
@@ -432,7 +433,7 @@ class NodeParameters:
         return _coerce(name, self._node._parameter_overrides[name].value, default)
 
     def _kvh_fog_config(self) -> tuple[KvhFogConfig, float, float]:
-        values = {}
+        values: dict[str, Any] = {}
         for name, (default, description) in KVH_FOG_PARAMETERS.items():
             given = self._node._parameter_overrides.get(name)
             if name.endswith('_axis') and given is not None and isinstance(given.value, bool):
@@ -459,11 +460,11 @@ class NodeParameters:
                  if is_calibration_key(name) and name != 'serial_number'}
         # Every params file that names a serial must agree with the node's (a node params file and
         # another gyro's calibration file would otherwise load that gyro's calibration silently).
-        for path, values in self._files.items():
+        for file, values in self._files.items():
             file_serial = values.get('serial_number')
             if file_serial is not None and serial and str(file_serial) != serial:
-                what = (f'the calibration in {path} is' if 'polynomial.coefficients' in values
-                        else f'the parameters in {path} are')
+                what = (f'the calibration in {file} is' if 'polynomial.coefficients' in values
+                        else f'the parameters in {file} are')
                 raise ParameterError(f'parameter serial_number is {serial!r} but {what} for '
                                      f'{str(file_serial)!r}: refusing a calibration of another gyro')
         if given:

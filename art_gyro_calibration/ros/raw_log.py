@@ -19,6 +19,7 @@ from rclpy.node import Node
 
 from art_gyro_calibration.log import RawLogWriter
 from art_gyro_calibration.ros.parameters import ParameterError
+from art_gyro_calibration.ros.rclpy_typed import logger
 
 # A raw log that failed (full disk, deleted) is reopened this often; frames meanwhile are not logged.
 LOG_RETRY_S = 5.0
@@ -98,9 +99,9 @@ class RawLog:
         with self._lock:
             self._log, self._stream, self._file = writer, stream, str(path)
             self._error = ''
-        self._node.get_logger().info(f'logging raw frames to {path}')
+        logger(self._node).info(f'logging raw frames to {path}')
 
-    def write(self, t: float, raw_rate: int, raw_temp: int) -> None:
+    def write(self, t: float, raw_rate: float, raw_temp: float) -> None:
         """Log one frame (the driver's reader thread, after publishing it)."""
         with self._lock:
             log = self._log
@@ -113,30 +114,31 @@ class RawLog:
             except (OSError, ValueError) as e:
                 # This row and those written since the last flush that succeeded: none of them is on disk whole.
                 self._rows_lost += max(1, log.unwritten())
-                self._stop(f'writing {self._file} failed: {e}')
+                self._stop(log, f'writing {self._file} failed: {e}')
 
-    def _stop(self, error: str) -> None:
-        """Stop logging after a failure (lock held): one console error, an ERROR status, a retry on a timer."""
-        log, self._log = self._log, None
+    def _stop(self, log: RawLogWriter, error: str) -> None:
+        """Stop logging to ``log`` after a failure (lock held): one console error, an ERROR status, a retry."""
+        self._log = None
         self._error = error
         try:
             log.close()
         except (OSError, ValueError):
             pass   # the rows not flushed are lost with the file system that refused them
-        self._node.get_logger().error(
+        logger(self._node).error(
             f'raw log stopped, publishing goes on: {error}; retrying every {LOG_RETRY_S:g} s')
 
     def check_file(self) -> None:
         """Stop logging to a file deleted (or replaced) while open, which would swallow every row without an error."""
         with self._lock:
-            if self._log is None:
+            log = self._log
+            if log is None:
                 return
             try:
                 same = os.path.samestat(os.stat(self._file), os.fstat(self._stream.fileno()))
             except OSError:
                 same = False
             if not same:
-                self._stop(f'{self._file} was deleted or replaced while logging')
+                self._stop(log, f'{self._file} was deleted or replaced while logging')
 
     def _retry(self) -> None:
         if self._log_path and self._log is None and self._error and not self._closing.is_set():
@@ -155,7 +157,7 @@ class RawLog:
             try:
                 log.close()
             except (OSError, ValueError) as e:
-                self._node.get_logger().error(f'closing the raw log {self._file}: {e}')
+                logger(self._node).error(f'closing the raw log {self._file}: {e}')
 
 
 def _cut_to_last_line(path: Path) -> None:

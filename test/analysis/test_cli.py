@@ -139,9 +139,9 @@ def test_usage_errors(capsys, flag, value):
 
 def test_record_writes_the_raw_log_through_the_driver(tmp_path, capsys):
     """``calibrate record`` reads a fake RD2100 on a pty through the node's driver."""
-    from art_gyro_calibration.fake_rd2100 import FakeRd2100
+    from art_gyro_calibration.fake_gyro import FakeGyro
     out = tmp_path / 'REC.csv'
-    with FakeRd2100('NAVC3545', rate_hz=100, profile='30', temperature=31.5, seed=5) as fake:
+    with FakeGyro('NAVC3545', rate_hz=100, profile='30', temperature=31.5, seed=5) as fake:
         assert main(['record', '--port', fake.path, '--out', str(out), '--baud', '115200',
                      '--serial', 'NAVC3545', '--duration', '1.5']) == 0
     assert 'frames from' in capsys.readouterr().out
@@ -348,8 +348,8 @@ def test_record_with_a_wrong_port_leaves_an_existing_log_alone(tmp_path, capsys)
 
 
 def test_record_says_when_an_open_port_is_silent(tmp_path, capsys):
-    from art_gyro_calibration.fake_rd2100 import FakeRd2100
-    fake = FakeRd2100('NAVC3545', rate_hz=100)   # a pty, never started: open, and quiet
+    from art_gyro_calibration.fake_gyro import FakeGyro
+    fake = FakeGyro('NAVC3545', rate_hz=100)   # a pty, never started: open, and quiet
     try:
         assert main(['record', '--port', fake.path, '--out', str(tmp_path / 'r.csv'), '--duration', '1.3']) == 1
     finally:

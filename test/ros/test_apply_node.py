@@ -20,8 +20,8 @@ from rosproc import domain_id, node_with_listener, wait_until  # noqa: E402
 
 from art_gyro_calibration.analysis.cli import main  # noqa: E402
 from art_gyro_calibration.calibration import load_packaged_calibration, write_calibration  # noqa: E402
-from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile, TemperatureProfile  # noqa: E402
-from art_gyro_calibration.rd2100_binary import encode_binary  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro, RateProfile, TemperatureProfile  # noqa: E402
+from art_gyro_calibration.protocols.rd2100_binary import encode_binary  # noqa: E402
 from art_gyro_calibration.signals import SignalFilters  # noqa: E402
 from art_gyro_calibration.terms import Term  # noqa: E402
 
@@ -41,8 +41,8 @@ def test_apply_on_the_node_log_equals_what_the_node_published(tmp_path: Path, lo
     write_calibration(cal_path, cal)
     log_path = tmp_path / 'node.csv'
     output = tmp_path / 'node.log'
-    fake = FakeRd2100('NAVC3545', rate_hz=50.0, profile='0', temperature=TemperatureProfile.parse_ramp('20:40:30'),
-                      seed=5)
+    fake = FakeGyro('NAVC3545', rate_hz=50.0, profile='0', temperature=TemperatureProfile.parse_ramp('20:40:30'),
+                    seed=5)
     try:
         with node_with_listener(domain_id(), output, '--params-file', str(cal_path), '-p', f'port:={fake.path}',
                                 '-p', 'baud:=115200', '-p', f'bias_samples:={BIAS_SAMPLES}',

@@ -14,7 +14,7 @@ rclpy = pytest.importorskip('rclpy')
 
 from rosproc import REPO, TIMEOUT_S, domain_id, node_env, node_with_listener  # noqa: E402
 
-from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro  # noqa: E402
 
 # A client process: CALLS concurrent calls, then one JSON line per reply; its response queue as the README
 # advises (argv[3]: 'keep_all', or a depth). Every client's reader receives every reply of the service, and
@@ -58,7 +58,7 @@ def test_concurrent_calls_from_several_processes_join_one_collection(tmp_path: P
     domain = domain_id()
     output = tmp_path / 'node.log'
     samples = 250   # 5 s at 50 Hz: every call arrives while it runs
-    with (FakeRd2100('NAVC3545', rate_hz=50, profile='0', seed=9) as fake,
+    with (FakeGyro('NAVC3545', rate_hz=50, profile='0', seed=9) as fake,
           node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
                              '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false',
                              '-p', f'bias_samples:={samples}') as (proc, listener)):

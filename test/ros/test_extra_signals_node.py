@@ -22,7 +22,7 @@ from sensor_msgs.msg import BatteryState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from art_gyro_calibration.calibration import load_packaged_calibration, write_calibration  # noqa: E402
-from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro  # noqa: E402
 from art_gyro_calibration.model import ArtPolynomial  # noqa: E402
 from art_gyro_calibration.ros.node import UNCORRECTED_YAW_VARIANCE  # noqa: E402
 from art_gyro_calibration.terms import Term  # noqa: E402
@@ -62,7 +62,7 @@ def test_the_node_applies_a_fed_supply_voltage_and_flags_a_missing_or_stale_one(
     domain = domain_id()
     output = tmp_path / 'node.log'
     calibration = _calibration(tmp_path / 'supply.yaml')
-    with (FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=3) as fake,
+    with (FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=3) as fake,
           node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={calibration}',
                              '-p', f'port:={fake.path}', '-p', 'bias_samples:=20',
                              '-p', 'extra_signals.supply_v.topic:=power/battery',   # relative: in /robot
@@ -129,7 +129,7 @@ def test_a_float64_topic_remapped_and_a_topic_of_another_type_named(tmp_path: Pa
     output = tmp_path / 'node.log'
     calibration = _calibration(tmp_path / 'supply.yaml')
     domain = domain_id()
-    with (FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=4) as fake,
+    with (FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=4) as fake,
           node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={calibration}',
                              '-p', f'port:={fake.path}', '-p', 'bias_samples:=20',
                              '-p', 'extra_signals.supply_v.topic:=supply', '-r', 'supply:=/bus/voltage')

@@ -27,10 +27,10 @@ from rosproc import (REPO, TIMEOUT_S, Listener, domain_id, node_env, node_with_l
                      stop_node, wait_until)
 from std_srvs.srv import Trigger  # noqa: E402
 
-from art_gyro_calibration.fake_rd2100 import FakeRd2100  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro  # noqa: E402
 from art_gyro_calibration.frame import LOCK_FRAMES  # noqa: E402
 from art_gyro_calibration.protocols import make_parser  # noqa: E402
-from art_gyro_calibration.rd2100_binary import encode_binary  # noqa: E402
+from art_gyro_calibration.protocols.rd2100_binary import encode_binary  # noqa: E402
 
 RATE_HZ = 50.0
 TEMP_BASE = 200        # counts: 10 degC, the bottom of NAVC3545's calibrated range
@@ -72,9 +72,9 @@ class SequenceCounts:
         return rate, temp
 
 
-def sequence_gyro(link: Path, protocol: str = 'binary', rate_hz: float = RATE_HZ) -> FakeRd2100:
+def sequence_gyro(link: Path, protocol: str = 'binary', rate_hz: float = RATE_HZ) -> FakeGyro:
     """A fake RD2100 on a pty behind ``link`` sending sequence-coded frames at ``rate_hz`` (not started)."""
-    fake = FakeRd2100('NAVC3545', protocol=protocol, link=str(link), rate_hz=rate_hz)
+    fake = FakeGyro('NAVC3545', protocol=protocol, link=str(link), rate_hz=rate_hz)
     fake.simulator = SequenceCounts(rate_hz)
     return fake
 
@@ -121,7 +121,7 @@ def wait_frames(listener: Listener, n: int, proc: subprocess.Popen[bytes], outpu
     return start
 
 
-def wait_tail(listener: Listener, fake: FakeRd2100, proc: subprocess.Popen[bytes], output: Path) -> None:
+def wait_tail(listener: Listener, fake: FakeGyro, proc: subprocess.Popen[bytes], output: Path) -> None:
     """Stop the fake and wait until its last frame has arrived (no loss at the end either)."""
     fake.stop()
     last = (fake.sent - 1) % PERIOD
@@ -129,7 +129,7 @@ def wait_tail(listener: Listener, fake: FakeRd2100, proc: subprocess.Popen[bytes
                f'the last frame sent (seq mod {PERIOD} = {last})', proc, output)
 
 
-def inject_alone(fake: FakeRd2100, data: bytes) -> None:
+def inject_alone(fake: FakeGyro, data: bytes) -> None:
     """Inject ``data`` between two frames, and wait for the frame after it (so two injections never touch)."""
     fake.inject(data)
     sent = fake.sent   # read after the injection: a frame counted later was written after it
@@ -425,7 +425,7 @@ def test_log_failures_stop_logging_not_publishing(tmp_path: Path, loopback: None
     def small_files() -> None:
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
-    fake = FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'), rate_hz=200.0)
+    fake = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'), rate_hz=200.0)
     fake.simulator = SequenceCounts(200.0)
     listener = Listener(domain)
     with open(output, 'wb') as out:

@@ -18,7 +18,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from rosproc import Listener, domain_id, node_with_listener, wait_until  # noqa: E402
 from std_msgs.msg import Bool  # noqa: E402
 
-from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro, RateProfile  # noqa: E402
 from art_gyro_calibration.ros.node import UNCORRECTED_YAW_VARIANCE  # noqa: E402
 
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
@@ -47,7 +47,7 @@ def test_uncorrected_until_a_static_bias_is_in_force(tmp_path: Path, loopback: N
     """The start-up bias refused (turning): false, a large variance, no "previous bias" claimed; then a bias: true."""
     domain = domain_id()
     output = tmp_path / 'node.log'
-    with (FakeRd2100('NAVC3545', profile='30', temperature=25.0, seed=3) as fake,
+    with (FakeGyro('NAVC3545', profile='30', temperature=25.0, seed=3) as fake,
           node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
                              '-p', 'bias_samples:=10') as (proc, listener)):
         flag = Flag(listener)
@@ -84,7 +84,7 @@ def test_a_stop_during_the_start_up_bias_is_clean(tmp_path: Path, loopback: None
     """SIGINT while the start-up bias collects: exit 0, no refusal, no error."""
     domain = domain_id()
     output = tmp_path / 'node.log'
-    with (FakeRd2100('NAVC3545', profile='0', temperature=25.0, seed=3) as fake,
+    with (FakeGyro('NAVC3545', profile='0', temperature=25.0, seed=3) as fake,
           node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
                              '-p', 'bias_samples:=1000') as (proc, listener)):   # stopped by SIGINT: exit 0
         flag = Flag(listener)

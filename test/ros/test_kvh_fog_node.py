@@ -20,10 +20,10 @@ from rclpy.parameter import parameter_dict_from_yaml_file, parameter_value_to_py
 
 from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration  # noqa: E402
 from art_gyro_calibration.compensation import apply_calibration  # noqa: E402
-from art_gyro_calibration.fake_rd2100 import FakeRd2100, GyroSimulator, RateProfile, TemperatureProfile  # noqa: E402
-from art_gyro_calibration.kvh_fog import KvhFogConfig, encode_kvh_fog  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro, GyroSimulator, RateProfile, TemperatureProfile  # noqa: E402
 from art_gyro_calibration.analysis.csv_writer import write_columns  # noqa: E402
 from art_gyro_calibration.log import read_log  # noqa: E402
+from art_gyro_calibration.protocols.kvh_fog import KvhFogConfig, encode_kvh_fog  # noqa: E402
 from art_gyro_calibration.ros.parameters import (KVH_FOG_PARAMETERS, PARAMETERS,  # noqa: E402
                                                  check_kvh_fog_calibration, check_settings, usage)
 
@@ -43,8 +43,8 @@ def test_node_reads_a_kvh_fog_unit_counts_lost_and_invalid_frames_and_logs_deg_s
     logs = tmp_path / 'logs'
     logs.mkdir()
     mounting = KvhFogConfig(yaw_axis='-z')
-    with (FakeRd2100(EXAMPLE, protocol='kvh_fog', link=str(tmp_path / 'kvh'), rate_hz=RATE_HZ, profile='0',
-                     temperature=31.0, seed=5, kvh_fog=mounting) as fake,
+    with (FakeGyro(EXAMPLE, protocol='kvh_fog', link=str(tmp_path / 'kvh'), rate_hz=RATE_HZ, profile='0',
+                   temperature=31.0, seed=5, kvh_fog=mounting) as fake,
           node_with_listener(domain, output, '--params-file', str(REPO / 'config' / 'kvh_fog.params.yaml'),
                              '-p', f'port:={fake.path}', '-p', f'kvh_fog.output_rate_hz:={RATE_HZ}',
                              '-p', 'kvh_fog.yaw_axis:=-z', '-p', 'bias_samples:=100',
@@ -146,8 +146,8 @@ def test_node_says_when_the_temperature_units_do_not_match_the_unit(tmp_path: Pa
     """The unit sends hundredths of a degree, the node is told degrees: 2500 degC is dropped, and the hint names it."""
     domain = domain_id()
     output = tmp_path / 'node.log'
-    with (FakeRd2100(EXAMPLE, protocol='kvh_fog', rate_hz=RATE_HZ, temperature=25.0,
-                     kvh_fog=KvhFogConfig(temperature_units='C_100')) as fake,
+    with (FakeGyro(EXAMPLE, protocol='kvh_fog', rate_hz=RATE_HZ, temperature=25.0,
+                   kvh_fog=KvhFogConfig(temperature_units='C_100')) as fake,
           node_with_listener(domain, output, '--params-file', str(REPO / 'config' / 'kvh_fog.params.yaml'),
                              '-p', f'port:={fake.path}', '-p', f'kvh_fog.output_rate_hz:={RATE_HZ}')
           as (proc, listener)):
@@ -213,7 +213,7 @@ def test_node_publishes_the_right_rate_when_output_rate_hz_is_wrong_and_says_so(
     """A unit at 100 Hz, output_rate_hz left at 1000 (and baud at the kvh_fog default): 30 deg/s, and an ERROR."""
     domain = domain_id()
     output = tmp_path / 'node.log'
-    with (FakeRd2100(EXAMPLE, protocol='kvh_fog', rate_hz=RATE_HZ, profile='30', temperature=30.0, seed=7) as fake,
+    with (FakeGyro(EXAMPLE, protocol='kvh_fog', rate_hz=RATE_HZ, profile='30', temperature=30.0, seed=7) as fake,
           node_with_listener(domain, output, '-p', f'port:={fake.path}', '-p', 'protocol:=kvh_fog',
                              '-p', f'serial_number:={EXAMPLE}', '-p', 'static_bias_on_startup:=false')
           as (proc, listener)):
@@ -235,19 +235,19 @@ def test_imu_axes_flagged_invalid_or_not_finite_are_not_measured() -> None:
 
     from sensor_msgs.msg import Imu
 
-    from art_gyro_calibration.kvh_fog import KvhSample
+    from art_gyro_calibration.frame import ImuReading
     from art_gyro_calibration.ros.node import UNMEASURED_VARIANCE, GyroNode
-    rows = KvhFogConfig(yaw_axis='+y', forward_axis='-x').mounting   # x = -x_unit, y = +z_unit, z = +y_unit
-    node = SimpleNamespace(_axes=tuple((max(range(3), key=lambda i: abs(r[i])), sum(r)) for r in rows),
-                           _rate_variance=1e-6, _acceleration_variance=0.0025)
+    axes = KvhFogConfig(yaw_axis='+y', forward_axis='-x').description.imu_axes   # x = -x_unit, y = +z_unit, z = +y_unit
+    assert axes == ((0, -1.0), (2, 1.0), (1, 1.0))
+    node = SimpleNamespace(_axes=axes, _rate_variance=1e-6, _acceleration_variance=0.0025)
     imu = Imu()
-    GyroNode._fill_imu(node, imu, KvhSample(0.0, 25.0, (10.0, 20.0, 30.0), (0.5, 1.0, -0.25), 0x77))
+    GyroNode._fill_imu(node, imu, ImuReading((10.0, 20.0, 30.0), (0.5, 1.0, -0.25)))
     assert (imu.angular_velocity.x, imu.angular_velocity.y) == pytest.approx((math.radians(-10.0), math.radians(30.0)))
     assert (imu.linear_acceleration.x, imu.linear_acceleration.y, imu.linear_acceleration.z) == pytest.approx(
         (-0.5 * 9.80665, -0.25 * 9.80665, 9.80665))
     assert imu.angular_velocity_covariance[0] == imu.angular_velocity_covariance[4] == 1e-6
-    GyroNode._fill_imu(node, imu, KvhSample(0.0, 25.0, (math.nan, 20.0, 30.0), (0.5, math.inf, 0.0), 0x77))
+    GyroNode._fill_imu(node, imu, ImuReading((math.nan, 20.0, 30.0), (0.5, math.inf, 0.0)))
     assert imu.angular_velocity.x == 0.0 and imu.angular_velocity_covariance[0] == UNMEASURED_VARIANCE
     assert imu.linear_acceleration_covariance[0] == -1.0 and imu.linear_acceleration.y == 0.0
-    GyroNode._fill_imu(node, imu, KvhSample(0.0, 25.0, (10.0, 20.0, 30.0), (0.5, 1.0, 0.0), 0x77 & ~0x04))
+    GyroNode._fill_imu(node, imu, ImuReading((10.0, 20.0, 30.0), (0.5, 1.0, 0.0), rate_valid=(True, True, False)))
     assert imu.angular_velocity.y == 0.0 and imu.angular_velocity_covariance[4] == UNMEASURED_VARIANCE

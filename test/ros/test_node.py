@@ -21,7 +21,7 @@ rclpy = pytest.importorskip('rclpy')
 from rosproc import REPO, TIMEOUT_S, domain_id, node_env, node_with_listener, start_node, wait_until  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 
-from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro, RateProfile  # noqa: E402
 from art_gyro_calibration.log import read_log  # noqa: E402
 from art_gyro_calibration.ros.node import UNCORRECTED_YAW_VARIANCE, UNMEASURED_VARIANCE  # noqa: E402
 from art_gyro_calibration.ros.parameters import PARAMETERS, check_settings, params_files  # noqa: E402
@@ -39,7 +39,7 @@ def test_node_compensates_serves_static_bias_and_survives_the_link(tmp_path: Pat
     output = tmp_path / 'node.log'
     turning_dps = 80.0   # uncompensated, NAVC3545 reads about 0.8 deg/s off at this rate
     # The listener in /robot too: the node's relative names follow its namespace.
-    with (FakeRd2100('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=3) as fake,
+    with (FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=3) as fake,
           node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
                              '-p', 'bias_samples:=20', '-p', 'frame_id:=gyro_test', '-r', '__ns:=/robot',
                              namespace='/robot') as (proc, listener)):
@@ -123,7 +123,7 @@ def test_node_params_file_ascii_log_and_sigterm(tmp_path: Path, loopback: None) 
     output = tmp_path / 'node.log'
     logs = tmp_path / 'logs'
     logs.mkdir()
-    with (FakeRd2100('NAVC4058', protocol='ascii', profile='0', temperature=5.0, seed=4) as fake,
+    with (FakeGyro('NAVC4058', protocol='ascii', profile='0', temperature=5.0, seed=4) as fake,
           node_with_listener(domain, output, '--params-file', str(REPO / 'config' / 'NAVC4058.yaml'),
                              '-p', f'port:={fake.path}', '-p', 'protocol:=ascii',
                              '-p', 'static_bias_on_startup:=false', '-p', f'log_path:={logs}',
@@ -271,7 +271,7 @@ def test_parameters_are_read_only_with_ranges_and_calibration_file_loads(tmp_pat
     from rclpy.parameter import Parameter
     domain = domain_id()
     output = tmp_path / 'node.log'
-    with (FakeRd2100('NAVC4058', profile='0', seed=6) as fake,
+    with (FakeGyro('NAVC4058', profile='0', seed=6) as fake,
           node_with_listener(domain, output, '-p', f'calibration_file:=file://{REPO}/config/NAVC4058.yaml',
                              '-p', f'port:={fake.path}', '-p', 'static_bias_on_startup:=false',
                              '-p', 'qos_overrides./imu/data_raw.publisher.reliability:=best_effort')
@@ -322,7 +322,7 @@ def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, 
     stop = threading.Event()
     ticker: threading.Thread | None = None
     try:
-        with (FakeRd2100('NAVC3545', rate_hz=50, profile='0', seed=7) as fake,
+        with (FakeGyro('NAVC3545', rate_hz=50, profile='0', seed=7) as fake,
               node_with_listener(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
                                  '-p', 'baud:=115200', '-p', 'static_bias_on_startup:=false',
                                  '-p', 'use_sim_time:=true', '-p', f'log_path:={tmp_path}') as (proc, listener)):

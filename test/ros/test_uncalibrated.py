@@ -25,7 +25,7 @@ from sensor_msgs.msg import Imu  # noqa: E402
 
 from art_gyro_calibration.analysis.cli import main  # noqa: E402
 from art_gyro_calibration.calibration import load_packaged_calibration  # noqa: E402
-from art_gyro_calibration.fake_rd2100 import FakeRd2100, RateProfile  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro, RateProfile  # noqa: E402
 from art_gyro_calibration.log import read_log  # noqa: E402
 
 BIAS_SAMPLES = 20
@@ -35,7 +35,7 @@ def test_uncalibrated_rate_beside_the_temperature_records_a_bag_for_calibrate(
         tmp_path: Path, loopback: None, capsys: pytest.CaptureFixture[str]) -> None:
     log_path = tmp_path / 'node.csv'
     output = tmp_path / 'node.log'
-    fake = FakeRd2100('NAVC3545', rate_hz=50.0, profile='0', seed=3)
+    fake = FakeGyro('NAVC3545', rate_hz=50.0, profile='0', seed=3)
     heard: list[tuple[str, int, bytes]] = []
     uncalibrated: list[Imu] = []
     lock = threading.Lock()
@@ -105,7 +105,7 @@ def test_uncalibrated_rate_beside_the_temperature_records_a_bag_for_calibrate(
 
 def test_no_uncalibrated_topic_by_default(tmp_path: Path, loopback: None) -> None:
     output = tmp_path / 'node.log'
-    fake = FakeRd2100('NAVC3545', rate_hz=20.0, profile='0', seed=4)
+    fake = FakeGyro('NAVC3545', rate_hz=20.0, profile='0', seed=4)
     try:
         with node_with_listener(domain_id(), output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
                                 '-p', 'baud:=115200') as (proc, listener):

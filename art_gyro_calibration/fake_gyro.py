@@ -1,7 +1,7 @@
-"""A simulated RD2100 (or KVH FOG) on a real pseudo-terminal, with the errors of a calibrated gyro.
+"""A simulated gyro (an RD2100 or a KVH FOG) on a real pseudo-terminal, with the errors of a calibrated gyro.
 
 The physics (what the gyro reads for a true rate and temperature) is in
-:class:`GyroSimulator`, pure and vectorised; :class:`FakeRd2100` puts its samples on a
+:class:`GyroSimulator`, pure and vectorised; :class:`FakeGyro` puts its samples on a
 pty at a steady rate, can be unplugged and replugged, and can inject garbage.
 
 A reading is ``measured_from_true(polynomial, true_rate, T) + turn_on_bias + earth_rate
@@ -36,9 +36,9 @@ from art_gyro_calibration.calibration import Calibration, load_packaged_calibrat
 from art_gyro_calibration.frame import INT16_MAX, INT16_MIN
 from art_gyro_calibration.gyro_physics import (ANN_ARBOR_LATITUDE_DEG, earth_rate_dps, measured_from_true, to_counts,
                                                white_noise_dps)
-from art_gyro_calibration.kvh_fog import (KVH_ANGLE_UNITS, KVH_FORMATS, KVH_ROTATIONS, KVH_TEMPERATURE_UNITS,
-                                          KvhFogConfig)
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS, make_encoder
+from art_gyro_calibration.protocols.kvh_fog import (KVH_ANGLE_UNITS, KVH_FORMATS, KVH_ROTATIONS, KVH_TEMPERATURE_UNITS,
+                                                    KvhFogConfig)
 
 # White noise of an RD2100: 0.005 deg/s per sample at its 10 Hz output, as an angle random walk.
 DEFAULT_ARW_DEG_RTHR = 0.005 * 60.0 / math.sqrt(10.0)
@@ -46,6 +46,8 @@ DEFAULT_TURN_ON_BIAS_SIGMA_DPS = 0.02
 # Bytes a slow or absent reader may leave unsent before the fake drops them, as a
 # real gyro's UART would: about a second of binary frames at 1 kHz.
 MAX_PENDING_BYTES = 8192
+# Its console scripts: the second is its name from before it simulated KVH units too.
+CONSOLE_SCRIPTS = ('fake_gyro', 'fake_rd2100')
 
 
 def default_noise_dps(rate_hz: float) -> float:
@@ -160,8 +162,8 @@ class GyroSimulator:
         return raw_rate.astype(np.int64), raw_temp.astype(np.int64)
 
 
-class FakeRd2100:
-    """A simulated RD2100 writing frames to a pseudo-terminal; use as a context manager.
+class FakeGyro:
+    """A simulated gyro writing frames to a pseudo-terminal (an RD2100 by default); use as a context manager.
 
     With ``protocol='kvh_fog'`` it sends KVH messages set as ``kvh_fog`` says, except for the
     output rate, which is the fake's ``rate_hz``; ``last_sample`` is then (deg/s, degC).
@@ -241,9 +243,9 @@ class FakeRd2100:
     def start(self) -> None:
         """Start sending frames at ``rate_hz``."""
         if self._thread is not None:
-            raise RuntimeError('FakeRd2100 already started')
+            raise RuntimeError('FakeGyro already started')
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name='fake_rd2100', daemon=True)
+        self._thread = threading.Thread(target=self._run, name='fake_gyro', daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
@@ -318,7 +320,7 @@ class FakeRd2100:
                         self.sent += 1
                 index += 1
 
-    def __enter__(self) -> FakeRd2100:
+    def __enter__(self) -> FakeGyro:
         self.start()
         return self
 
@@ -327,7 +329,9 @@ class FakeRd2100:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog='fake_rd2100', description=__doc__.splitlines()[0])
+    invoked = os.path.basename(sys.argv[0])
+    p = argparse.ArgumentParser(prog=invoked if invoked in CONSOLE_SCRIPTS else CONSOLE_SCRIPTS[0],
+                                description=__doc__.splitlines()[0])
     p.add_argument('--serial', required=True, help='serial number of a packaged calibration, e.g. NAVC3545')
     p.add_argument('--link', help='symlink to the current pty, e.g. /tmp/rd2100 (survives replugging)')
     p.add_argument('--protocol', choices=PROTOCOLS, default='binary')
@@ -363,10 +367,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         kvh_fog = KvhFogConfig(message_format=args.kvh_message_format, yaw_axis=args.kvh_yaw_axis,
                                rotation=args.kvh_rotation, angle_units=args.kvh_angle_units,
                                temperature_units=args.kvh_temperature_units)
-        fake = FakeRd2100(args.serial, args.protocol, args.rate_hz, args.link, RateProfile.parse(args.profile),
-                          temperature, args.noise_dps, args.seed, args.turn_on_bias_dps, kvh_fog)
+        fake = FakeGyro(args.serial, args.protocol, args.rate_hz, args.link, RateProfile.parse(args.profile),
+                        temperature, args.noise_dps, args.seed, args.turn_on_bias_dps, kvh_fog)
     except (ValueError, OSError) as e:
-        parser.exit(2, f'fake_rd2100: {e}\n')
+        parser.exit(2, f'{parser.prog}: {e}\n')
     done = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: done.set())

@@ -14,11 +14,11 @@ import pytest
 import serial
 
 from art_gyro_calibration.calibration import CalibrationError, load_packaged_calibration
-from art_gyro_calibration.fake_rd2100 import (MAX_PENDING_BYTES, FakeRd2100, GyroSimulator, RateProfile,
-                                              TemperatureProfile, default_noise_dps)
+from art_gyro_calibration.fake_gyro import (MAX_PENDING_BYTES, FakeGyro, GyroSimulator, RateProfile,
+                                            TemperatureProfile, default_noise_dps)
 from art_gyro_calibration.gyro_physics import ANN_ARBOR_LATITUDE_DEG, earth_rate_dps
-from art_gyro_calibration.kvh_fog import KvhFogConfig
 from art_gyro_calibration.protocols import make_parser
+from art_gyro_calibration.protocols.kvh_fog import KvhFogConfig
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -106,14 +106,14 @@ def test_constructor_refusals(tmp_path):
     precious = tmp_path / 'precious'
     precious.write_text('keep')
     with pytest.raises(ValueError, match='not a symlink'):
-        FakeRd2100('NAVC3545', link=str(precious))
+        FakeGyro('NAVC3545', link=str(precious))
     assert precious.read_text() == 'keep'
     with pytest.raises(ValueError, match='unknown protocol'):
-        FakeRd2100('NAVC3545', protocol='nmea')
+        FakeGyro('NAVC3545', protocol='nmea')
     with pytest.raises(ValueError, match='rate_hz'):
-        FakeRd2100('NAVC3545', rate_hz=0)
+        FakeGyro('NAVC3545', rate_hz=0)
     with pytest.raises(CalibrationError, match='NAVC0000'):
-        FakeRd2100('NAVC0000')
+        FakeGyro('NAVC0000')
 
 
 # --- on the pty -------------------------------------------------------------------------
@@ -131,8 +131,8 @@ def read_for(fd, want, timeout_s=10.0):
 
 @pytest.mark.parametrize('protocol', ['binary', 'ascii'])
 def test_frames_on_the_pty_decode_to_the_simulated_counts(protocol):
-    with FakeRd2100('NAVC4377', protocol=protocol, rate_hz=100, profile='-20', temperature=18.0,
-                    noise_dps=0.0, turn_on_bias_dps=0.0) as fake:
+    with FakeGyro('NAVC4377', protocol=protocol, rate_hz=100, profile='-20', temperature=18.0,
+                  noise_dps=0.0, turn_on_bias_dps=0.0) as fake:
         with serial.Serial(fake.path, 115200, timeout=0.1) as port:
             data = b''
             deadline = time.monotonic() + 10.0
@@ -155,7 +155,7 @@ def inject_and_read(fake, data):
 
 
 def test_pty_is_raw_so_no_byte_is_translated():
-    fake = FakeRd2100('NAVC3545')   # not started: only injected bytes are sent
+    fake = FakeGyro('NAVC3545')   # not started: only injected bytes are sent
     try:
         garbage = bytes(range(256))
         assert inject_and_read(fake, garbage) == garbage
@@ -164,7 +164,7 @@ def test_pty_is_raw_so_no_byte_is_translated():
 
 
 def test_bytes_nobody_reads_are_held_then_dropped_past_a_bound():
-    fake = FakeRd2100('NAVC3545')   # not started, and no reader: only injected bytes, and the pty fills
+    fake = FakeGyro('NAVC3545')   # not started, and no reader: only injected bytes, and the pty fills
     try:
         total = 64 * 1024   # more than a pty buffers plus MAX_PENDING_BYTES
         for _ in range(total // 1024):
@@ -182,7 +182,7 @@ def test_bytes_nobody_reads_are_held_then_dropped_past_a_bound():
 
 def test_link_follows_unplug_and_replug(tmp_path):
     link = str(tmp_path / 'rd2100')
-    fake = FakeRd2100('NAVC3545', link=link)
+    fake = FakeGyro('NAVC3545', link=link)
     try:
         assert fake.path == link and os.path.realpath(link).startswith('/dev/pts/')
         first = os.readlink(link)
@@ -203,10 +203,10 @@ def test_a_link_that_cannot_be_made_leaks_no_pty(tmp_path):
     link = str(folder / 'rd2100')
     fds = len(os.listdir('/proc/self/fd'))
     with pytest.raises(FileNotFoundError):
-        FakeRd2100('NAVC3545', link=link)
+        FakeGyro('NAVC3545', link=link)
     assert len(os.listdir('/proc/self/fd')) == fds
     folder.mkdir()
-    fake = FakeRd2100('NAVC3545', link=link)
+    fake = FakeGyro('NAVC3545', link=link)
     try:
         fake.unplug()
         folder.rmdir()
@@ -223,9 +223,9 @@ def test_a_link_that_cannot_be_made_leaks_no_pty(tmp_path):
 
 def test_stop_leaves_a_link_that_another_fake_took(tmp_path):
     link = str(tmp_path / 'rd2100')
-    first = FakeRd2100('NAVC3545', link=link)
+    first = FakeGyro('NAVC3545', link=link)
     try:
-        second = FakeRd2100('NAVC3545', link=link)   # re-points the link: a renamed device
+        second = FakeGyro('NAVC3545', link=link)   # re-points the link: a renamed device
         try:
             first.stop()
             first.stop()   # twice is harmless
@@ -239,7 +239,7 @@ def test_stop_leaves_a_link_that_another_fake_took(tmp_path):
 
 
 def test_unplug_makes_an_open_reader_fail():
-    with FakeRd2100('NAVC3545', rate_hz=50) as fake:
+    with FakeGyro('NAVC3545', rate_hz=50) as fake:
         with serial.Serial(fake.path, 115200, timeout=0.5) as port:
             assert port.read(8)
             fake.unplug()
@@ -250,7 +250,7 @@ def test_unplug_makes_an_open_reader_fail():
 
 def test_paces_1000_hz_by_deadlines():
     t0 = time.monotonic()
-    with FakeRd2100('NAVC3545', rate_hz=1000) as fake:
+    with FakeGyro('NAVC3545', rate_hz=1000) as fake:
         with serial.Serial(fake.path, 921600, timeout=0.1) as port:
             data = b''
             while time.monotonic() - t0 < 1.5:
@@ -265,7 +265,7 @@ def test_paces_1000_hz_by_deadlines():
 def run_main(*args):
     env = {k: v for k, v in os.environ.items() if k != '_ROS_WHEELS_BOOTSTRAP_COMPLETE'}
     env['PYTHONPATH'] = os.pathsep.join([str(REPO)] + [p for p in [env.get('PYTHONPATH')] if p])
-    return subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.fake_rd2100', *args], cwd=REPO, env=env,
+    return subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.fake_gyro', *args], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -317,8 +317,8 @@ def read_port(path, want_bytes, baud=921600, timeout_s=10.0):
                          ids=['factory', 'C_-x_rate_deg_C100'])
 def test_kvh_fog_messages_on_the_pty_carry_the_simulated_reading(config):
     """The unquantised reading in the unit's settings, at the fake's own output rate, numbered without gaps."""
-    with FakeRd2100('NAVC4377', protocol='kvh_fog', rate_hz=200, profile='-20', temperature=18.25,
-                    noise_dps=0.0, turn_on_bias_dps=0.0, kvh_fog=config) as fake:
+    with FakeGyro('NAVC4377', protocol='kvh_fog', rate_hz=200, profile='-20', temperature=18.25,
+                  noise_dps=0.0, turn_on_bias_dps=0.0, kvh_fog=config) as fake:
         data = read_port(fake.path, 40 * config.format.length)
     assert fake.kvh_fog.output_rate_hz == 200.0 and fake.kvh_fog.yaw_axis == config.yaw_axis
     parser = as_sent(fake.kvh_fog)
@@ -329,13 +329,13 @@ def test_kvh_fog_messages_on_the_pty_carry_the_simulated_reading(config):
     # The port may open mid-message (one garbage run) and, in Format C, before a temperature (up to 3 messages).
     reasons = parser.stats.rejected_by_reason
     assert len(got) >= 30 and parser.stats.lost_frames == reasons['bad_crc'] == 0
-    assert parser.garbage_runs <= 1 and reasons['no_temperature_yet'] <= 3
+    assert parser.stats.garbage_runs <= 1 and reasons['no_temperature_yet'] <= 3
     assert [r for r, _ in got] == pytest.approx([reading] * len(got), rel=1e-6)
     assert [t for _, t in got] == pytest.approx([18.25 if config.temperature_units == 'C_100' else 18.0] * len(got))
 
 
 def test_drop_loses_frames_on_the_wire_which_the_sequence_shows():
-    with FakeRd2100('NAVC3545', protocol='kvh_fog', rate_hz=200) as fake:
+    with FakeGyro('NAVC3545', protocol='kvh_fog', rate_hz=200) as fake:
         with serial.Serial(fake.path, 921600, timeout=0.1) as port:
             parser = as_sent(fake.kvh_fog)
             deadline = time.monotonic() + 10.0

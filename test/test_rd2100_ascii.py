@@ -2,9 +2,9 @@
 
 from test_protocols import samples
 
-from art_gyro_calibration.ascii_lines import (LINE_TOO_LONG, MALFORMED, MAX_LINE_BYTES, OUT_OF_RANGE,
-                                              AsciiFrameParser)
 from art_gyro_calibration.frame import UNLOCKED, RawSample
+from art_gyro_calibration.protocols.rd2100_ascii import (LINE_TOO_LONG, MALFORMED, MAX_LINE_BYTES, OUT_OF_RANGE,
+                                                         AsciiFrameParser)
 
 
 def test_ascii_reset_skips_to_the_next_line_break_so_a_cut_line_gives_no_wrong_sample():

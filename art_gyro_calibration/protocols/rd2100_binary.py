@@ -75,8 +75,8 @@ class BinaryFrameParser(BinaryChunkParser):
         """``lock_frames``: valid frames in a row before one is accepted (the driver's LOCK_FRAMES, 1 for none)."""
         super().__init__((BAD_CHECKSUM, ALL_ZERO), lock_frames)
 
-    def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
-        """Parse a chunk; each valid frame with the offset just past its last byte within ``data``."""
+    def feed(self, data: bytes, arrival_ns: int | None = None) -> list[tuple[RawSample, int]]:
+        """Parse a chunk (``arrival_ns`` unused); each valid frame with the offset just past it in ``data``."""
         buf, held = self._join(data)
         out: list[tuple[RawSample, int]] = []
         stats = self.stats

@@ -45,8 +45,8 @@ class AsciiFrameParser(ChunkParser):
         self._discarding = True
         self._run = 0
 
-    def feed(self, data: bytes) -> list[tuple[RawSample, int]]:
-        """Parse a chunk; each valid line with the offset just past its newline within ``data``."""
+    def feed(self, data: bytes, arrival_ns: int | None = None) -> list[tuple[RawSample, int]]:
+        """Parse a chunk (``arrival_ns`` unused); each valid line with the offset just past its newline in ``data``."""
         buf, held = self._join(data)
         out: list[tuple[RawSample, int]] = []
         stats = self.stats

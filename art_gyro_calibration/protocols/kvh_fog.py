@@ -19,12 +19,13 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-from art_gyro_calibration.frame import NOT_FINITE, ChunkParser, RawSample, check_int16
+from art_gyro_calibration.frame import (AXIS_INVALID, BITS_PER_BYTE, NOT_FINITE, ChunkParser, ImuReading,
+                                        ProtocolDescription, RawSample, check_int16)
 
-# Rejection reasons, the keys of ParserStats.rejected_by_reason (with NOT_FINITE, of frame.py): each is one message.
+# Rejection reasons, the keys of ParserStats.rejected_by_reason (with NOT_FINITE and AXIS_INVALID, of frame.py):
+# each is one message.
 BAD_CRC = 'bad_crc'             # a header and a message's length of bytes whose CRC is wrong
 OTHER_FORMAT = 'other_format'   # the header of another message format than the configured one
-AXIS_INVALID = 'axis_invalid'   # the status byte says the yaw axis' gyro data is invalid
 REPEATED_SEQUENCE = 'repeated_sequence'   # the sequence number of the message before (a duplicate)
 NO_TEMPERATURE_YET = 'no_temperature_yet'   # Format C: before the connection's first temperature
 NO_INTERVAL = 'no_interval'     # a delta angle whose interval is not measured yet (the first messages of a connection)
@@ -40,16 +41,9 @@ KVH_ANGLE_UNITS = ('rad', 'deg')
 KVH_TEMPERATURE_UNITS = ('C', 'C_100', 'F', 'F_100')
 # Where a message's stamp comes from: its arrival (any format), or Format B's clock mapped to the host's.
 KVH_TIMESTAMP_SOURCES = ('arrival', 'unit_clock')
-# The unit's clock is mapped to the host's over about this long: the drift a temperature change brings is followed.
-UNIT_CLOCK_MEMORY_S = 60.0
-# The lower envelope of the arrivals (the least delayed message) may rise this fast (s/s): a slowly shrinking delay.
-UNIT_CLOCK_RELAX = 1e-4
-# The mapping is slewed, never stepped, at most this fast (s/s): stamps stay the unit's period apart within 0.1 %.
-UNIT_CLOCK_SLEW = 1e-3
 # The unit's baud rates (=BAUD, 1775 manual section 8.3).
 KVH_BAUDS = (9600, 19200, 38400, 57600, 115200, 460800, 576000, 921600, 4147200)
 KVH_DEFAULT_BAUD = 921600
-BITS_PER_BYTE = 10   # start + 8 data + stop
 # The stream's message interval (formats without the unit's clock) is used once measured over this long: arrival
 # jitter of a few ms (a USB adapter's latency timer) then errs by a few parts in 1000, and less as it goes on.
 STREAM_BASELINE_S = 1.0
@@ -60,7 +54,6 @@ RATE_TOLERANCE = 0.02
 RATE_CONFIRMED = 0.01
 # Format B's clock: a message interval longer than this (the slowest =DR is 1 Hz) is a fault of the clock.
 MAX_INTERVAL_US = 1_500_000
-STANDARD_GRAVITY = 9.80665   # m/s^2 per g (the unit's acceleration unit)
 _KVH_HEADER = re.compile(rb'\xfe\x81\xff[\x55-\x57]')
 _KVH_AXES = re.compile(r'[+-]?[xyz]')
 
@@ -109,6 +102,11 @@ def _unit_vector(axis: str) -> tuple[float, float, float]:
     v = [0.0, 0.0, 0.0]
     v['xyz'.index(axis[-1])] = -1.0 if axis.startswith('-') else 1.0
     return v[0], v[1], v[2]
+
+
+def _valid(bits: int) -> tuple[bool, bool, bool]:
+    """The x, y, z validity of three status bits (bit 0: x)."""
+    return bool(bits & 1), bool(bits & 2), bool(bits & 4)
 
 
 def _choice(name: str, value: object, choices: tuple[str, ...]) -> None:
@@ -196,6 +194,17 @@ class KvhFogConfig:
         y = (z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0])
         return x, y, z
 
+    @property
+    def description(self) -> KvhFogDescription:
+        """The unit as the driver, node and diagnostics see it (no rate-jump check: its CRC-32 is trusted)."""
+        # For the robot's x, y, z: the unit's axis and its sign (each row of the mounting has one nonzero entry).
+        axes = tuple((max(range(3), key=lambda i: abs(row[i])), sum(row)) for row in self.mounting)
+        temperature = 'kvh_fog.temperature_units is not what the unit sends'
+        return KvhFogDescription(hardware='KVH FOG', checks_rate_jumps=False,
+                                 stamps_by_unit_clock=self.timestamp_source == 'unit_clock', imu_axes=axes,
+                                 reports_rate=True, temperature_hint=temperature,
+                                 output_rate_hz=float(self.output_rate_hz), message_format=self.message_format)
+
     def max_rate_hz(self, baud: int) -> float:
         """The messages per second ``baud`` carries in this format."""
         return baud / (BITS_PER_BYTE * self.format.length)
@@ -218,20 +227,21 @@ class KvhFogConfig:
         return (temp_c - b) / a
 
 
-@dataclass(frozen=True, slots=True)
-class KvhSample(RawSample):
-    """A kvh_fog message as the node uses it: the yaw rate and temperature of :class:`RawSample`, and the rest.
+@dataclass(frozen=True)
+class KvhFogDescription(ProtocolDescription):
+    """A kvh_fog unit as the driver, node and diagnostics see it: the whole IMU, a checked output rate."""
 
-    ``rates_dps`` and ``acceleration_g`` are the unit's three axes as sent (rates already per second),
-    ``status`` its validity bits, ``unit_time_us`` Format B's clock unwrapped since the connection
-    opened (None in A and C), ``interval_s`` the message interval the rates were taken over.
-    """
+    output_rate_hz: float = 1000.0
+    message_format: str = 'A'
 
-    rates_dps: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    acceleration_g: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    status: int = KVH_STATUS_ALL_VALID
-    unit_time_us: int | None = None
-    interval_s: float = math.nan
+    def rate_error(self, measured_hz: float | None) -> str:
+        """Why ``kvh_fog.output_rate_hz`` is wrong: the measured rate more than RATE_TOLERANCE from it ('' if not)."""
+        configured = self.output_rate_hz
+        if measured_hz is None or abs(configured / measured_hz - 1.0) <= RATE_TOLERANCE:
+            return ''
+        source = 'its clock' if self.message_format == 'B' else 'the stream'
+        return (f'kvh_fog.output_rate_hz is {configured:g} Hz but the unit sends {measured_hz:.2f} messages/s '
+                f'(measured by {source}): set the parameter to the unit\'s =DR; rates use the measured interval')
 
 
 class StreamInterval:
@@ -274,82 +284,6 @@ class StreamInterval:
             return None
         interval = self._c_nt / self._c_nn
         return interval if interval > 0.0 else None
-
-
-class UnitClock:
-    """Format B's microsecond clock mapped onto the host's monotonic clock: drift and offset tracked.
-
-    A line through (unit time, arrival) by least squares with exponential forgetting over about
-    UNIT_CLOCK_MEMORY_S (so a drift that changes with temperature is followed), lowered to the
-    envelope of the least delayed arrivals (a stamp is when the message left the unit, not when a
-    busy host read it), that envelope taken from half of STREAM_BASELINE_S on. Ready once it has
-    spanned STREAM_BASELINE_S; :meth:`reset` when the
-    clock is broken (a reopen, a clock fault), after which the driver stamps by arrival again.
-    """
-
-    __slots__ = ('_w', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_low', '_first_ns', '_last_ns',
-                 '_mapped')
-
-    def __init__(self) -> None:
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget the mapping."""
-        self._w = 0.0
-        self._n0 = self._t0 = 0
-        self._mean_n = self._mean_t = self._c_nt = self._c_nn = 0.0
-        self._low = math.inf
-        self._first_ns = self._last_ns = 0
-        self._mapped: tuple[int, float] | None = None   # the last (unit time, mapped time) given
-
-    @property
-    def ready(self) -> bool:
-        """The mapping spans STREAM_BASELINE_S."""
-        return math.isfinite(self._low) and self._last_ns - self._first_ns >= STREAM_BASELINE_S * 1e9
-
-    def add(self, unit_us: int, arrival_ns: int) -> None:
-        """A message of unit time ``unit_us`` (unwrapped) arrived at ``arrival_ns`` (monotonic, wire time less)."""
-        if not self._w:
-            self._n0, self._t0, self._first_ns = unit_us, arrival_ns, arrival_ns
-            self._last_ns = arrival_ns
-        n = float(unit_us - self._n0)
-        t = float(arrival_ns - self._t0)
-        decay = math.exp(-(arrival_ns - self._last_ns) * 1e-9 / UNIT_CLOCK_MEMORY_S)
-        self._low += (arrival_ns - self._last_ns) * UNIT_CLOCK_RELAX
-        self._last_ns = arrival_ns
-        self._w = self._w * decay + 1.0
-        dn = n - self._mean_n
-        self._mean_n += dn / self._w
-        self._mean_t += (t - self._mean_t) / self._w
-        self._c_nt = self._c_nt * decay + dn * (t - self._mean_t)
-        self._c_nn = self._c_nn * decay + dn * (n - self._mean_n)
-        if self._c_nn > 0.0 and self._last_ns - self._first_ns >= STREAM_BASELINE_S * 0.5e9:
-            # Over the half second before it is ready: earlier, the line is too loose for its residuals.
-            self._low = min(self._low, t - self._line(n))
-
-    def _line(self, n: float) -> float:
-        return self._mean_t + self._c_nt / self._c_nn * (n - self._mean_n)
-
-    @property
-    def ns_per_us(self) -> float:
-        """Host nanoseconds per unit microsecond (1000 less the unit clock's drift)."""
-        return self._c_nt / self._c_nn if self._c_nn > 0.0 else math.nan
-
-    def map(self, unit_us: int) -> int:
-        """The monotonic time at which the message of unit time ``unit_us`` left the unit (call when ready).
-
-        The line and its envelope move as arrivals come: the mapping follows them by at most
-        UNIT_CLOCK_SLEW from the last time it gave, so stamps never jump.
-        """
-        n = float(unit_us - self._n0)
-        target = self._line(n) + (self._low if math.isfinite(self._low) else 0.0)
-        if self._mapped is not None and unit_us > self._mapped[0]:
-            elapsed_us = unit_us - self._mapped[0]
-            predicted = self._mapped[1] + elapsed_us * self.ns_per_us
-            step = UNIT_CLOCK_SLEW * elapsed_us * 1e3
-            target = predicted + min(step, max(-step, target - predicted))
-        self._mapped = (unit_us, target)
-        return self._t0 + int(target)
 
 
 def encode_kvh_fog(rotation: tuple[float, float, float], acceleration: tuple[float, float, float], status: int,
@@ -434,26 +368,27 @@ class KvhFogParser(ChunkParser):
     connection (the temperature comes every fourth message and is held until the next), and, for
     delta angles, while the message interval is not known. So every message the unit numbered is
     a frame, a rejection or lost; bytes between messages are ``stats.bytes_skipped``, each run of
-    them counted once in ``garbage_runs``, not as a rejected message.
+    them counted once in ``stats.garbage_runs``, not as a rejected message.
 
     Delta angles become rates by the measured interval, never by an unconfirmed output rate:
     Format B's by the unit's own clock (its timestamps over the sequence steps, the mean since the
     connection opened); A's and C's by :class:`StreamInterval`, fitted to the arrival times
     ``feed`` is given (the driver's monotonic clock at the read, less the wire time of the bytes
-    after each message: set ``byte_ns``), or the configured rate's where that measure confirms it
-    within RATE_CONFIRMED (the unit integrates over its own period exactly; host jitter does not).
+    after each message: ``byte_ns`` per byte, at the port's baud), or the configured rate's where
+    that measure confirms it within RATE_CONFIRMED (the unit integrates over its own period
+    exactly; host jitter does not).
     Without arrival times, A and C delta angles stay rejected as ``no_interval``.
     """
 
-    def __init__(self, config: KvhFogConfig) -> None:
+    def __init__(self, config: KvhFogConfig, byte_ns: int = 0) -> None:
         super().__init__((BAD_CRC, OTHER_FORMAT, AXIS_INVALID, REPEATED_SEQUENCE, NOT_FINITE, NO_TEMPERATURE_YET,
                           NO_INTERVAL, BAD_TIMESTAMP))
-        self.garbage_runs = 0   # runs of bytes that are no message (a port opened mid-message, line noise)
         self._in_garbage = False
         self.config = config
+        self.description = config.description
         fmt = config.format
         self.frame_bytes = fmt.length
-        self.byte_ns = 0   # wire time of a byte (the driver's baud): arrival of a message's end within a chunk
+        self.byte_ns = byte_ns   # wire time of a byte (the port's baud): arrival of a message's end within a chunk
         self._format = fmt
         self._axis = config.axis_index
         self._sign = config.sign
@@ -470,7 +405,6 @@ class KvhFogParser(ChunkParser):
         self._unit_time_us = 0                  # Format B: the clock over _unit_steps intervals (the mean interval)
         self._unit_steps = 0
         self._unwrapped_us = 0                  # Format B: the clock unwrapped since the connection opened
-        self.clock_faults = 0                   # Format B: times the clock went back, stood still or leapt
 
     def reset(self) -> None:
         """Drop a partly received message; the sequence, held temperature and intervals restart; statistics kept."""
@@ -490,7 +424,7 @@ class KvhFogParser(ChunkParser):
             return
         self.stats.bytes_skipped += count
         if not self._in_garbage:
-            self.garbage_runs += 1
+            self.stats.garbage_runs += 1   # a port opened mid-message, line noise
             self._in_garbage = True
 
     @property
@@ -559,7 +493,7 @@ class KvhFogParser(ChunkParser):
         self._buffer = buf[keep:]
         return out
 
-    def _decode(self, buf: bytes, start: int) -> tuple[KvhSample | None, str]:
+    def _decode(self, buf: bytes, start: int) -> tuple[RawSample | None, str]:
         """The sample of a message whose CRC is good, or None and the reason it is rejected."""
         values = self._format.layout.unpack_from(buf, start + 4)
         config = self.config
@@ -605,9 +539,8 @@ class KvhFogParser(ChunkParser):
         rate_dps = self._sign * rates[self._axis]
         if not (math.isfinite(rate_dps) and math.isfinite(temp_c)):
             return None, NOT_FINITE
-        return KvhSample(rate_dps, temp_c, rates, (values[3], values[4], values[5]), status,
-                         None if timestamp is None else self._unwrapped_us,
-                         math.nan if interval_s is None else interval_s), ''
+        imu = ImuReading(rates, (values[3], values[4], values[5]), _valid(status), _valid(status >> 4))
+        return RawSample(rate_dps, temp_c, None if timestamp is None else self._unwrapped_us, imu, interval_s), ''
 
     def _stream_interval(self) -> float | None:
         """A and C: the stream's measured interval, or the configured one where the measure confirms it."""
@@ -628,7 +561,7 @@ class KvhFogParser(ChunkParser):
             return None
         elapsed = (timestamp - last) % 2 ** 32   # the microsecond counter wraps after 71.6 minutes
         if not 0 < elapsed <= steps * MAX_INTERVAL_US:
-            self.clock_faults += 1
+            self.stats.clock_faults += 1
             return -1.0
         self._unwrapped_us += elapsed
         if self._unit_steps and abs(elapsed * self._unit_steps / (steps * self._unit_time_us) - 1.0) > 0.01:

@@ -1,0 +1,281 @@
+"""Stamps of serial frames from the reads that returned them: the wire time taken off, the gyro's period kept.
+
+Frame times are kept on the monotonic clock (the arrival of the chunk less its time on the
+wire, frames of one chunk spaced by the gyro's own period, estimated from the stream) and put
+on the caller's clock (wall or ROS time) by its offset from the monotonic clock. A step of that
+clock (set by hand, NTP, a simulation reset) re-anchors the stamps to it once, instead of
+freezing them or spreading it. Pure: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+
+from art_gyro_calibration.frame import BITS_PER_BYTE
+
+# A change of the clock's offset from the monotonic clock between two reads beyond this is a step
+# (NTP slews at most 0.5 ms/s). A simulated /clock published at 100 Hz reaches the node's clock
+# late, by up to a few hundred ms when its executor is busy: within
+# this it is jitter, which stamps never follow backwards.
+CLOCK_STEP_NS = 1_000_000_000
+# A measured interval per frame this far from the period estimate is a lost frame or a reopen, not the period.
+PERIOD_ACCEPT = (0.6, 1.6)
+PERIOD_SMOOTHING = 16   # the estimate averages about this many chunks
+# A unit's clock (kvh_fog Format B) is mapped once the mapping spans this long.
+UNIT_CLOCK_BASELINE_S = 1.0
+# The unit's clock is mapped to the host's over about this long: the drift a temperature change brings is followed.
+UNIT_CLOCK_MEMORY_S = 60.0
+# The lower envelope of the arrivals (the least delayed message) may rise this fast (s/s): a slowly shrinking delay.
+UNIT_CLOCK_RELAX = 1e-4
+# The mapping is slewed, never stepped, at most this fast (s/s): stamps stay the unit's period apart within 0.1 %.
+UNIT_CLOCK_SLEW = 1e-3
+
+
+def wire_byte_ns(baud: int) -> int:
+    """The wire time of a byte at ``baud``, in whole nanoseconds."""
+    return BITS_PER_BYTE * 1_000_000_000 // baud
+
+
+class WireStamper:
+    """Stamps of the frames of each read chunk: wire time subtracted, spaced by the gyro's period, on a clock.
+
+    Times are kept on the monotonic clock and moved onto the caller's clock by its current
+    offset; the period is the mean, over about PERIOD_SMOOTHING chunks, of the time between the
+    last frames of consecutive chunks divided by the frames in the later one, which stays right
+    when frames queued during a stall arrive in one burst.
+
+    :meth:`stamp` takes these steps, each a method with one reason:
+
+    1. :meth:`_clock_offset`: the caller's clock against the monotonic one; a step of it is taken
+       once two reads agree on it.
+    2. :meth:`_last_departure`: when the chunk's last frame left the gyro (its arrival less the wire
+       time of it and of the bytes after it).
+    3. :meth:`_spread`: the chunk's earlier frames before it, a period apart at least (frames queued
+       by a stall left the gyro a period apart, not a wire time apart).
+    4. :meth:`_floor`: none before the previous chunk's last frame and its wire time.
+    5. :meth:`_ceiling`: none after it arrived (bytes faster than the baud allows), less its wire
+       time at the byte rate measured.
+    6. :meth:`_hand_out`: on the caller's clock, never back; the steady time never back either.
+    """
+
+    __slots__ = ('byte_ns', 'frame_ns', 'period_ns', '_updates', '_last_steady', '_last_stamp', '_last_out',
+                 '_offset_ns', '_pending_ns', 'steps_ns', 'step_ns', '_frame_bytes', '_bytes', '_first_ns', 'baud',
+                 'too_fast', 'ahead')
+
+    def __init__(self, baud: int, frame_bytes: int) -> None:
+        self.byte_ns = wire_byte_ns(baud)
+        self.frame_ns = frame_bytes * self.byte_ns
+        self.period_ns = 0.0            # 0: not known yet
+        self._updates = 0
+        self._last_steady: int | None = None   # monotonic time of the last frame stamped
+        self._last_stamp = 0
+        self._last_out = 0                     # the last steady time handed out
+        self._offset_ns: int | None = None     # caller's clock minus the monotonic clock
+        self._pending_ns: int | None = None    # an offset one read saw beyond a step, not yet confirmed
+        self.steps_ns = 0               # sum of the clock steps re-anchored to
+        self.step_ns = 0                # the step found by the latest chunk, 0 if none
+        self.baud = baud
+        self._frame_bytes = frame_bytes
+        self._bytes = 0                 # bytes read, and when the first chunk's read returned: the byte rate
+        self._first_ns: int | None = None
+        self.too_fast = ''              # set once, when frames first came faster than the baud allows: why
+        self.ahead = 0                  # frames that would have been stamped after they arrived (fell back)
+
+    def restart(self) -> None:
+        """After a reopen: the next chunk does not measure the period (the link was down meanwhile)."""
+        self._last_steady = None
+
+    @property
+    def offset_ns(self) -> int:
+        """The caller's clock less the monotonic clock, as the latest chunk was stamped with."""
+        return self._offset_ns or 0
+
+    def stamp(self, clock_ns: int, monotonic_ns: int, chunk_bytes: int,
+              ends: list[int]) -> list[tuple[int, int]]:
+        """(stamp, steady) of the frames ending at ``ends`` of a chunk whose read returned at the given times."""
+        offset = self._clock_offset(clock_ns - monotonic_ns)
+        if not ends:
+            return []
+        previous = self._last_steady
+        steady = self._spread(self._last_departure(monotonic_ns, chunk_bytes, ends[-1]), previous, ends)
+        if previous is not None:
+            self._floor(steady, previous)
+        self._ceiling(steady, monotonic_ns, chunk_bytes, ends)
+        self._last_steady = steady[-1]
+        return self._hand_out(steady, offset)
+
+    def _clock_offset(self, offset: int) -> int:
+        """The offset to stamp this chunk with: ``offset`` read now, or the one before while a step is unconfirmed."""
+        self.step_ns = 0
+        if self._offset_ns is not None and abs(offset - self._offset_ns) > CLOCK_STEP_NS:
+            # A step is taken when a second read agrees on it: one read of a clock that goes back and
+            # forth (a simulated /clock whose messages two executor threads apply out of order) is none.
+            if self._pending_ns is not None and abs(offset - self._pending_ns) <= CLOCK_STEP_NS:
+                self.step_ns = offset - self._offset_ns
+                self.steps_ns += self.step_ns
+                self._pending_ns = None
+            else:
+                self._pending_ns, offset = offset, self._offset_ns   # this chunk stays on the clock as it was
+        else:
+            self._pending_ns = None
+        self._offset_ns = offset
+        return offset
+
+    def _last_departure(self, monotonic_ns: int, chunk_bytes: int, last_end: int) -> int:
+        """When the chunk's last frame (ending at ``last_end``) left the gyro, on the monotonic clock."""
+        # The read returned when the chunk's last byte arrived: the last frame's first byte left
+        # the gyro its own and every later byte's wire time earlier.
+        return monotonic_ns - (chunk_bytes - last_end) * self.byte_ns - self.frame_ns
+
+    def _spread(self, last: int, previous: int | None, ends: list[int]) -> list[int]:
+        """The chunk's frames, the last at ``last``, each earlier one its wire spacing or a period before the next.
+
+        The period is measured here (from the previous chunk's last frame), and the step between two
+        frames is never more than that measure, so the first never goes before the previous chunk's last.
+        """
+        n = len(ends)
+        step = self.period_ns
+        if previous is not None and last > previous:
+            per_frame = (last - previous) / n
+            self._update_period(per_frame)
+            step = min(self.period_ns, per_frame)
+        # Frames queued by a stall (or before an open) left the gyro a period apart, not a wire time apart.
+        spacing = [max(float((ends[i + 1] - ends[i]) * self.byte_ns), step) for i in range(n - 1)]
+        steady = [last] * n
+        for i in range(n - 2, -1, -1):
+            steady[i] = steady[i + 1] - int(spacing[i])
+        return steady
+
+    def _floor(self, steady: list[int], previous: int) -> None:
+        """Frames at least their wire time after the previous chunk's last (``previous``) and after each other."""
+        floor = previous + self.frame_ns
+        for i in range(len(steady)):
+            if steady[i] < floor:
+                steady[i] = floor
+            floor = steady[i] + self.frame_ns
+
+    def _ceiling(self, steady: list[int], monotonic_ns: int, chunk_bytes: int, ends: list[int]) -> None:
+        """Never after a frame arrived, less its wire time at the byte rate measured (at most the baud's).
+
+        Bytes faster than the baud allows (a pty, USB-CDC, a wrong baud) pushed each frame a wire
+        time after the last, without bound; such frames are counted (``ahead``) and said once (``too_fast``).
+        """
+        measured = self._byte_ns(monotonic_ns, chunk_bytes)
+        byte_ns = min(float(self.byte_ns), measured)
+        for i in range(len(steady)):
+            ceiling = monotonic_ns - int((chunk_bytes - ends[i] + self._frame_bytes) * byte_ns)
+            if steady[i] > ceiling:
+                steady[i] = ceiling
+                self.ahead += 1
+                if not self.too_fast and measured < self.byte_ns:   # not a late read alone: bytes beyond the baud
+                    self.too_fast = (f'frames arrive faster than {self.baud} baud allows ({1e9 / byte_ns:.0f} '
+                                     f'bytes/s measured, {self.baud // BITS_PER_BYTE} at most): stamped at arrival '
+                                     'less their wire time at the measured rate; check the baud parameter')
+
+    def _hand_out(self, steady: list[int], offset: int) -> list[tuple[int, int]]:
+        """(stamp, steady) on the caller's clock by ``offset``: neither goes back (but a stamp at a clock step)."""
+        out = []
+        for t in steady:
+            stamp = t + offset
+            if not self.step_ns and stamp <= self._last_stamp:   # jitter of a coarse clock: never back
+                stamp = self._last_stamp + 1
+            self._last_stamp = stamp
+            # The steady time never goes back either, a step's chunk included: the stamps before it may have
+            # been held up by a stale clock read (a /clock 50 ms late, then a step: the raw log went 20 ms back).
+            clean = max(stamp - self.steps_ns, self._last_out + 1)
+            self._last_out = clean
+            out.append((stamp, clean))
+        return out
+
+    def _byte_ns(self, monotonic_ns: int, chunk_bytes: int) -> float:
+        """Mean time per byte received since the first read (idle time included: an upper bound)."""
+        if self._first_ns is None:
+            self._first_ns = monotonic_ns
+            return math.inf
+        self._bytes += chunk_bytes
+        return (monotonic_ns - self._first_ns) / self._bytes
+
+    def _update_period(self, per_frame: float) -> None:
+        period = self.period_ns
+        # Outliers are refused only once the estimate has settled: a wrong first measure (queued frames read in
+        # two chunks a wire time apart) would otherwise refuse every right one after it, for good.
+        if self._updates >= PERIOD_SMOOTHING and not PERIOD_ACCEPT[0] < per_frame / period < PERIOD_ACCEPT[1]:
+            return
+        self._updates += 1
+        self.period_ns = period + (per_frame - period) / min(self._updates, PERIOD_SMOOTHING)
+
+
+class UnitClock:
+    """Format B's microsecond clock mapped onto the host's monotonic clock: drift and offset tracked.
+
+    A line through (unit time, arrival) by least squares with exponential forgetting over about
+    UNIT_CLOCK_MEMORY_S (so a drift that changes with temperature is followed), lowered to the
+    envelope of the least delayed arrivals (a stamp is when the message left the unit, not when a
+    busy host read it), that envelope taken from half of UNIT_CLOCK_BASELINE_S on. Ready once it has
+    spanned UNIT_CLOCK_BASELINE_S; :meth:`reset` when the
+    clock is broken (a reopen, a clock fault), after which the driver stamps by arrival again.
+    """
+
+    __slots__ = ('_w', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_low', '_first_ns', '_last_ns',
+                 '_mapped')
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the mapping."""
+        self._w = 0.0
+        self._n0 = self._t0 = 0
+        self._mean_n = self._mean_t = self._c_nt = self._c_nn = 0.0
+        self._low = math.inf
+        self._first_ns = self._last_ns = 0
+        self._mapped: tuple[int, float] | None = None   # the last (unit time, mapped time) given
+
+    @property
+    def ready(self) -> bool:
+        """The mapping spans UNIT_CLOCK_BASELINE_S."""
+        return math.isfinite(self._low) and self._last_ns - self._first_ns >= UNIT_CLOCK_BASELINE_S * 1e9
+
+    def add(self, unit_us: int, arrival_ns: int) -> None:
+        """A message of unit time ``unit_us`` (unwrapped) arrived at ``arrival_ns`` (monotonic, wire time less)."""
+        if not self._w:
+            self._n0, self._t0, self._first_ns = unit_us, arrival_ns, arrival_ns
+            self._last_ns = arrival_ns
+        n = float(unit_us - self._n0)
+        t = float(arrival_ns - self._t0)
+        decay = math.exp(-(arrival_ns - self._last_ns) * 1e-9 / UNIT_CLOCK_MEMORY_S)
+        self._low += (arrival_ns - self._last_ns) * UNIT_CLOCK_RELAX
+        self._last_ns = arrival_ns
+        self._w = self._w * decay + 1.0
+        dn = n - self._mean_n
+        self._mean_n += dn / self._w
+        self._mean_t += (t - self._mean_t) / self._w
+        self._c_nt = self._c_nt * decay + dn * (t - self._mean_t)
+        self._c_nn = self._c_nn * decay + dn * (n - self._mean_n)
+        if self._c_nn > 0.0 and self._last_ns - self._first_ns >= UNIT_CLOCK_BASELINE_S * 0.5e9:
+            # Over the half second before it is ready: earlier, the line is too loose for its residuals.
+            self._low = min(self._low, t - self._line(n))
+
+    def _line(self, n: float) -> float:
+        return self._mean_t + self._c_nt / self._c_nn * (n - self._mean_n)
+
+    @property
+    def ns_per_us(self) -> float:
+        """Host nanoseconds per unit microsecond (1000 less the unit clock's drift)."""
+        return self._c_nt / self._c_nn if self._c_nn > 0.0 else math.nan
+
+    def map(self, unit_us: int) -> int:
+        """The monotonic time at which the message of unit time ``unit_us`` left the unit (call when ready).
+
+        The line and its envelope move as arrivals come: the mapping follows them by at most
+        UNIT_CLOCK_SLEW from the last time it gave, so stamps never jump.
+        """
+        n = float(unit_us - self._n0)
+        target = self._line(n) + (self._low if math.isfinite(self._low) else 0.0)
+        if self._mapped is not None and unit_us > self._mapped[0]:
+            elapsed_us = unit_us - self._mapped[0]
+            predicted = self._mapped[1] + elapsed_us * self.ns_per_us
+            step = UNIT_CLOCK_SLEW * elapsed_us * 1e3
+            target = predicted + min(step, max(-step, target - predicted))
+        self._mapped = (unit_us, target)
+        return self._t0 + int(target)
