@@ -158,8 +158,8 @@ class Compensator:
         self._refinement = Refinement(bias, self._model.refinable, self.calibration.filters.temperature_rate_tau_s) \
             if bias.window is not None and self._refinable else None
 
-    def scale(self, raw_rate: int, raw_temp: int) -> tuple[float, float]:
-        """Counts to (GyroRate deg/s, GyroTemp degC)."""
+    def scale(self, raw_rate: float, raw_temp: float) -> tuple[float, float]:
+        """Counts (or a KVH unit's deg/s and degC) to (GyroRate deg/s, GyroTemp degC)."""
         return raw_rate * self._rate_scale, raw_temp * self._temp_scale
 
     def error(self, t: float, rate_dps: float, temp_c: float) -> float:
@@ -260,7 +260,7 @@ class FrameCorrector:
         if bias is not None:
             self.compensator.bias = bias
 
-    def step(self, raw_rate: int, raw_temp: int, t: float) -> str:
+    def step(self, raw_rate: float, raw_temp: float, t: float) -> str:
         """Correct the frame read at ``t`` (s); '' if it is to be published, else why not."""
         compensator = self.compensator
         rate_dps, temp_c = compensator.scale(raw_rate, raw_temp)
