@@ -140,8 +140,11 @@ def _simulate(args: argparse.Namespace) -> int:
 def _allan(args: argparse.Namespace) -> int:
     import json
     from art_gyro_calibration.analysis.bags import csv_rate_chunks, is_bag, rate_chunks
-    from art_gyro_calibration.analysis.noise import allan_of_record, plot_allan
+    from art_gyro_calibration.analysis.noise import allan_of_record, check_node_rate, plot_allan, table_at_rest
     from art_gyro_calibration.analysis.pipeline import scale_factors
+    from art_gyro_calibration.log import read_log_chunks
+    if args.node_rate_hz is not None:
+        check_node_rate(args.node_rate_hz)
     with Outputs([args.log], args.force) as outputs:
         out = outputs.claim(args.out)
         plots = outputs.claim_directory(args.plots, 'allan*.png') if args.plots else None
@@ -151,7 +154,9 @@ def _allan(args: argparse.Namespace) -> int:
         else:
             given = args.serial or args.rate_scale_factor is not None
             scale = scale_factors(args.serial, args.rate_scale_factor) if given else None
-            total, chunks = csv_rate_chunks(args.log, scale.rate if scale else None, scale.temp if scale else None)
+            rate_scale, temp_scale = (scale.rate, scale.temp) if scale else (None, None)
+            total = csv_rate_chunks(args.log, rate_scale, temp_scale)[0]   # its size; the rows read with ref_rate
+            chunks = table_at_rest(read_log_chunks(args.log, rate_scale, temp_scale), str(args.log))
         try:
             result = allan_of_record(chunks, str(args.log), args.node_rate_hz, total)
         except LogError as e:

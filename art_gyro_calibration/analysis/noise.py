@@ -27,7 +27,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.analysis.allan import AllanAccumulator, AllanDeviation
+from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
 TERMS = ('quantisation', 'arw', 'bias_instability', 'rate_random_walk', 'rate_ramp')
@@ -46,8 +47,24 @@ _FACTORS = (3.0, 1.0, 2.0 * math.log(2.0) / math.pi, 1.0 / 3.0, 0.5)
 SHOWN_SHARE = 0.1
 # The static-bias window is the shortest whose Allan deviation is within this factor of the least.
 BIAS_WINDOW_TOLERANCE = 1.1
-# The node's bias_samples range (ros/parameters.py).
+# The node's bias_samples and yaw_rate_stddev (rad/s) ranges (ros/parameters.py, which needs rclpy: a test checks
+# that they agree).
 BIAS_SAMPLES_RANGE = (2, 1_000_000)
+YAW_RATE_STDDEV_RANGE = (1e-7, 1.0)
+# Frame rates (Hz) a node's parameters are computed for: an RD2100 at 10 Hz to a KVH unit's 5 kHz, with room.
+NODE_RATE_HZ_RANGE = (0.01, 100_000.0)
+# Sample rates (Hz) of a gyro record; a time column giving another is in another unit (TIME_UNITS).
+PLAUSIBLE_RATE_HZ = (0.5, 100_000.0)
+TIME_UNITS = (('ms', 1e3), ('us', 1e6), ('ns', 1e9), ('minutes', 1 / 60), ('hours', 1 / 3600))
+# The at-rest check: the record is cut into blocks of STILL_BLOCK_S; between two consecutive blocks at rest the
+# mean differs by white noise, sigma sqrt(2 / B) for B samples of per-sample noise sigma (and by bias instability,
+# far less over 10 s). A step beyond STILL_SIGMAS of that is motion: a rate table at 1 deg/s is 150 of them for an
+# RD2100 at 10 Hz. sigma is read from the sample-to-sample differences with their extreme TRIM share on each side
+# left out (a table's steps), and the trimmed variance scaled back to the whole normal's (TRIM_VARIANCE).
+STILL_BLOCK_S = 10.0
+STILL_SIGMAS = 8.0
+TRIM = 0.01
+TRIM_VARIANCE = 0.8735
 CONFIDENCE = 0.683
 
 
@@ -167,8 +184,7 @@ def node_parameters(terms: NoiseTerms, allan: AllanDeviation, rate_hz: float) ->
     the least: the robot waits far less for a bias error at most 10 % larger. Searched only
     over the taus the record measured, and within the parameter's range.
     """
-    if not rate_hz > 0:
-        raise ValueError(f'node rate must be positive, got {rate_hz}')
+    check_node_rate(rate_hz)
     white = math.sqrt(terms.arw_dps_sqrt_s ** 2 * rate_hz + 3.0 * (terms.quantisation_deg or 0.0) ** 2 * rate_hz ** 2)
     low_s, high_s = BIAS_SAMPLES_RANGE[0] / rate_hz, BIAS_SAMPLES_RANGE[1] / rate_hz
     longest = float(allan.tau_s[-1])
@@ -183,8 +199,20 @@ def node_parameters(terms: NoiseTerms, allan: AllanDeviation, rate_hz: float) ->
         limited = ('the bias error still falls at the longest tau: ' +
                    ('the parameter\'s range' if high_s < longest else 'a longer record would allow a longer window'))
     samples = int(np.clip(round(window * rate_hz), *BIAS_SAMPLES_RANGE))
+    low, high = YAW_RATE_STDDEV_RANGE
+    if not low <= math.radians(white) <= high:
+        raise ValueError(f'the white noise fitted, {math.radians(white):.3g} rad/s per sample at {rate_hz:g} Hz, is '
+                         f'outside what the node takes as yaw_rate_stddev ({low:g}..{high:g} rad/s): not the noise '
+                         'of a gyro at rest')
     return NodeParameters(rate_hz, math.radians(white), samples, samples / rate_hz,
                           float(terms.adev(samples / rate_hz)[0]), limited)
+
+
+def check_node_rate(rate_hz: float) -> None:
+    """Refuse a node frame rate outside :data:`NODE_RATE_HZ_RANGE` (a ValueError naming it)."""
+    low, high = NODE_RATE_HZ_RANGE
+    if not low <= rate_hz <= high:
+        raise ValueError(f'--node-rate-hz must be in {low:g}..{high:g} Hz (the node\'s frame rate), got {rate_hz:g}')
 
 
 @dataclass(frozen=True)
@@ -231,11 +259,99 @@ class _Progress:
 RateChunks = Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]
 
 
-def accumulate(chunks: RateChunks, accumulator: AllanAccumulator, progress: Callable[[int], None]) -> RecordStats:
-    """Feed the chunks' rates to ``accumulator``; the spacing of their times ``t`` (s)."""
+def check_sample_rate(rate_hz: float, where: str) -> None:
+    """Refuse a record whose times give a sample rate no gyro has, saying in which unit they would be plausible."""
+    low, high = PLAUSIBLE_RATE_HZ
+    if low <= rate_hz <= high:
+        return
+    plausible = [f'{rate_hz * factor:.4g} Hz if they are {unit}' for unit, factor in TIME_UNITS
+                 if low <= rate_hz * factor <= high]
+    raise ValueError(f'{where}: the times give {rate_hz:.3g} samples per second, not a gyro\'s ({low:g}..{high:g} Hz): '
+                     'the time column must be in seconds' + (f' ({"; ".join(plausible)})' if plausible else ''))
+
+
+def table_at_rest(logs: Iterable[GyroLog], where: str) -> RateChunks:
+    """The (t, rate) of a log's chunks; refuses a log whose ``ref_rate`` is not 0 throughout (a table turning)."""
+    rows = 0
+    for log in logs:
+        if log.ref_rate is not None:
+            moving = np.flatnonzero(log.ref_rate != 0.0)
+            if len(moving):
+                k = int(moving[0])
+                raise ValueError(f'{where}: not at rest: ref_rate is {log.ref_rate[k]:g} deg/s at row {rows + k + 1} '
+                                 f'(t = {log.t[k]:.6g} s): calibrate allan needs a record of the gyro at rest, '
+                                 'not a rate-table run (record one, or cut out a part where ref_rate is 0)')
+        rows += len(log)
+        yield log.t, log.rate_dps
+
+
+class _Stillness:
+    """Whether a record is at rest: the steps between consecutive block means against what white noise allows."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.block = max(2, round(STILL_BLOCK_S * rate_hz))
+        self._carry = np.empty(0)
+        self._carry_t = math.nan
+        self._means: list[NDArray[np.float64]] = []
+        self._starts: list[NDArray[np.float64]] = []
+        self._last = math.nan
+        self._squares = 0.0
+        self._count = 0
+
+    def add(self, t: NDArray[np.float64], rate: NDArray[np.float64]) -> None:
+        d = np.diff(rate) if math.isnan(self._last) else np.diff(np.concatenate(([self._last], rate)))
+        self._last = float(rate[-1])
+        if len(d) >= 1 / TRIM:
+            low, high = np.quantile(d, [TRIM, 1.0 - TRIM])
+            d = d[(d >= low) & (d <= high)]
+        self._squares += float(np.dot(d, d))
+        self._count += len(d)
+        start_t = self._carry_t if len(self._carry) else float(t[0])
+        x = np.concatenate((self._carry, rate))
+        full = len(x) // self.block * self.block
+        if full:
+            self._means.append(x[:full].reshape(-1, self.block).mean(axis=1))
+            # Each block's start time: the carried block's, then those of the chunk.
+            firsts = np.arange(0, full, self.block) - len(self._carry)
+            self._starts.append(np.where(firsts < 0, start_t, t[np.maximum(firsts, 0)]))
+        self._carry = x[full:]
+        self._carry_t = float(t[len(t) - len(self._carry)]) if len(self._carry) else math.nan
+
+    def white_dps(self) -> float:
+        """The per-sample white noise (deg/s) the trimmed differences give."""
+        return math.sqrt(self._squares / self._count / TRIM_VARIANCE / 2.0) if self._count else 0.0
+
+    def check(self, where: str) -> None:
+        """Refuse a record with a step between consecutive blocks beyond what its white noise allows."""
+        means = np.concatenate(self._means) if self._means else np.empty(0)
+        if len(means) < 2:
+            return
+        bound = STILL_SIGMAS * self.white_dps() * math.sqrt(2.0 / self.block)
+        steps = np.abs(np.diff(means))
+        moving = np.flatnonzero(steps > bound)
+        if len(moving):
+            k = int(moving[0])
+            starts = np.concatenate(self._starts)
+            raise ValueError(
+                f'{where}: not at rest: the mean rate steps by {steps[k]:.4g} deg/s between the {STILL_BLOCK_S:g} s '
+                f'blocks from {starts[k]:.6g} s and {starts[k + 1]:.6g} s, where white noise of '
+                f'{self.white_dps():.3g} deg/s a sample allows {bound:.3g} ({STILL_SIGMAS:g} sigma); '
+                f'{len(moving)} of {len(steps)} steps are beyond it. calibrate allan needs a record of the gyro at '
+                'rest: record one, or cut the still part out of this one')
+
+
+def accumulate(chunks: RateChunks, accumulator: AllanAccumulator, progress: Callable[[int], None],
+               where: str = 'the record') -> RecordStats:
+    """Feed the chunks' rates to ``accumulator``; the spacing of their times ``t`` (s).
+
+    Refuses (ValueError naming ``where``) times that go back, times in another unit than seconds, a record that
+    is not at rest (:class:`_Stillness`) and a constant one.
+    """
     first_t = last_t = math.nan
     nominal = math.nan
     gaps, longest, total = 0, 0.0, 0.0
+    lowest, highest = math.inf, -math.inf
+    still: _Stillness | None = None
     for t, rate in chunks:
         if not len(t):
             continue
@@ -243,17 +359,38 @@ def accumulate(chunks: RateChunks, accumulator: AllanAccumulator, progress: Call
             first_t = float(t[0])
             steps = np.diff(t)
             nominal = float(np.median(steps)) if len(steps) else math.nan
-        dt = np.diff(np.concatenate(([last_t], t))) if not math.isnan(last_t) else np.diff(t)
+            if nominal == 0.0:
+                raise ValueError(f'{where}: most of its first {len(t)} times repeat the one before (from '
+                                 f'{first_t:.9g} s): the times must be the samples\' own, in seconds')
+            if nominal > 0:
+                check_sample_rate(1.0 / nominal, where)
+                still = _Stillness(1.0 / nominal)
+        times = t if math.isnan(last_t) else np.concatenate(([last_t], t))
+        dt = np.diff(times)
+        back = np.flatnonzero(dt < 0)
+        if len(back):
+            k = int(back[0])
+            number = accumulator.samples + k + len(t) - len(times) + 2   # 1 = the record's first sample
+            raise ValueError(f'{where}: time goes back at sample {number}: {times[k + 1]:.9g} s after '
+                             f'{times[k]:.9g} s; the Allan deviation needs the samples in the order taken')
         if len(dt) and nominal > 0:
             gaps += int(np.count_nonzero(dt > 1.5 * nominal))
             longest = max(longest, float(dt.max()))
         last_t = float(t[-1])
         accumulator.add(rate)
+        if still is not None:
+            still.add(t, rate)
         total += float(np.sum(rate))
+        lowest, highest = min(lowest, float(rate.min())), max(highest, float(rate.max()))
         progress(accumulator.samples)
     n = accumulator.samples
     if n < 2 or not last_t > first_t:
         raise ValueError(f'{n} samples over {last_t - first_t if n else 0:g} s: too short for an Allan deviation')
+    if lowest == highest:
+        raise ValueError(f'{where}: every one of its {n} samples reads {lowest:g} deg/s: a constant record (a stuck '
+                         'or all-zero stream) has no noise to analyse')
+    if still is not None:
+        still.check(where)
     duration = last_t - first_t
     return RecordStats(n, duration, (n - 1) / duration, gaps, longest if gaps else 0.0, total / n)
 
@@ -300,7 +437,7 @@ def allan_of_record(chunks: RateChunks, source: str, node_rate_hz: float | None 
     """
     bar = _Progress(progress_stream, progress_total, f'calibrate allan: {Path(source).name}')
     with AllanAccumulator(directory=temp_dir) as accumulator:
-        stats = accumulate(chunks, accumulator, bar.update)
+        stats = accumulate(chunks, accumulator, bar.update, source)
         bar.done()
         allan = accumulator.result(stats.sample_rate_hz)
     low, high = allan.confidence(stats.sample_rate_hz, CONFIDENCE)
