@@ -45,10 +45,12 @@ from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_BLOCK_S, 
 
 
 def _apply(args: argparse.Namespace) -> int:
+    from art_gyro_calibration.analysis.replay import unapplied_warm_up
     from art_gyro_calibration.analysis.streaming import apply_to_csv
     with Outputs([args.log, args.calibration], args.force) as outputs:
         out = outputs.claim(args.out)
         calibration = load_calibration(args.calibration)
+        _warn_if(unapplied_warm_up(calibration, RunStart(args.powered_on_at_start)))
         with open(out, 'wb') as stream:
             done = apply_to_csv(args.log, calibration, args.bias_samples, stream,
                                 start=RunStart(args.powered_on_at_start), topics=_topics(args))
@@ -103,7 +105,7 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from art_gyro_calibration.analysis.replay import replay, restart, without_terms
+    from art_gyro_calibration.analysis.replay import replay, restart, unapplied_warm_up, without_terms
     from art_gyro_calibration.analysis.report import field_table
     from art_gyro_calibration.analysis.bags import read_any_log
     calibration = load_calibration(args.calibration)
@@ -111,6 +113,7 @@ def _replay(args: argparse.Namespace) -> int:
     if args.start_s:
         log = restart(log, args.start_s)
     start = RunStart(powered_on_at_start=args.powered_on_at_start)
+    _warn_if(unapplied_warm_up(calibration, start))
     rows = [(f'{args.log} from {args.start_s:g} s', name,
              replay(log, c, args.bias_samples, args.settle_s, start).field.to_dict())
             for name, c in (('art', without_terms(calibration)), ('extended', calibration))]
@@ -182,6 +185,12 @@ def _allan(args: argparse.Namespace) -> int:
 
 def _warn(message: str) -> None:
     print(f'calibrate: warning: {message}', file=sys.stderr)
+
+
+def _warn_if(message: str) -> None:
+    """:func:`_warn` a message that may be empty (nothing to say)."""
+    if message:
+        _warn(message)
 
 
 def _topics(args: argparse.Namespace) -> BagTopics:

@@ -131,6 +131,22 @@ def own_restarts(log: GyroLog, bias_samples: int = DEFAULT_SAMPLES,
     return out
 
 
+def _warm_up(calibration: Calibration) -> tuple[Term | None, float]:
+    """``calibration``'s warm-up term (None without one) and its size at power-on, deg/h."""
+    warm_up = next((t for t in calibration.terms if t.signal == POWER_ON_SIGNAL), None)
+    return warm_up, 0.0 if warm_up is None else abs(warm_up.evaluate_one(0.0)) * DEG_PER_H_PER_DPS
+
+
+def unapplied_warm_up(calibration: Calibration, start: RunStart) -> str:
+    """Why ``calibration``'s warm-up term is not applied on a run begun as ``start`` ('' when it is, or has none)."""
+    warm_up, amplitude_dph = _warm_up(calibration)
+    if warm_up is None or start.powered_on_at_start:
+        return ''
+    return (f'the warm-up term ({amplitude_dph:.1f} deg/h at power-on) is not applied: the log is not known to start '
+            'at the gyro\'s power-on, so the term counts as decayed, as the node does by default; '
+            '--powered-on-at-start applies it from the first row')
+
+
 def unjudged_warm_up(calibration: Calibration, bias_instability_dph: float) -> str:
     """Why ``calibration``'s warm-up term needs a cold run to judge it ('' without one).
 
@@ -141,10 +157,9 @@ def unjudged_warm_up(calibration: Calibration, bias_instability_dph: float) -> s
     instability: a person can tell a large warm-up from a small wander, where a fixed ratio
     would be tuned to one simulator.
     """
-    warm_up = next((t for t in calibration.terms if t.signal == POWER_ON_SIGNAL), None)
+    warm_up, amplitude_dph = _warm_up(calibration)
     if warm_up is None:
         return ''
-    amplitude_dph = abs(warm_up.evaluate_one(0.0)) * DEG_PER_H_PER_DPS
     return (f'the warm-up term ({amplitude_dph:.1f} deg/h at power-on; the log\'s bias instability is '
             f'{bias_instability_dph:.2f} deg/h) was judged on this log alone: if it is the bias wandering at the '
             'start of this run, a node told powered_on_at_start is off by about that much on every cold start; '
