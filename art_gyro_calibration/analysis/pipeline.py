@@ -29,7 +29,7 @@ from art_gyro_calibration.analysis.loop import (DEFAULT_SERIAL, HEADING_SIGNALS,
 from art_gyro_calibration.analysis.metrics import steady_segments
 from art_gyro_calibration.analysis.replay import (COLD_START_NAME, OWN_RUNS_NAME, RESTARTS_NAME, Validation,
                                                   startup_check, unjudged_warm_up, validate)
-from art_gyro_calibration.analysis.report import build_report, validation_section
+from art_gyro_calibration.analysis.report import build_report, misfit_reason, validation_section
 
 
 @dataclass(frozen=True)
@@ -186,12 +186,9 @@ def _warn_loop(loop: LoopResult, warn: Callable[[str], None]) -> None:
                  f'{not_written_reason(finding.signal)}')
     adequacy = loop.adequacy
     if adequacy is not None and not adequacy.model_adequate:
-        shapes = [f'{x.signal} ({x.shape_dph:.2f} deg/h)' for x in adequacy.signals if x.found]
-        warn(f'the model does not fit: {adequacy.excess_dph:.2f} deg/h beyond the noise budget, '
-             'held out, over 10-minute means'
-             + (f'; what it leaves has a shape beyond chance and the materiality against {", ".join(shapes)}'
-                if shapes else '')
-             + '; see REPORT.md and the residual against each signal (--plots)')
+        reason = misfit_reason(adequacy.residual_rms_dph, adequacy.budget_dph, adequacy.excess_dph,
+                               [(x.signal, x.shape_dph) for x in adequacy.signals if x.found])
+        warn(f'the model does not fit: {reason}; see REPORT.md and the residual against each signal (--plots)')
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from art_gyro_calibration.compensation import apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
-from art_gyro_calibration.analysis.loop import Effect, LoopResult, not_written_reason
+from art_gyro_calibration.analysis.loop import ADEQUACY_RATIO, Effect, LoopResult, not_written_reason
 from art_gyro_calibration.analysis.metrics import error_metrics
 from art_gyro_calibration.analysis.replay import COLD_START_NAME, Validation
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_DRAWS, FORMS_TRIED
@@ -32,6 +32,19 @@ STAGES = ('uncalibrated', 'art', 'extended')
 # calibrate apply's READ_CHUNK_ROWS (a chunk of text): a chunk's edge restarts the filtered signals, and this value
 # gives the report's numbers as they have always been (another moves them by up to 1e-9).
 STAGE_CHUNK_ROWS = 1 << 18
+
+
+def misfit_reason(residual_rms_dph: float, budget_dph: float, excess_dph: float,
+                  shapes: Sequence[tuple[str, float]]) -> str:
+    """Why the lack-of-fit alarm rang, as its numbers say: the residual beyond its budget, a shape, or both."""
+    named = ', '.join(f'{signal} ({shape_dph:.2f} deg/h)' for signal, shape_dph in shapes)
+    shape = f'a shape beyond chance and the materiality against {named}'
+    if residual_rms_dph > ADEQUACY_RATIO * budget_dph:
+        level = (f'what it leaves, held out, over 10-minute means is {residual_rms_dph:.2f} deg/h, more than '
+                 f'{ADEQUACY_RATIO:g} x the noise budget of {budget_dph:.2f} deg/h ({excess_dph:.2f} deg/h beyond it)')
+        return f'{level}; and it has {shape}' if shapes else level
+    return (f'what it leaves has {shape} (its level, held out, over 10-minute means, {residual_rms_dph:.2f} deg/h, '
+            f'is within {ADEQUACY_RATIO:g} x the noise budget of {budget_dph:.2f} deg/h)')
 
 
 def stage_error(log: GyroLog, result: LoopResult, bias_samples: int, stage: str) -> NDArray[np.float64]:
@@ -161,12 +174,11 @@ def markdown_summary(report: dict[str, Any]) -> str:
                      f'{e.get("reason", not_written_reason(e["signal"]))}')
     adequacy = report['adequacy']
     if adequacy and not adequacy['model_adequate']:
-        lines += ['', f'**Warning: the model does not fit.** What it leaves, held out, over 10-minute means is '
-                      f'{adequacy["residual_rms_dph"]:.2f} deg/h against a noise budget of '
-                      f'{adequacy["budget_dph"]:.2f} deg/h ({adequacy["excess_dph"]:.2f} deg/h beyond it): an effect '
-                      'none of the forms tried '
-                      'describes. Look at the residual against each signal (--plots).']
         shapes = [x for x in adequacy.get('signals', []) if x['found']]
+        reason = misfit_reason(adequacy['residual_rms_dph'], adequacy['budget_dph'], adequacy['excess_dph'],
+                               [(x['signal'], x['shape_dph']) for x in shapes])
+        lines += ['', f'**Warning: the model does not fit:** {reason}: an effect none of the forms tried describes. '
+                      'Look at the residual against each signal (--plots).']
         if shapes:
             lines += ['', 'Held out, what the written model leaves has a shape no form assumed (means in groups of '
                           'the signal, beyond phase-randomised chance and the materiality) against: '
