@@ -24,6 +24,7 @@ import serial
 
 from art_gyro_calibration.frame import LOCK_FRAMES, Frame, RawSample
 from art_gyro_calibration.protocols import KVH_BAUDS, KvhFogConfig, make_parser
+from art_gyro_calibration.protocols.kvh_fog import NO_INTERVAL, NO_TEMPERATURE_YET
 from art_gyro_calibration.stamper import UnitClock, WireStamper, wire_byte_ns
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
@@ -37,6 +38,11 @@ NO_FRAMES_WARNING_S = 2.0
 # unlocked frames) is warned once, until the share is back under half of it: a baud or protocol changed, or a
 # link that corrupts bytes. A correct link skips almost none (the lock's first frames after a reopen).
 BAD_SHARE_WARNING = 0.5
+# Rejections a protocol makes at the start of every connection by design (a kvh_fog delta angle before its interval
+# is measured, a Format C message before the first temperature): not counted in that share.
+STARTUP_REJECTIONS = (NO_INTERVAL, NO_TEMPERATURE_YET)
+# A port that stays missing (or unreadable) is reported again this often while the driver retries it.
+LINK_DOWN_REPEAT_S = 10.0
 # RD2100 protocols: a yaw rate cannot change faster than this between two frames (deg/s per second between their
 # stamps). A chosen bound, not a measured one: it takes a rate from 0 to the RD2100's full 98.8 deg/s in 20 ms,
 # faster than a vehicle's body turns; a frame beyond it is a corrupt one whose checksum passed (at 50 Hz, a jump of
@@ -142,6 +148,9 @@ class SerialGyroDriver:
         self._window_ns = 0            # the byte-share window: when it started, bytes read, skipped before it
         self._window_bytes = 0
         self._window_skipped = 0
+        self._window_startup = 0       # start-up rejections before the window
+        self._down_since_ns = 0        # monotonic time the link went down, and of its last report
+        self._down_said_ns = 0
         self._reopen_period_s = float(reopen_period_s)
         self._too_fast_said = False
         # Samples stamped by the unit's clock (kvh_fog Format B's) mapped onto the monotonic clock.
@@ -233,6 +242,7 @@ class SerialGyroDriver:
         self._quiet_warned = False
         self._window_ns, self._window_bytes = self._opened_ns, 0
         self._window_skipped = self._parser.stats.bytes_skipped
+        self._window_startup = self._startup_rejections()
         self._connected = True
         if self._ever_connected:
             self._reopens += 1
@@ -251,12 +261,19 @@ class SerialGyroDriver:
                 pass   # the device is already gone
 
     def _lost(self, reason: str) -> None:
-        """Close and report a lost or missing port, once per loss (not on every retry)."""
+        """Close and report a lost or missing port: at the loss, then every LINK_DOWN_REPEAT_S while it stays down."""
         was_up = self._connected or not self._ever_connected and not self._last_error
         self._last_error = reason
         self._close()
-        if was_up and self._on_link is not None:
-            self._on_link(False, reason)
+        now = self._monotonic_ns()
+        if was_up:
+            self._down_since_ns = now
+        elif now - self._down_said_ns < LINK_DOWN_REPEAT_S * 1e9:
+            return
+        self._down_said_ns = now
+        if self._on_link is not None:
+            self._on_link(False, reason if was_up else f'{reason} (down {(now - self._down_since_ns) * 1e-9:.0f} s; '
+                                                       f'retried every {self._reopen_period_s:g} s)')
 
     def _read_once(self) -> None:
         port = self._serial
@@ -342,9 +359,8 @@ class SerialGyroDriver:
             return
         self._quiet_warned = True
         if stats.bytes_skipped:
-            rejected = ', '.join(f'{count} {reason}' for reason, count in self._rejected_by_reason().items() if count)
             self._warn(f'no valid frame from {self.port} in {NO_FRAMES_WARNING_S:g} s after opening it; '
-                       f'{stats.bytes_skipped} bytes skipped so far ({rejected}): check the baud rate '
+                       f'{stats.bytes_skipped} bytes skipped so far ({self._rejections()}): check the baud rate '
                        f'({self.baud}) and the protocol ({self.protocol}) against the gyro\'s settings')
         else:
             self._warn(f'nothing received from {self.port} in {NO_FRAMES_WARNING_S:g} s after opening it: '
@@ -353,21 +369,33 @@ class SerialGyroDriver:
     def _check_share(self, monotonic_ns: int) -> None:
         """Warn once when, after frames came, most bytes of a window were no valid frame (re-armed on recovery)."""
         stats = self._parser.stats
-        skipped = stats.bytes_skipped - self._window_skipped
-        share = min(1.0, skipped / self._window_bytes) if self._window_bytes else 0.0
+        startup = self._startup_rejections()
+        skipped = (stats.bytes_skipped - self._window_skipped
+                   - (startup - self._window_startup) * self._parser.frame_bytes)
+        share = min(1.0, max(skipped, 0) / self._window_bytes) if self._window_bytes else 0.0
         seconds = (monotonic_ns - self._window_ns) * 1e-9
         total = self._window_bytes
         self._window_ns, self._window_bytes, self._window_skipped = monotonic_ns, 0, stats.bytes_skipped
+        self._window_startup = startup
         if self._delivered() == self._frames_at_open:
             return   # no frame since the open: _check_quiet says so
         if share > BAD_SHARE_WARNING and not self._share_warned:
             self._share_warned = True
-            rejected = ', '.join(f'{count} {reason}' for reason, count in self._rejected_by_reason().items() if count)
             self._warn(f'{100 * share:.0f} % of the {total} bytes from {self.port} in the last {seconds:.1f} s were '
-                       f'no valid frame (rejected so far: {rejected}): check the baud rate ({self.baud}) and the '
+                       f'no valid frame ({self._rejections()}): check the baud rate ({self.baud}) and the '
                        f'protocol ({self.protocol}) against the gyro\'s settings, and the cable')
         elif share < BAD_SHARE_WARNING / 2:
             self._share_warned = False
+
+    def _rejections(self) -> str:
+        """The frames rejected so far by reason, for a warning; or that the bytes held no frame at all."""
+        counts = [f'{count} {reason}' for reason, count in self._rejected_by_reason().items() if count]
+        return f'rejected so far: {", ".join(counts)}' if counts else 'no frame found in them'
+
+    def _startup_rejections(self) -> int:
+        """Rejections so far of the kinds every connection makes at its start (:data:`STARTUP_REJECTIONS`)."""
+        reasons = self._parser.stats.rejected_by_reason
+        return sum(reasons.get(reason, 0) for reason in STARTUP_REJECTIONS)
 
     def _check_path(self) -> None:
         """A quiet port may be gone without a read error: its path vanished or now names another device."""

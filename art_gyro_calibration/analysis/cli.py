@@ -255,10 +255,15 @@ def _interrupt(signum: int, frame: object) -> None:
 
 def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Path, port: str,
                    duration_s: float | None, last_error: Callable[[], str]) -> int:
-    """Write frames to ``out`` until ``duration_s`` or Ctrl-C; says on stderr when none arrive for a second."""
+    """Write frames to ``out`` until ``duration_s`` or Ctrl-C.
+
+    Says on stderr when none arrive for a second, and again every LINK_DOWN_REPEAT_S while none do.
+    """
+    from art_gyro_calibration.driver import LINK_DOWN_REPEAT_S
     last = time.monotonic()
     end = math.inf if duration_s is None else last + duration_s
     silent = False
+    said = -math.inf
     count = 0
     writer = None
     try:
@@ -266,9 +271,10 @@ def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Pat
             try:
                 stamp_ns, raw_rate, raw_temp = frames.get(timeout=max(0.0, min(end, last + RECORD_SILENCE_S) - now))
             except queue.Empty:
-                if not silent and time.monotonic() - last >= RECORD_SILENCE_S:
-                    silent = True
-                    print(f'calibrate record: nothing from {port} for {RECORD_SILENCE_S:g} s '
+                now = time.monotonic()
+                if now - last >= RECORD_SILENCE_S and now - said >= LINK_DOWN_REPEAT_S:
+                    silent, said = True, now
+                    print(f'calibrate record: nothing from {port} for {now - last:.0f} s '
                           f'({last_error() or "port open, no frames"}); still waiting', file=sys.stderr, flush=True)
                 continue
             if writer is None:
@@ -277,7 +283,7 @@ def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Pat
             count += 1
             last = time.monotonic()
             if silent:
-                silent = False
+                silent, said = False, -math.inf
                 print(f'calibrate record: frames from {port} again', file=sys.stderr, flush=True)
     except KeyboardInterrupt:
         pass
