@@ -209,7 +209,7 @@ def _bag_options(p: argparse.ArgumentParser, reference: bool = True) -> None:
                    help='rosbag2 input: std_msgs/Float64 topic of the temperature, degC (default %(default)s)')
     p.add_argument('--reference-topic',
                    help='rosbag2 input: the rate table\'s true rate (ref_rate): std_msgs/Float64 in deg/s, or '
-                        'geometry_msgs/TwistStamped or sensor_msgs/Imu angular z in rad/s')
+                        'geometry_msgs/TwistStamped or sensor_msgs/Imu angular z in rad/s (default: none)')
     p.add_argument('--extra-topic', action='append', default=[], type=_extra_topic, metavar='NAME=TOPIC',
                    help='rosbag2 input: a numeric topic (std_msgs/Float64, ...) as the log column NAME; repeat')
 
@@ -298,11 +298,12 @@ def build_parser() -> argparse.ArgumentParser:
     from art_gyro_calibration.protocols import PROTOCOLS
     from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S
     from art_gyro_calibration.analysis.simulate import ALL_EFFECTS
-    parser = argparse.ArgumentParser(prog='calibrate', description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog='calibrate', description=__doc__.splitlines()[0].replace('``', ''))
     sub = parser.add_subparsers(dest='command', required=True)
 
     p = sub.add_parser('apply', help='static bias and compensation over a log')
-    p.add_argument('log', help='CSV log (t, raw_rate, raw_temp or rate_dps, temp_c, ...)')
+    p.add_argument('log', help='CSV log (t, raw_rate, raw_temp or rate_dps, temp_c, ...) or rosbag2 (directory, '
+                               '.mcap or .db3)')
     p.add_argument('--calibration', required=True, help='calibration file (config/<SERIAL>.yaml form)')
     p.add_argument('--out', required=True, help='CSV to write: t,rate_dps,temp_c,comp_dps,corrected_dps')
     p.add_argument('--bias-samples', type=int, default=DEFAULT_SAMPLES,
@@ -315,14 +316,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_apply)
 
     p = sub.add_parser('fit', help='fit the ART polynomial to a rate-table log and trace what it leaves')
-    p.add_argument('log', help='CSV log with ref_rate (the table\'s true rate, deg/s)')
-    p.add_argument('--rows', type=_positive_int, required=True, help='powers of temperature')
-    p.add_argument('--columns', type=_positive_int, required=True, help='powers of rate')
-    p.add_argument('--serial', help='KVH serial number written into the calibration')
+    p.add_argument('log', help='CSV log with ref_rate (the table\'s true rate, deg/s), or rosbag2 (directory, .mcap '
+                               'or .db3) with --reference-topic')
+    p.add_argument('--rows', type=_positive_int, required=True, help='powers of temperature (the report\'s ROWS)')
+    p.add_argument('--columns', type=_positive_int, required=True, help='powers of rate (the report\'s COLUMNS)')
+    p.add_argument('--serial', help=f'KVH serial number written into the calibration (default {DEFAULT_SERIAL}); '
+                                    'its packaged calibration gives the scale factor and the baseline')
     p.add_argument('--out', required=True, help='calibration file to write (CAL.yaml)')
     p.add_argument('--report', required=True, help='REPORT.json to write (and REPORT.md beside it)')
-    p.add_argument('--plots', help='directory for the figures (PNG)')
-    p.add_argument('--plot-prefix', default='', help='start of the figures\' file names (e.g. sim-)')
+    p.add_argument('--plots', help='directory for the figures (PNG); created, with its parents, if missing '
+                                   '(default: no figures)')
+    p.add_argument('--plot-prefix', default='', help='start of the figures\' file names (e.g. sim-; default none)')
     p.add_argument('--bias-samples', type=int, default=DEFAULT_SAMPLES,
                    help='rows at rest at the start of the log for the static bias (default %(default)s)')
     p.add_argument('--rate-scale-factor', type=float,
@@ -332,7 +336,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='seconds skipped after each change of table rate (default %(default)s)')
     p.add_argument('--max-effects', type=int, default=DEFAULT_MAX_EFFECTS,
                    help='most effects to add (default %(default)s)')
-    p.add_argument('--seed', type=int, default=0, help='seed of the chance scores (phase-randomised residuals)')
+    p.add_argument('--seed', type=int, default=0,
+                   help='seed of the chance scores (phase-randomised residuals; default %(default)s)')
     p.add_argument('--draws', type=_positive_int, default=DEFAULT_DRAWS,
                    help='chance draws per screen (default %(default)s)')
     p.add_argument('--alpha', type=_level, default=DEFAULT_ALPHA,
@@ -356,7 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
                         'a term they are better without')
     p.add_argument('--still', metavar='LOG_OR_BAG',
                    help='a record of the gyro at rest (as calibrate allan reads it): its bias instability, not the '
-                        'residual\'s, sets the materiality and the noise budget')
+                        'residual\'s, sets the materiality and the noise budget (default: the residual\'s)')
     p.add_argument('--not-from-power-on', action='store_true',
                    help='the log does not start at the gyro\'s power-on: no warm-up is sought')
     p.add_argument('--validate-powered-on-at-start', action='store_true',
@@ -371,7 +376,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_fit)
 
     p = sub.add_parser('replay', help='a calibration on another run, as the node applies it: field errors')
-    p.add_argument('log', help='CSV log with ref_rate, at rest over its first --bias-samples rows (after --start-s)')
+    p.add_argument('log', help='CSV log or rosbag2 (with --reference-topic) with ref_rate, at rest over its first '
+                               '--bias-samples rows (after --start-s)')
     p.add_argument('--calibration', required=True, help='calibration file; also replayed without its extended terms')
     p.add_argument('--start-s', type=float, default=0.0,
                    help='start the node this many seconds into the log (a warm restart; default %(default)s)')
@@ -388,23 +394,29 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('allan', help='noise of a gyro at rest: Allan deviation, IEEE 952 terms, node parameters')
     p.add_argument('log', help='record at rest: CSV log or rosbag2 (directory, .mcap or .db3)')
     p.add_argument('--out', required=True, help='ALLAN.json to write')
-    p.add_argument('--plots', help='directory for allan.png')
-    p.add_argument('--serial', help='gyro whose packaged calibration scales a raw log\'s counts')
-    p.add_argument('--rate-scale-factor', type=float, help='deg/s per count of a raw log\'s raw_rate')
+    p.add_argument('--plots', help='directory for allan.png; created, with its parents, if missing '
+                                   '(default: no figure)')
+    p.add_argument('--serial', help='gyro whose packaged calibration scales a raw log\'s counts (default: none; a '
+                                    'raw log needs it or --rate-scale-factor)')
+    p.add_argument('--rate-scale-factor', type=float,
+                   help='deg/s per count of a raw log\'s raw_rate (default: the packaged calibration\'s of --serial)')
     p.add_argument('--node-rate-hz', type=_positive_float,
-                   help='the node\'s frame rate for yaw_rate_stddev and bias_samples (default: the record\'s)')
+                   help='the node\'s frame rate for yaw_rate_stddev and bias_samples, 0.01..100000 Hz (default: the '
+                        'record\'s)')
     _bag_options(p, reference=False)
     _force_option(p)
     p.set_defaults(run=_allan)
 
     p = sub.add_parser('simulate', help='write a simulated rate-table and thermal-chamber run')
     p.add_argument('--serial', required=True, help='gyro whose packaged calibration is the true error')
-    p.add_argument('--hours', type=float, required=True)
+    p.add_argument('--hours', type=_positive_float, required=True, help='length of the run, hours (required)')
     p.add_argument('--out', required=True, help='CSV log to write; the truth goes to LOG.truth.json')
     p.add_argument('--effect', action='append', default=[], choices=sorted(ALL_EFFECTS),
-                   help='switch an effect on (repeat for several)')
-    p.add_argument('--rate-hz', type=float, default=10.0, help='samples per second (default %(default)s)')
-    p.add_argument('--seed', type=int, default=0)
+                   help='switch an effect on (repeat for several; default none): ' + ', '.join(sorted(ALL_EFFECTS)))
+    p.add_argument('--rate-hz', type=_positive_float, default=10.0, help='samples per second (default %(default)s)')
+    p.add_argument('--seed', type=int, default=0,
+                   help='seed of the noise, turn-on bias and table order: another seed is another run of the same '
+                        'gyro (default %(default)s)')
     p.add_argument('--self-heating-c', type=_nonnegative_float, default=0.0, metavar='DEG_C',
                    help='the gyro warms itself by this much after power-on, above the chamber (whose top set point '
                         'is lowered by as much); the sensor reads it, the polynomial and effects see it '
@@ -417,9 +429,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser('record', help='record a gyro through the node\'s driver into a raw log')
     p.add_argument('--port', required=True, help='serial port, e.g. /dev/ttyUSB0')
     p.add_argument('--out', required=True, help='CSV log to write (t, raw_rate, raw_temp)')
-    p.add_argument('--protocol', choices=PROTOCOLS, default=PROTOCOLS[0])
-    p.add_argument('--baud', type=int, default=9600)
-    p.add_argument('--serial', help='check that a calibration of this gyro is packaged')
+    p.add_argument('--protocol', choices=PROTOCOLS, default=PROTOCOLS[0],
+                   help='frame format on the wire, as the node\'s parameter (default %(default)s)')
+    p.add_argument('--baud', type=int, default=9600, help='serial baud rate (default %(default)s)')
+    p.add_argument('--serial', help='check that a calibration of this gyro is packaged (default: no check)')
     p.add_argument('--duration', type=float, help='seconds to record (default: until Ctrl-C)')
     _force_option(p)
     p.set_defaults(run=_record)
@@ -516,7 +529,10 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         return 1
     except (LogError, CalibrationError, MotionError, ValueError, OSError) as e:
-        print(f'calibrate{"" if args is None else " " + args.command}: error: {e}', file=sys.stderr)
+        hint = ''
+        if 'no ref_rate column' in str(e) and getattr(args, 'reference_topic', '') is None:
+            hint = ' (a rosbag2 input gives it with --reference-topic TOPIC)'
+        print(f'calibrate{"" if args is None else " " + args.command}: error: {e}{hint}', file=sys.stderr)
         return 1
     finally:
         signal.signal(signal.SIGTERM, previous)

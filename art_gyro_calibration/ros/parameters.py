@@ -47,8 +47,9 @@ PARAMETERS: dict[str, tuple[Any, ...]] = {
     'port': ('/dev/ttyUSB0', 'Serial port of the gyro.'),
     'baud': (9600, 'Serial baud rate (check the unit\'s setting; a 1 kHz unit needs 115200 or more); '
                    f'{KVH_DEFAULT_BAUD} for protocol kvh_fog when not given.', BAUDS),
-    'protocol': ('binary', 'Frame format on the wire: binary (8-byte RD2100 frames) or ascii '
-                           '("<raw_rate> <raw_temp>" lines).', PROTOCOLS),
+    'protocol': ('binary', 'Frame format on the wire: binary (8-byte RD2100 frames), ascii '
+                           '("<raw_rate> <raw_temp>" lines) or kvh_fog (KVH DSP-1760, 1725/1750/1775 IMUs: '
+                           'the kvh_fog.* parameters below).', PROTOCOLS),
     'serial_number': ('', 'KVH serial number of the gyro; loads the packaged config/<serial_number>.yaml '
                           'unless calibration_file is set or a calibration comes in by --params-file, which '
                           'must be for this serial.'),
@@ -294,7 +295,7 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
 def usage(summary: str) -> str:
     """``gyro_node --help``: how to run it, ``summary`` (what it does), every parameter with its default and range."""
     lines = [f'usage: {NODE_NAME} [--help] --ros-args [-p NAME:=VALUE]... [--params-file FILE]... '
-             '[-r __ns:=/NAMESPACE]', '', summary, '',
+             '[-r __ns:=/NAMESPACE]', '', summary.replace('``', ''), '',
              'parameters (read-only; checked at startup, an unknown or bad one ends the node with exit 1):']
     for name, (default, description, *_) in PARAMETERS.items():
         allowed = describe_constraint(name)
@@ -318,9 +319,10 @@ def usage(summary: str) -> str:
               + ', '.join(sorted(CALIBRATION_KEYS)) + ', extended.<signal>.*',
               f'QoS of {IMU_TOPIC} (default reliable, depth 10): qos_overrides./<namespace>/{IMU_TOPIC}.publisher.'
               '{reliability,history,depth,durability}',
-              'topics: imu/data_raw (sensor_msgs/Imu), imu/temperature (std_msgs/Float64), /diagnostics, and in: '
-              'each extra_signals.<signal>.topic; '
-              'service: imu/static_bias (std_srvs/Trigger)']
+              'topics out: imu/data_raw (sensor_msgs/Imu), imu/temperature (std_msgs/Float64), imu/is_calibrated '
+              '(std_msgs/Bool, latched: true once a static bias is in force), imu/uncalibrated (sensor_msgs/Imu, '
+              'with publish_uncalibrated), /diagnostics (diagnostic_msgs/DiagnosticArray); topics in: each '
+              'extra_signals.<signal>.topic; service: imu/static_bias (std_srvs/Trigger)']
     return '\n'.join(lines)
 
 
