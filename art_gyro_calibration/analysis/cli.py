@@ -41,6 +41,7 @@ from art_gyro_calibration.analysis.bags import BagTopics
 from art_gyro_calibration.analysis.loop import DEFAULT_MAX_EFFECTS, DEFAULT_SERIAL, LoopOptions
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.analysis.outputs import Outputs
+from art_gyro_calibration.analysis.progress import Progress, Ticker, clear
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_BLOCK_S, DEFAULT_DRAWS
 
 
@@ -93,13 +94,14 @@ def _fit(args: argparse.Namespace) -> int:
         settings = FitSettings(args.rows, args.columns, loop, args.bias_samples, tuple(args.validate),
                                args.validate_powered_on_at_start, topics=_topics(args), still=args.still,
                                baseline=args.baseline)
-        fitted = fit_log(args.log, settings, str(args.out),
-                         lambda warning: print(f'calibrate fit: warning: {warning}', file=sys.stderr))
-        write_calibration(out, fitted.calibration, fitted.comment)
-        summary = write_report(report_path, fitted.report).read_text(encoding='utf-8')
-        if plots is not None:
-            from art_gyro_calibration.analysis.plots import plot_all
-            plot_all(fitted.log, fitted.loop, args.bias_samples, plots, args.plot_prefix)
+        with Ticker(f'calibrate fit: {Path(args.log).name}'):
+            fitted = fit_log(args.log, settings, str(args.out),
+                             lambda warning: _stderr(f'calibrate fit: warning: {warning}'))
+            write_calibration(out, fitted.calibration, fitted.comment)
+            summary = write_report(report_path, fitted.report).read_text(encoding='utf-8')
+            if plots is not None:
+                from art_gyro_calibration.analysis.plots import plot_all
+                plot_all(fitted.log, fitted.loop, args.bias_samples, plots, args.plot_prefix)
     print(summary, end='')
     return 0
 
@@ -130,11 +132,12 @@ def _simulate(args: argparse.Namespace) -> int:
         settings = SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=tuple(args.effect),
                                       seed=args.seed, self_heating_c=args.self_heating_c,
                                       self_heating_tau_s=args.self_heating_tau_s)
-        try:
-            run = simulate_run(calibration, settings)
-        except ValueError as e:   # a self-heating as wide as the calibrated range
-            raise ValueError(f'--self-heating-c: {e}') from None
-        write_run(out, run)
+        with Ticker(f'calibrate simulate: {args.hours:g} h at {args.rate_hz:g} Hz'):
+            try:
+                run = simulate_run(calibration, settings)
+            except ValueError as e:   # a self-heating as wide as the calibrated range
+                raise ValueError(f'--self-heating-c: {e}') from None
+            write_run(out, run)
     print(f'{args.out}: {len(run.columns["t"])} rows of {args.serial} '
           f'(effects: {", ".join(args.effect) or "none"}); truth in {truth_path(args.out)}')
     return 0
@@ -184,7 +187,13 @@ def _allan(args: argparse.Namespace) -> int:
 
 
 def _warn(message: str) -> None:
-    print(f'calibrate: warning: {message}', file=sys.stderr)
+    _stderr(f'calibrate: warning: {message}')
+
+
+def _stderr(line: str) -> None:
+    """A line on stderr, on its own line whatever progress is shown."""
+    clear()
+    print(line, file=sys.stderr, flush=True)
 
 
 def _warn_if(message: str) -> None:
@@ -260,22 +269,25 @@ def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Pat
     Says on stderr when none arrive for a second, and again every LINK_DOWN_REPEAT_S while none do.
     """
     from art_gyro_calibration.driver import LINK_DOWN_REPEAT_S
-    last = time.monotonic()
+    last = started = time.monotonic()
     end = math.inf if duration_s is None else last + duration_s
+    bar = Progress(None, duration_s, f'calibrate record: {port}')
     silent = False
     said = -math.inf
     count = 0
     writer = None
     try:
         while (now := time.monotonic()) < end:
+            # With --duration, the time recorded (the time left is known); else the frames so far.
+            bar.update(now - started if duration_s else count, 'frames', f'{count} frames' if duration_s else '')
             try:
                 stamp_ns, raw_rate, raw_temp = frames.get(timeout=max(0.0, min(end, last + RECORD_SILENCE_S) - now))
             except queue.Empty:
                 now = time.monotonic()
                 if now - last >= RECORD_SILENCE_S and now - said >= LINK_DOWN_REPEAT_S:
                     silent, said = True, now
-                    print(f'calibrate record: nothing from {port} for {now - last:.0f} s '
-                          f'({last_error() or "port open, no frames"}); still waiting', file=sys.stderr, flush=True)
+                    _stderr(f'calibrate record: nothing from {port} for {now - last:.0f} s '
+                            f'({last_error() or "port open, no frames"}); still waiting')
                 continue
             if writer is None:
                 writer = RawLogWriter(open(out, 'x', encoding='utf-8'))
@@ -284,10 +296,11 @@ def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Pat
             last = time.monotonic()
             if silent:
                 silent, said = False, -math.inf
-                print(f'calibrate record: frames from {port} again', file=sys.stderr, flush=True)
+                _stderr(f'calibrate record: frames from {port} again')
     except KeyboardInterrupt:
         pass
     finally:
+        bar.done()
         if writer is not None:
             writer.close()
     return count
@@ -498,7 +511,7 @@ def _return_freed_arrays() -> None:
 def _say_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                  file: object = None, line: str | None = None) -> None:
     """A warning about the input (a cut last row) as one line on stderr, not Python's source location."""
-    print(f'calibrate: warning: {message}', file=sys.stderr)
+    _warn(str(message))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -516,8 +529,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return status
     except KeyboardInterrupt:
         # Ctrl-C is a stop as asked, not a failure to show a traceback for; what was staged is gone.
-        print(f'calibrate{"" if args is None else " " + args.command}: interrupted: no output written',
-              file=sys.stderr)
+        _stderr(f'calibrate{"" if args is None else " " + args.command}: interrupted: no output written')
         return 130
     except ModuleNotFoundError as e:
         if e.name not in ANALYSIS_EXTRA:
@@ -532,7 +544,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         hint = ''
         if 'no ref_rate column' in str(e) and getattr(args, 'reference_topic', '') is None:
             hint = ' (a rosbag2 input gives it with --reference-topic TOPIC)'
-        print(f'calibrate{"" if args is None else " " + args.command}: error: {e}{hint}', file=sys.stderr)
+        _stderr(f'calibrate{"" if args is None else " " + args.command}: error: {e}{hint}')
         return 1
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -26,7 +26,6 @@ from __future__ import annotations
 import math
 import os
 import sys
-import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.analysis.allan import AllanAccumulator, AllanDeviation
+from art_gyro_calibration.analysis.progress import Progress
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 
@@ -227,35 +227,6 @@ class RecordStats:
     mean_rate_dps: float
 
 
-class _Progress:
-    """A progress line on a terminal (stderr only, and only when it is a tty); silent otherwise."""
-
-    def __init__(self, stream: TextIO | None, total: float | None, label: str) -> None:
-        self._stream = stream if stream is not None and stream.isatty() else None
-        self._total, self._label = total, label
-        self._start = self._last = time.monotonic()
-
-    def update(self, done: float, unit: str = 'samples') -> None:
-        if self._stream is None or time.monotonic() - self._last < 0.5:
-            return
-        self._last = time.monotonic()
-        elapsed = self._last - self._start
-        if self._total:
-            share = min(done / self._total, 1.0)
-            bar = '#' * int(30 * share)
-            eta = elapsed * (1.0 - share) / share if share > 0 else 0.0
-            text = f'{self._label} [{bar:<30}] {100 * share:5.1f} % {elapsed:5.0f} s, {eta:4.0f} s left'
-        else:
-            text = f'{self._label} {done:.0f} {unit}, {elapsed:.0f} s'
-        self._stream.write('\r' + text)
-        self._stream.flush()
-
-    def done(self) -> None:
-        if self._stream is not None:
-            self._stream.write('\n')
-            self._stream.flush()
-
-
 RateChunks = Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]
 
 
@@ -435,7 +406,7 @@ def allan_of_record(chunks: RateChunks, source: str, node_rate_hz: float | None 
     ``node_rate_hz``: the node's rate for its parameters (default: the record's).
     ``progress_total``: the samples expected, for a progress bar on a terminal.
     """
-    bar = _Progress(progress_stream, progress_total, f'calibrate allan: {Path(source).name}')
+    bar = Progress(progress_stream, progress_total, f'calibrate allan: {Path(source).name}')
     with AllanAccumulator(directory=temp_dir) as accumulator:
         stats = accumulate(chunks, accumulator, bar.update, source)
         bar.done()

@@ -135,14 +135,14 @@ class _Terminal(io.StringIO):
 def test_progress_is_shown_on_a_terminal_only():
     chunks = [(np.arange(k, k + 1000) * 0.01, np.random.default_rng(k).normal(size=1000)) for k in range(0, 5000, 1000)]
     terminal, pipe = _Terminal(), io.StringIO()
-    import art_gyro_calibration.analysis.noise as noise
+    import art_gyro_calibration.analysis.progress as progress
     ticks = iter(np.arange(0.0, 100.0, 1.0))
-    real = noise.time.monotonic
+    real = progress.time.monotonic
     try:
-        noise.time.monotonic = lambda: float(next(ticks))
+        progress.time.monotonic = lambda: float(next(ticks))
         allan_of_record(iter(chunks), 'still.csv', progress_total=5000, progress_stream=terminal)
     finally:
-        noise.time.monotonic = real
+        progress.time.monotonic = real
     allan_of_record(iter(chunks), 'still.csv', progress_total=5000, progress_stream=pipe)
     assert '100.0 %' in terminal.getvalue() and '[####' in terminal.getvalue()
     assert pipe.getvalue() == ''
