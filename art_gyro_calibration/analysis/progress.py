@@ -29,10 +29,11 @@ def terminal(stream: TextIO | None) -> TextIO | None:
 
 
 def clear() -> None:
-    """Wipe the progress line, if one is shown, so that the next message starts its own line."""
+    """Wipe the progress line, if one is shown, for a message to take its place (the next update redraws it)."""
     for stream in _shown:
         stream.write(_CLEAR_LINE)
         stream.flush()
+    _shown.clear()
 
 
 def _show(stream: TextIO, text: str, owner: object, yields: bool = False) -> None:

@@ -67,3 +67,14 @@ def test_a_ticker_waits_while_a_bar_is_shown(monkeypatch: pytest.MonkeyPatch) ->
     bar.done()
     progress.clear()
     assert terminal.getvalue() == shown + '\n'
+
+
+def test_a_message_takes_the_lines_place_without_a_blank_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    terminal = Terminal()
+    monkeypatch.setattr(progress, 'UPDATE_S', 0.0)
+    bar = progress.Progress(terminal, 10, 'bar')
+    bar.update(5)
+    progress.clear()
+    terminal.write('a warning\n')
+    bar.done()   # the line was wiped for the message: nothing to end
+    assert terminal.getvalue().endswith('\r\x1b[Ka warning\n')
