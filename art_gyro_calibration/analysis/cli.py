@@ -425,7 +425,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--hours', type=_positive_float, required=True, help='length of the run, hours (required)')
     p.add_argument('--out', required=True, help='CSV log to write; the truth goes to LOG.truth.json')
     p.add_argument('--effect', action='append', default=[], choices=sorted(ALL_EFFECTS),
-                   help='switch an effect on (repeat for several; default none): ' + ', '.join(sorted(ALL_EFFECTS)))
+                   help='switch an effect on (repeat for several; default none; doc/calibration.md says what each '
+                        'one is)')
     p.add_argument('--rate-hz', type=_positive_float, default=10.0, help='samples per second (default %(default)s)')
     p.add_argument('--seed', type=int, default=0,
                    help='seed of the noise, turn-on bias and table order: another seed is another run of the same '
