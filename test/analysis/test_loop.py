@@ -1,4 +1,4 @@
-"""The lack-of-fit check without a form (issue 20 item 3): a shape of the held-out residual against a signal.
+"""``analysis.loop``'s lack-of-fit check without a form: a shape of the held-out residual against a signal.
 
 A heading sawtooth is a shape no form of the loop has (its harmonic finding takes only part of
 it, and is not written): the model written must not be called adequate. Null logs stay quiet.
