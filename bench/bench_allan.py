@@ -50,7 +50,7 @@ def ours(x: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def bench_speed(args: argparse.Namespace) -> None:
-    import allantools
+    import allantools  # type: ignore[import-untyped]  # allantools ships no type hints
     fs = 1000.0
     print('| samples | allantools.oadev s | calibrate allan (AllanAccumulator) s | speed ratio | taus compared '
           '| largest relative difference |')

@@ -13,8 +13,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import cast
 
 import numpy as np
+from numpy.typing import NDArray
 
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.compensation import apply_calibration
@@ -42,7 +44,9 @@ def main() -> None:
         c_out, c_seconds = run_reference(compile_reference(Path(tmp)), cal, raw_rate, raw_temp, nb, Path(tmp))
 
     t0 = time.perf_counter()
-    log = GyroLog(np.arange(n) * 0.1, raw_rate * cal.rate_scale_factor, raw_temp * cal.temp_scale_factor)
+    # int32 times a float is float64; numpy's stubs say only floating.
+    log = GyroLog(np.arange(n) * 0.1, cast(NDArray[np.float64], raw_rate * cal.rate_scale_factor),
+                  raw_temp * cal.temp_scale_factor)
     applied = apply_calibration(log, cal, nb)
     py_seconds = time.perf_counter() - t0
     worst = float(np.abs(applied.corrected_dps[nb:] - c_out[:, 1]).max())

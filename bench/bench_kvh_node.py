@@ -33,7 +33,7 @@ def main() -> int:
     sys.path[:0] = [args.source, str(Path(args.source) / 'test')]
     os.environ['PYTHONPATH'] = args.source
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    from rosproc import REPO, domain_id, node_with_listener   # type: ignore[import-not-found]  # test/: sys.path
+    from rosproc import REPO, domain_id, node_with_listener
 
     from art_gyro_calibration.fake_gyro import FakeGyro
     from art_gyro_calibration.protocols.kvh_fog import KvhFogConfig

@@ -114,6 +114,13 @@ def bench_apply(args: argparse.Namespace, work: Path) -> None:
                   f'{rows / (run.cpu_s - startup.cpu_s):,.0f} | {run.peak_mib:,.0f}{ok} |', flush=True)
 
 
+def peak_line(measured: list[tuple[int, float]]) -> tuple[float, float]:
+    """The least-squares line through (rows, peak MiB): its slope (MiB per row) and intercept (MiB)."""
+    rows, peaks = np.array(measured).T
+    slope, intercept = np.polyfit(rows, peaks, 1)
+    return float(slope), float(intercept)
+
+
 def bench_fit(args: argparse.Namespace, work: Path) -> None:
     print('| log | rows | simulate wall s | simulate peak MiB | fit wall s | fit CPU s | fit peak MiB | '
           'fit MiB per M rows |')
@@ -123,7 +130,7 @@ def bench_fit(args: argparse.Namespace, work: Path) -> None:
         hours, rate_hz = (float(v) for v in spec.split(':'))
         rows = int(round(hours * SECONDS_PER_HOUR * rate_hz))
         if len(measured) >= 2:
-            slope, intercept = np.polyfit(*np.array(measured).T, 1)
+            slope, intercept = peak_line(measured)
             expected = (slope * rows + intercept) / 1024
             if expected > args.max_gib:
                 print(f'| {hours:g} h x {rate_hz:g} Hz | {rows:,} | | | skipped | | {expected:.1f} GiB expected | |')
@@ -145,7 +152,7 @@ def bench_fit(args: argparse.Namespace, work: Path) -> None:
               f'{fit.wall_s:.1f} | {fit.cpu_s:.1f} | {fit.peak_mib:,.0f}{ok} | {fit.peak_mib / rows * 1e6:,.0f} |',
               flush=True)
     if len(measured) >= 2:
-        slope, intercept = np.polyfit(*np.array(measured).T, 1)
+        slope, intercept = peak_line(measured)
         print(f'\nfit peak memory ~ {intercept:.0f} MiB + {slope * 1e6:.0f} MiB per million rows '
               f'(least squares over {len(measured)} runs)')
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import maximum_filter1d, uniform_filter1d
+from scipy.ndimage import maximum_filter1d, uniform_filter1d  # type: ignore[import-untyped]  # scipy ships no types
 
 from art_gyro_calibration.calibration import SIGNAL_PATTERN
 from art_gyro_calibration.log import GyroLog
@@ -163,7 +163,7 @@ def _attr(variable: Any, name: str) -> str:
 
 def _open_netcdf(path: str | os.PathLike[str], variables: Sequence[str]) -> Any:
     """Open a NetCDF-4 file with h5py, refusing one that lacks any of ``variables``."""
-    import h5py  # only these readers need it
+    import h5py  # type: ignore[import-untyped]  # only these readers need it; h5py ships no types
 
     where = str(path)
     try:

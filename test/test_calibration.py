@@ -214,7 +214,7 @@ def _cal_text(extra: str = '', serial: str = 'NAVC4058') -> str:
      "unknown key 'extended.time.form'"),
 ])
 def test_unknown_keys_are_refused_with_the_closest_name(tmp_path: Path, extra: str, message: str) -> None:
-    """A misspelt key used to drop the fitted terms silently (issue 9)."""
+    """A misspelt key used to drop the fitted terms silently."""
     path = tmp_path / 'cal.yaml'
     path.write_text(_cal_text(extra))
     with pytest.raises(CalibrationError, match=f'^{re.escape(str(path))}: {message}'):
@@ -254,7 +254,7 @@ def test_polynomial_that_overflows_is_refused() -> None:
 
 
 def test_yaml_alias_bomb_fails_fast_naming_the_file(tmp_path: Path) -> None:
-    """600 bytes of nested aliases: refused at the first alias, not expanded (issue 10)."""
+    """600 bytes of nested aliases: refused at the first alias, not expanded."""
     lines = ['a0: &a0 [x, x, x, x, x, x, x, x, x]']
     lines += [f'a{i}: &a{i} [' + ', '.join([f'*a{i - 1}'] * 9) + ']' for i in range(1, 12)]
     bomb = tmp_path / 'bomb.yaml'
@@ -318,7 +318,7 @@ def test_calibrate_apply_refuses_what_the_node_refuses(tmp_path: Path, capsys: p
 
 
 def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path) -> None:
-    """The last of two polynomials won silently: here an all-zero one, the rate uncompensated (issue 25)."""
+    """The last of two polynomials won silently: here an all-zero one, the rate uncompensated."""
     text = (REPO / 'config' / 'NAVC3545.yaml').read_text(encoding='utf-8')
     first = next(i for i, line in enumerate(text.splitlines(), 1) if line.strip() == 'polynomial:')
     path = tmp_path / 'twice.yaml'
@@ -330,7 +330,7 @@ def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path) -> None:
 
 
 def test_numbers_in_every_spelling_rcl_reads(tmp_path: Path) -> None:
-    """``1e-300`` is a string to YAML 1.1 and a double to rcl: it was refused as "got '1e-300'" (issue 25)."""
+    """``1e-300`` is a string to YAML 1.1 and a double to rcl: it was refused as "got '1e-300'"."""
     text = (REPO / 'config' / 'NAVC3545.yaml').read_text(encoding='utf-8')
     assert 'filters' not in text
     for spelling, value in (('1e-300', 1e-300), ('2E3', 2e3), ('2.5e3', 2.5e3), ('.5e+1', 5.0), ('30.0', 30.0)):
@@ -343,7 +343,7 @@ def test_numbers_in_every_spelling_rcl_reads(tmp_path: Path) -> None:
 
 
 def test_special_files_are_refused_unread(tmp_path: Path) -> None:
-    """A FIFO as calibration file blocked the reader for ever (the node's start-up, ignoring SIGINT; issue 25)."""
+    """A FIFO as calibration file blocked the reader for ever (the node's start-up, ignoring SIGINT)."""
     fifo = tmp_path / 'cal.yaml'
     os.mkfifo(fifo)
     errors: list[BaseException] = []
@@ -381,7 +381,7 @@ def test_special_files_are_refused_unread(tmp_path: Path) -> None:
     ({'temp_scale_factor': 1e-9}, 'temp_scale_factor must be in 0.001..1, got 1e-09'),
 ], ids=['coefficient_1e300', 'coefficient_1e-3', 'rate_scale_huge', 'rate_scale_denormal', 'temp_scale_tiny'])
 def test_a_calibration_beyond_the_units_range_is_refused(change: dict, message: str) -> None:
-    """Loaded and published 1e303 deg/s, or 0.0017 deg/s for a gyro turning at 10 deg/s (issue 25)."""
+    """Loaded and published 1e303 deg/s, or 0.0017 deg/s for a gyro turning at 10 deg/s."""
     params = _params()
     params.update(change)
     with pytest.raises(CalibrationError, match='^x.yaml: ' + message):

@@ -1,4 +1,4 @@
-"""Start-up safety of the extended terms, as the node and ``calibrate apply`` apply them (issue 8, item 1)."""
+"""Start-up safety of the extended terms, as the node and ``calibrate apply`` apply them."""
 
 from __future__ import annotations
 
@@ -102,7 +102,7 @@ def _self_heating(hours: float = 1.0, heating_c: float = 6.0, tau_s: float = 600
 
 
 def test_the_static_bias_is_refined_once_the_temperature_rate_is_known() -> None:
-    """The Shupe error of the bias window is not absorbed for the whole mission (issue 8: 20+ deg/h).
+    """The Shupe error of the bias window is not absorbed for the whole mission (20+ deg/h).
 
     Over the first 10 s the causal filter reads about 0 degC/s while the gyro self-heats; the
     static bias takes the window's Shupe error with it. Refined after 3 filter time constants,
@@ -132,7 +132,7 @@ def test_the_static_bias_is_refined_once_the_temperature_rate_is_known() -> None
 
 
 def test_a_fast_self_heating_is_refined_without_a_lasting_bias() -> None:
-    """6 degC with a 5-minute time constant (the loop study's fastest profile; issue 20, item 1).
+    """6 degC with a 5-minute time constant (the loop study's fastest profile).
 
     A quadratic over the refinement's 6 minutes read the window's temperature rate 9 % low: the
     node carried -3.7 deg/h of the 0.6 deg/s per degC/s Shupe effect for the whole mission.
@@ -146,7 +146,7 @@ def test_a_fast_self_heating_is_refined_without_a_lasting_bias() -> None:
 
 
 def test_until_the_refinement_the_temperature_rate_terms_follow_its_provisional_fit() -> None:
-    """The minutes between the bias window and its refinement carry no Shupe error twice (issue 20, item 1).
+    """The minutes between the bias window and its refinement carry no Shupe error twice.
 
     The static bias took the window's true Shupe error (the causal filter read about 0 there);
     as the filter rose over its first minutes the model subtracted that error again: up to
@@ -233,7 +233,7 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
     raw_rate = raw_rate.astype(int)   # still: +-1 count of noise (a rate without any is refused as no gyro's)
     raw_temp = np.round((20.0 + 0.5 * t) / cal.temp_scale_factor).astype(int)
     raw_temp[[700, 900]] = 4000, -1400   # 200, -70 degC
-    raw_rate[[1000, 1100, 1200]] = 32767, -32768, -32767   # clipped: the turn is beyond the range (issue 25)
+    raw_rate[[1000, 1100, 1200]] = 32767, -32768, -32767   # clipped: the turn is beyond the range
     start = RunStart(powered_on_at_start=True)
 
     def collected(collector: StaticBiasCollector) -> None:
@@ -264,7 +264,7 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
 
 
 def test_rates_beyond_a_kvh_units_range_are_dropped() -> None:
-    """kvh_fog values with good CRCs published as 1000 deg/s .. 1.7e42 deg/s (a DSP-1760 reads +-490; issue 25)."""
+    """kvh_fog values with good CRCs published as 1000 deg/s .. 1.7e42 deg/s (a DSP-1760 reads +-490)."""
     cal = load_calibration(Path(__file__).resolve().parent.parent / 'config' / 'KVH_DSP1760_EXAMPLE.yaml')
     corrector = FrameCorrector(cal)
     rates = [10.0, 489.9, -490.0, 490.5, 1000.0, -5.7e7, 1.7e42, 30.0]

@@ -139,7 +139,7 @@ def test_driver_stamps_a_stalled_burst_by_the_period_and_reports_a_clock_step(re
     (bytes(range(0, 256, 3)) * 4, 'bytes skipped so far'),
 ])
 def test_no_frames_after_opening_is_warned_once(garbage, expected, tmp_path):
-    """A wrong baud or protocol used to give "gyro link up" and then nothing on the console (issue 9)."""
+    """A wrong baud or protocol used to give "gyro link up" and then nothing on the console."""
     warnings = []
     silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: no frames
     try:
@@ -176,7 +176,7 @@ def test_garbage_is_counted_and_frames_keep_flowing(make_driver, recorder):
 
 
 def test_the_baud_hint_fires_when_the_valid_share_falls_after_frames_came(recorder):
-    """The hint fired only before the first frame: a link turned to garbage later was not said (issue 25)."""
+    """The hint fired only before the first frame: a link turned to garbage later was not said."""
     warnings = []
     with FakeGyro('NAVC3545', rate_hz=100, seed=4) as fake:
         driver = SerialGyroDriver(fake.path, 115200, 'binary', recorder.on_frame, on_warning=warnings.append)
@@ -196,7 +196,7 @@ def test_the_baud_hint_fires_when_the_valid_share_falls_after_frames_came(record
 
 
 def test_a_frame_is_delivered_only_once_the_stream_is_locked(recorder, tmp_path):
-    """Garbage with a valid frame now and then (a checksum passing by chance) went out as rates (issue 25)."""
+    """Garbage with a valid frame now and then (a checksum passing by chance) went out as rates."""
     silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
     try:
         driver = SerialGyroDriver(silent.path, 115200, 'binary', recorder.on_frame)
@@ -324,7 +324,7 @@ def test_every_baud_opens_the_port_and_times_the_wire_by_it(baud):
 
 
 def test_a_rate_jump_beyond_the_gyro_in_one_period_is_counted_not_delivered(recorder, tmp_path):
-    """A frame of 91.5 deg/s between frames of 0, 0.7 ms apart, passed as a rate (issue 25)."""
+    """A frame of 91.5 deg/s between frames of 0, 0.7 ms apart, passed as a rate."""
     silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
     try:
         driver = SerialGyroDriver(silent.path, 115200, 'binary', recorder.on_frame, rate_scale_dps=0.00305)

@@ -110,7 +110,3 @@ def test_a_params_file_without_a_serial_still_needs_one(launch_file: types.Modul
         _launch(launch_file, params_file=str(params))
     assert _launch(launch_file, params_file=str(params), serial_number='NAVC3545').kwargs['parameters'] == \
         [str(params), {'serial_number': 'NAVC3545'}]
-
-
-def test_setup_installs_the_launch_file() -> None:
-    assert "('share/' + PACKAGE + '/launch', sorted(glob('launch/*.launch.py')))" in (REPO / 'setup.py').read_text()

@@ -55,9 +55,11 @@ def test_colcon_installs_the_ros_layout(install: Path) -> None:
     installed = sorted(p.name for p in (install / 'share' / PACKAGE / 'config').glob('*.yaml'))
     assert installed == sorted(p.name for p in (REPO / 'config').glob('*.yaml'))
     assert 'NAVC3545.yaml' in installed
-    # gyro_node's Fast DDS profile, next to the node module (art_gyro_calibration.ros.node.FASTDDS_PROFILE).
+    # gyro_node's Fast DDS profile, next to the node module (art_gyro_calibration.ros.node.FASTDDS_PROFILE);
+    # the PEP 561 marker, so that the users' type checkers read the package's hints.
     site = install / 'lib' / f'python{sys.version_info.major}.{sys.version_info.minor}' / 'site-packages'
     assert (site / PACKAGE / 'ros' / 'fastdds_profile.xml').is_file()
+    assert (site / PACKAGE / 'py.typed').is_file()
 
 
 def test_installed_package_finds_its_calibrations_through_ament(install: Path, tmp_path: Path) -> None:

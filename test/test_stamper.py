@@ -31,7 +31,7 @@ def _steady_gyro(stamper: WireStamper, clock, period_ns: int, frames: int, start
 
 
 def test_stamper_spaces_a_burst_after_a_stall_by_the_gyro_period():
-    """Frames queued while the reader stalled were stamped 8 ms apart at 9600 baud instead of 100 ms (issue 9)."""
+    """Frames queued while the reader stalled were stamped 8 ms apart at 9600 baud instead of 100 ms."""
     period = 100_000_000
     stamper = WireStamper(9600, 8)
     _steady_gyro(stamper, lambda m: m, period, 50)
@@ -65,7 +65,7 @@ def test_a_wrong_first_period_estimate_does_not_lock_the_stamps_at_wire_spacing(
 
 @pytest.mark.parametrize('step_s', [-10.0, 10.0])
 def test_stamper_re_anchors_once_on_a_clock_step(step_s):
-    """A backward step froze the stamps for as long as the step (999 equal stamps at 100 Hz, issue 9)."""
+    """A backward step froze the stamps for as long as the step (999 equal stamps at 100 Hz)."""
     period = 10_000_000
     step = int(step_s * 1e9)
     stamper = WireStamper(115200, 8)
@@ -128,7 +128,7 @@ def test_the_steady_time_never_goes_back_across_a_step_after_a_stale_clock_read(
 
 
 def test_stamps_never_run_ahead_when_bytes_come_faster_than_the_baud():
-    """1 kHz at the default 9600 baud ran 220 s ahead in 30 s; a 100k-frame burst at 115200, 52 s (issue 25)."""
+    """1 kHz at the default 9600 baud ran 220 s ahead in 30 s; a 100k-frame burst at 115200, 52 s."""
     period = 1_000_000   # 1 kHz, 8 bytes a frame: 8000 bytes/s where 9600 baud carries 960
     stamper = WireStamper(9600, 8)
     ahead = 0

@@ -55,7 +55,7 @@ def test_bad_input() -> None:
 
 @pytest.mark.parametrize('value', [0.0, 0.00305, -0.0427])
 def test_a_collection_without_any_spread_is_refused(value: float) -> None:
-    """379 all-zero frames gave the node an "ok" bias of spread exactly 0 (issue 25): no gyro is that quiet."""
+    """379 all-zero frames gave the node an "ok" bias of spread exactly 0: no gyro is that quiet."""
     collector = StaticBiasCollector(100)
     for _ in range(100):
         collector.add(value, 0.01, 0.0, 25.0)

@@ -142,7 +142,9 @@ def told_apart(nulls: dict[str, list[dict[str, Any]]]) -> dict[str, float]:
     bounded, walk = mean[WORLDS[0]], mean[WORLDS[1]]
 
     def walk_likelier(power: NDArray[np.float64]) -> NDArray[np.bool_]:
-        return np.sum(np.log(bounded / walk) + power[:, j] * (1.0 / bounded - 1.0 / walk), axis=1) > 0.0
+        likelier: NDArray[np.bool_] = np.sum(np.log(bounded / walk) + power[:, j] * (1.0 / bounded - 1.0 / walk),
+                                             axis=1) > 0.0
+        return likelier
     return {WORLDS[0]: float(np.mean(~walk_likelier(_power(nulls[WORLDS[0]][1::2])))),
             WORLDS[1]: float(np.mean(walk_likelier(_power(nulls[WORLDS[1]][1::2]))))}
 
@@ -156,7 +158,7 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
     se = {w: p.std(axis=0) / math.sqrt(len(p)) for w, p in spectra.items()}
     ratio = mean[WORLDS[1]] / mean[WORLDS[0]]
     ratio_se = ratio * np.hypot(se[WORLDS[0]] / mean[WORLDS[0]], se[WORLDS[1]] / mean[WORLDS[1]])
-    tests = {}
+    tests: dict[str, dict[str, Any]] = {}
     for k in STATISTICS:
         stat = {w: np.array([r['statistics'][k] for r in runs]) for w, runs in nulls.items()}
         drift = {w: np.array([r['statistics'][k] for r in runs]) for w, runs in drifts.items()}

@@ -116,7 +116,7 @@ class Physics:
     def effect_dps(self, t_po: np.ndarray, temp: np.ndarray, dtemp: np.ndarray,
                    heading: np.ndarray) -> np.ndarray:
         """The deterministic error beyond the polynomial (deg/s), at each row."""
-        e = self.shupe_k * dtemp
+        e: np.ndarray = self.shupe_k * dtemp
         e = e + self.warmup_dph / DPH * np.exp(-t_po / self.warmup_tau_s)
         h = np.mod(heading, 360.0)
         e = e + self.heading_saw_dph / DPH * (2.0 * h / 360.0 - 1.0)
@@ -195,7 +195,8 @@ def chamber_profile(rng: np.random.Generator, t: np.ndarray, ramp_c_per_min: flo
         ramp_s = abs(target - knots_c[-1]) / ramp_c_per_min * 60.0
         knots_t += [knots_t[-1] + ramp_s, knots_t[-1] + ramp_s + float(rng.uniform(900.0, 2400.0))]
         knots_c += [target, target]
-    return np.interp(t, knots_t, knots_c)
+    profile: np.ndarray = np.interp(t, knots_t, knots_c)
+    return profile
 
 
 def first_order(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
@@ -282,9 +283,10 @@ def score(error_dps: np.ndarray) -> dict[str, float]:
 
 def best_error(run: dict[str, np.ndarray]) -> np.ndarray:
     """A corrector that knows the true error: the node's static bias, then the true error removed."""
-    corrected = run['measured'] - run['true_error']
+    corrected: np.ndarray = run['measured'] - run['true_error']
     corrected = corrected - corrected[:BIAS_SAMPLES].mean()
-    return corrected - run['ref_rate']
+    error: np.ndarray = corrected - run['ref_rate']
+    return error
 
 
 def calibrate(*args: str, log: Path) -> str:
@@ -312,7 +314,8 @@ def applied_error(log_csv: Path, cal: Path, run: dict[str, np.ndarray], cold: bo
     if len(got) != len(run['t']) or np.max(np.abs(got['t'] - run['t'])) > 1e-3:
         raise RuntimeError(f'{out}: apply dropped rows ({len(got)} of {len(run["t"])})')
     out.unlink()
-    return got['corrected_dps'] - run['ref_rate']
+    error: np.ndarray = got['corrected_dps'] - run['ref_rate']
+    return error
 
 
 # The reading of the full run's results, by hand, from the runs' REPORT.json / REPORT.md and apply summaries.
@@ -781,9 +784,10 @@ def document(results: list[dict[str, Any]], meta: dict[str, Any], fig_name: str)
                   'best |', '|---|---|---|---|---:|---:|---:|---:|']
         for r, lab, v in diag:
             s = r['scores']['cold']
-            w = next((e for e in r['found'][lab]['effects'] if e.get('signal') == 'time_since_power_on'), {})
-            term = (f"tau {w['time_constant_s']:.0f} s, {w['effect_dph']:.1f} deg/h" if w.get('time_constant_s')
-                    and w.get('effect_dph') is not None else 'yes')
+            warmup: dict[str, Any] = next((e for e in r['found'][lab]['effects']
+                                           if e.get('signal') == 'time_since_power_on'), {})
+            term = (f"tau {warmup['time_constant_s']:.0f} s, {warmup['effect_dph']:.1f} deg/h"
+                    if warmup.get('time_constant_s') and warmup.get('effect_dph') is not None else 'yes')
             lines.append(f"| {r['case']} | {r['rep']} | {lab[5:]} | {term} | {s[lab]['sys_rms_dph']:.2f} "
                          f"(mean {s[lab]['mean_dph']:+.2f}) | {v['sys_rms_dph']:.2f} (mean {v['mean_dph']:+.2f}) | "
                          f"{s['baseline']['sys_rms_dph']:.2f} | {s['best']['sys_rms_dph']:.2f} |")

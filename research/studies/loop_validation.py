@@ -37,9 +37,10 @@ import subprocess  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from collections import Counter  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from dataclasses import dataclass, replace  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
+from typing import Any, cast  # noqa: E402
 
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
@@ -137,7 +138,9 @@ def oracle_log(log: GyroLog, case: Case, calibration: Calibration) -> tuple[Gyro
         size = effect_size(effect, case.settings())
         temp = log.temp_c + size * (lagged(log.t, log.temp_c, COIL_LAG_TAU_S) - log.temp_c)
         return GyroLog(log.t, log.rate_dps, temp, log.ref_rate, log.extras), []
-    low, high = calibration.expected_range_c
+    expected = calibration.expected_range_c
+    assert expected is not None   # a packaged calibration's: its report's range
+    low, high = expected
     if effect == 'rate_t3':
         u = (log.temp_c - 0.5 * (low + high)) / (0.5 * (high - low))
         column = log.rate_dps * u ** 3
@@ -152,6 +155,7 @@ def oracle_fit(log: GyroLog, case: Case, art: Calibration, index: NDArray[np.int
     """The fit that knows the true form, on the fitted log's steady rows."""
     seen, specs = oracle_log(log, case, art)
     signals = compute_signals(seen.t, seen.rate_dps, seen.temp_c, seen.extras, art.filters)
+    assert seen.ref_rate is not None   # a simulated log's
     fit = fit_model(signals, seen.rate_dps - seen.ref_rate, art.polynomial.rows, art.polynomial.columns, specs, index)
     return replace(art, polynomial=fit.model.polynomial, terms=fit.model.terms)
 
@@ -234,8 +238,8 @@ def field_dph(r: dict[str, Any], calibration: str, key: str = 'systematic_rms_dp
 
 def worsening_dph(r: dict[str, Any]) -> float:
     """How much the extended calibration worsens the worse of the two runs against ART (deg/h, > 0 worse)."""
-    return max(r['field'][s]['extended']['systematic_rms_dph'] - r['field'][s]['art']['systematic_rms_dph']
-               for s in SCENARIOS)
+    return cast(float, max(r['field'][s]['extended']['systematic_rms_dph'] - r['field'][s]['art']['systematic_rms_dph']
+                           for s in SCENARIOS))
 
 
 def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
@@ -288,7 +292,7 @@ def targeted_cell(cell: dict[str, Any]) -> bool:
 
 def at_target(cell: dict[str, Any]) -> bool:
     """A cell (:func:`_cell`) meets issue 8's power target: found often enough, field error near the oracle's."""
-    return cell['detection'] >= MIN_DETECTION_RATE and cell['ratio_extended_oracle'] <= MAX_ORACLE_RATIO
+    return cast(bool, cell['detection'] >= MIN_DETECTION_RATE and cell['ratio_extended_oracle'] <= MAX_ORACLE_RATIO)
 
 
 def _null_row(label: str, group: list[dict[str, Any]]) -> dict[str, Any]:
@@ -841,7 +845,8 @@ def run_shape(case: ShapeCase) -> dict[str, Any]:
 def run_whole_fit(task: tuple[str, Any]) -> dict[str, Any]:
     """One run of the whole-fit sections: ('cold', ColdCase), ('null', Case) or ('shape', ShapeCase)."""
     kind, case = task
-    return {'cold': run_cold, 'null': run_null6, 'shape': run_shape}[kind](case)
+    runs: dict[str, Callable[[Any], dict[str, Any]]] = {'cold': run_cold, 'null': run_null6, 'shape': run_shape}
+    return runs[kind](case)
 
 
 def map_jobs(function: Any, tasks: list[Any], jobs: int) -> list[dict[str, Any]]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -102,6 +102,7 @@ def plot_fold(fold: Fold, path: Path) -> Path:
     """What ART leaves over the record with the effects kept, and every stage on the held-out day."""
     plt = _pyplot()
     log, t0 = fold.log, fold.log.t[0]
+    assert log.ref_rate is not None   # a record's: the gyro lay still
     art_residual = log.rate_dps - log.ref_rate - fold.comp('art')
     fig, axes = plt.subplots(2, 1, figsize=(11, 7.5))
     for rows, label, colour in ((~fold.held, 'training days', 'tab:blue'),
@@ -110,7 +111,8 @@ def plot_fold(fold: Fold, path: Path) -> Path:
         axes[0].plot((tm - t0) / SECONDS_PER_HOUR, vm, '.', ms=3, color=colour, label=f'{label}: rate - ART polynomial')
     terms = fold.kept_effects
     if terms:
-        effect = sum(term.evaluate(fold.signals.get(term.signal)) for term in terms)
+        # A sum of arrays (terms is not empty), never the start value 0.
+        effect = cast(NDArray[np.float64], sum(term.evaluate(fold.signals.get(term.signal)) for term in terms))
         tm, vm = block_means(log.t, effect - np.mean(effect[~fold.held]))
         axes[0].plot((tm - t0) / SECONDS_PER_HOUR, vm, '-', color='tab:red', lw=1,
                      label='effects kept: ' + '; '.join(t.describe() for t in terms))

@@ -195,6 +195,7 @@ def sample_rate_hz(log: GyroLog) -> float:
 def record_allan(log: GyroLog) -> tuple[AllanDeviation, AllanDeviation]:
     """Allan deviation of a whole log's rate, and of what the ART polynomial fitted to all of it leaves."""
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, {}, SignalFilters())
+    assert log.ref_rate is not None   # a record's: the gyro lay still
     residual = log.rate_dps - log.ref_rate
     residual = residual - fit_model(signals, residual, ROWS, COLUMNS).model.error(signals)
     run = segment_labels(log.t, RUN_GAP_S)
@@ -243,6 +244,7 @@ def run_fold(log: GyroLog, days: NDArray[np.int_], day: int, held_name: str, axi
     settled = settled_start(log.t[index], log.temp_c[index], BIAS_SAMPLES, SETTLED_C_PER_H)
     windows = {'bias_start': index[:BIAS_SAMPLES], 'bias_settled': index[settled:settled + BIAS_SAMPLES]}
     span = index[settled + BIAS_SAMPLES:]
+    assert log.ref_rate is not None   # a record's: the gyro lay still
     measured = log.rate_dps - log.ref_rate
     t_span = log.t[span]
     segments = block_segments(t_span)

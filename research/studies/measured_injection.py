@@ -11,7 +11,7 @@ up, and what the held-out day's error became.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -39,7 +39,7 @@ WARMUP_TAU_S = 3.0 * SECONDS_PER_HOUR
 
 def effect_shape(effect: str, log: GyroLog, days: NDArray[np.int_]) -> NDArray[np.float64]:
     """The shape of ``effect`` over the log's samples, before scaling (signals since the record's start)."""
-    since = log.t - log.t[0]
+    since: NDArray[np.float64] = log.t - log.t[0]
     if effect == 'shupe':
         return compute_signals(log.t, log.rate_dps, log.temp_c, {}, SignalFilters()).temperature_rate
     if effect == 'warmup':
@@ -102,7 +102,8 @@ def run_trial(base: Fold, days: NDArray[np.int_], effect: str, factor: float, fl
 
 def run_injections(bases: Sequence[Fold], days_of: dict[str, NDArray[np.int_]], floors: dict[str, float],
                    effects: Sequence[str] = EFFECTS, sizes: Sequence[float] = SIZES,
-                   max_effects: int = 4, progress=None) -> list[Trial]:
+                   max_effects: int = 4,
+                   progress: Callable[[Trial], None] | None = None) -> list[Trial]:
     """Every effect at every size on every base fold (axis and held-out day)."""
     trials = []
     for effect in effects:

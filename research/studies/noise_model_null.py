@@ -38,8 +38,8 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
-from scipy.optimize import nnls  # noqa: E402
-from scipy.signal import lfilter  # noqa: E402
+from scipy.optimize import nnls  # type: ignore[import-untyped]  # noqa: E402  # scipy ships no types
+from scipy.signal import lfilter  # type: ignore[import-untyped]  # noqa: E402  # scipy ships no types
 
 import loop_validation as lv  # noqa: E402
 from art_gyro_calibration.analysis import trace  # noqa: E402
@@ -100,7 +100,8 @@ def still_record(case: lv.Case, still_hours: float) -> NDArray[np.float64]:
     means = log.rate_dps[first:first + m * per_bin].reshape(m, per_bin).mean(axis=1)
     supply = log.extras['supply_v'][first:first + m * per_bin].reshape(m, per_bin).mean(axis=1)
     basis = np.column_stack([np.ones(m), (supply - supply.mean()) / max(float(supply.std()), 1e-12)])
-    return means - basis @ np.linalg.lstsq(basis, means, rcond=None)[0]
+    residual: NDArray[np.float64] = means - basis @ np.linalg.lstsq(basis, means, rcond=None)[0]
+    return residual
 
 
 _MODEL: dict[str, tuple[float, NDArray[np.float64], float]] = {}

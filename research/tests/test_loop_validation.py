@@ -109,7 +109,7 @@ def test_shape_summary_targets(lv: ModuleType) -> None:
 
 
 def test_the_shape_target_is_on_long_fit_logs(lv: ModuleType) -> None:
-    """Issue 20 item 5: 2 h logs have no power target; shapes missed there are reported, not judged."""
+    """2 h logs have no power target: shapes missed there are reported, not judged."""
     long = [_shape('rate_bump', False, ['rate'])] * 9 + [_shape('rate_bump', True, [])]
     short = [_shape('rate_bump', True, [], hours=2.0)] * 10
     s = lv.shape_summary(long + short, {2.0: 0.5, 6.0: 0.5})
@@ -214,7 +214,7 @@ def test_the_detector_told_the_shape_finds_it_and_not_its_absence(lv: ModuleType
 
 
 def test_the_power_target_covers_long_fit_logs_from_a_quarter_magnitude(lv: ModuleType) -> None:
-    """Issue 20 item 5: a cell of a 2 h fit log, or below magnitude 0.25, is reported but not judged."""
+    """A cell of a 2 h fit log, or below magnitude 0.25, is reported but not judged."""
     assert lv.targeted_cell({'magnitude': 0.25, 'hours': 6.0})
     assert not lv.targeted_cell({'magnitude': 1.0, 'hours': 2.0})
     assert not lv.targeted_cell({'magnitude': 0.1, 'hours': 6.0})

@@ -1,4 +1,4 @@
-"""``calibrate fit`` is never worse than the calibration the gyro has (issue 20 item 2).
+"""``calibrate fit`` is never worse than the calibration the gyro has.
 
 Each calibration written is replayed on a second run of the same gyro exactly as the node
 applies it (static bias over the first 100 rows, a cold start, bias included) and compared

@@ -1,6 +1,5 @@
 """``calibrate`` end to end on a small simulated log: simulate, fit, apply, and the node's per-sample path."""
 
-import dataclasses
 import json
 import os
 import stat
@@ -11,11 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration, write_calibration
+from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration
 from art_gyro_calibration.analysis.cli import main
-from art_gyro_calibration.compensation import Compensator, RunStart, apply_calibration
+from art_gyro_calibration.compensation import Compensator, apply_calibration
 from art_gyro_calibration.log import RawLogWriter, read_log
-from art_gyro_calibration.terms import Term
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -185,30 +183,6 @@ def test_apply_keeps_epoch_time_to_the_microsecond(fitted, tmp_path):
     assert np.max(np.abs(written - t)) <= 0.5e-6 + np.spacing(t[-1])
 
 
-def test_apply_streams_chunks_equal_to_the_whole_log(fitted, tmp_path, capsys):
-    """Chunked apply (the static bias spanning chunks, implausible rows dropped) equals the in-memory path."""
-    from art_gyro_calibration.analysis.streaming import apply_to_csv
-    _raw_log(tmp_path / 'log.csv', 5000, bad_temp_rows=(3, 150, 151, 4000))
-    cal = dataclasses.replace(load_packaged_calibration('NAVC4058'), terms=(
-        Term('temperature_rate', 'power', (2.0,), (1,)), Term('time_since_power_on', 'exp_decay', (0.05,), (), 2.0),
-        Term('rate_change', 'power', (0.002,), (1,))))
-    write_calibration(tmp_path / 'CAL.yaml', cal)
-    log = read_log(tmp_path / 'log.csv', cal.rate_scale_factor, cal.temp_scale_factor)
-    whole = apply_calibration(log, cal, 250, start=RunStart(powered_on_at_start=True))
-    assert np.count_nonzero(~whole.kept) == 4 and len(whole.corrected_dps) == 4996
-    with open(tmp_path / 'chunked.csv', 'wb') as out:
-        done = apply_to_csv(tmp_path / 'log.csv', cal, 250, out, chunk_rows=97, start=RunStart(True))
-    assert (done.rows, done.dropped, done.bias) == (5000, 4, whole.bias)
-    data = np.loadtxt(tmp_path / 'chunked.csv', delimiter=',', skiprows=1)
-    np.testing.assert_allclose(data[:, 0], log.t[whole.kept], rtol=0, atol=0.5e-6 + np.spacing(log.t[-1]))
-    np.testing.assert_allclose(data[:, 3], whole.comp_dps, rtol=0, atol=0.5e-9 + 1e-12)
-    np.testing.assert_allclose(data[:, 4], whole.corrected_dps, rtol=0, atol=0.5e-9 + 1e-12)
-    assert main(['apply', str(tmp_path / 'log.csv'), '--calibration', str(tmp_path / 'CAL.yaml'),
-                 '--out', str(tmp_path / 'cli.csv'), '--bias-samples', '250', '--powered-on-at-start']) == 0
-    assert (tmp_path / 'cli.csv').read_bytes() == (tmp_path / 'chunked.csv').read_bytes()
-    assert '4996 of 5000 rows; 4 dropped as the node drops them' in capsys.readouterr().out
-
-
 def _leftovers(d: Path) -> list[str]:
     return sorted(p.name for p in d.iterdir() if p.name.startswith('.calibrate-'))
 
@@ -359,7 +333,7 @@ def test_record_says_when_an_open_port_is_silent(tmp_path, capsys):
 
 
 def test_force_never_replaces_a_special_file(fitted, tmp_path, capsys):
-    """``--force`` replaced a FIFO given as ``--out`` with a regular file (issue 25)."""
+    """``--force`` replaced a FIFO given as ``--out`` with a regular file."""
     log = tmp_path / 'log.csv'
     _raw_log(log, 1000)
     fifo = tmp_path / 'out.csv'
@@ -370,7 +344,7 @@ def test_force_never_replaces_a_special_file(fitted, tmp_path, capsys):
 
 
 def test_ctrl_c_on_apply_is_a_clean_stop(fitted, tmp_path, monkeypatch, capsys):
-    """Ctrl-C printed a traceback (issue 25): now one line, exit 130, nothing written or staged."""
+    """Ctrl-C printed a traceback: now one line, exit 130, nothing written or staged."""
     import art_gyro_calibration.analysis.streaming as streaming
 
     def interrupted(log_path, calibration, bias_samples, out, **kwargs):
@@ -389,7 +363,7 @@ def test_ctrl_c_on_apply_is_a_clean_stop(fitted, tmp_path, monkeypatch, capsys):
 
 
 def test_staging_of_a_killed_run_is_removed_by_the_next(fitted, tmp_path):
-    """SIGKILL left a hidden staging directory (497 MB of a half-written apply) for ever (issue 25)."""
+    """SIGKILL left a hidden staging directory (497 MB of a half-written apply) for ever."""
     script = ('import sys, time\n'
               'from art_gyro_calibration.analysis.outputs import Outputs\n'
               'staged = Outputs([]).claim(sys.argv[1])\n'
@@ -430,7 +404,7 @@ def _table_log(path: Path, rates: list[float], temp_c: tuple[float, float]) -> N
 ], ids=['at_rest', 'two_rates', 'one_temperature'])
 def test_fit_refuses_a_log_that_cannot_determine_the_polynomial(tmp_path, capsys, rates, temp_c, rows, columns,
                                                                 message):
-    """No motion: it wrote a calibration reading a true 30 deg/s as 5.9 deg/s, exit 0 (issue 25)."""
+    """No motion: it wrote a calibration reading a true 30 deg/s as 5.9 deg/s, exit 0."""
     log = tmp_path / 'table.csv'
     _table_log(log, rates, temp_c)
     assert main(['fit', str(log), '--rows', str(rows), '--columns', str(columns), '--draws', '20',
@@ -441,7 +415,7 @@ def test_fit_refuses_a_log_that_cannot_determine_the_polynomial(tmp_path, capsys
 
 
 def test_fit_excludes_clipped_rows_and_says_how_many(tmp_path, capsys):
-    """Rows at +-32767 counts were fitted as values: here four spurious effects (rate_sign, ...) (issue 25)."""
+    """Rows at +-32767 counts were fitted as values: here four spurious effects (rate_sign, ...)."""
     sim = tmp_path / 'sim.csv'
     assert main(['simulate', '--serial', 'NAVC3545', '--hours', '2', '--rate-hz', '2', '--seed', '3',
                  '--out', str(sim)]) == 0

@@ -1,4 +1,4 @@
-"""Detection limits (issue 20 item 5): what a log would have found, checked by injecting effects at its limit.
+"""Detection limits: what a log would have found, checked by injecting effects at its limit.
 
 Logs are 2 h at 10 Hz. The supply voltage (an extra column, the form c * supply_v) and the
 Shupe term (c * dT/dt) are injected at twice and half the limit the loop reported for the

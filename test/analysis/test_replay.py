@@ -133,7 +133,7 @@ def test_fit_validate_replays_and_a_supply_term_is_never_written(calibration, tm
     assert main(['fit', str(tmp_path / 'A.csv'), '--rows', '3', '--columns', '2', '--serial', 'NAVC4058',
                  '--out', str(out), '--report', str(report_path), '--validate', str(tmp_path / 'B.csv')]) == 0
     report = json.loads(report_path.read_text())
-    # Since issue 20 item 4 the supply term is a finding, never written (the node has no supply_v): the
+    # The supply term is a finding, never written (the node has no supply_v): the
     # validation run has nothing of it to drop, and the Shupe term kept makes it better than the report's alone.
     assert 'temperature_rate' in {e['signal'] for e in report['effects']}
     assert 'supply_v' in {f['signal'] for f in report['findings_not_written']}

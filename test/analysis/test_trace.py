@@ -155,8 +155,8 @@ def test_round_threshold_is_a_maximum_over_candidates():
     assert first.threshold_dps2 == min(c.threshold_dps2 for c in first.candidates)
 
 
-# A gyro with slow noise as the loop study's (research/doc/loop-validation.md): a bias wander of 1.1 deg/h over an hour and
-# a rate random walk, logged 2 h at 10 Hz: one chamber cycle.
+# A gyro with slow noise as the loop study's (research/doc/loop-validation.md): a bias wander of 1.1 deg/h over an
+# hour and a rate random walk, logged 2 h at 10 Hz: one chamber cycle.
 WANDERING = dict(hours=2.0, rate_hz=10.0, wander_dps=3e-4, wander_tau_s=3600.0, rate_random_walk_dph_rthr=0.5)
 
 

@@ -255,7 +255,7 @@ def test_example_params_file_sets_every_node_parameter_validly() -> None:
 
 
 def test_help_lists_every_parameter_with_default_and_range() -> None:
-    """gyro_node --help printed nothing useful (issue 9)."""
+    """gyro_node --help printed nothing useful."""
     result = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.ros.node', '--help'], cwd=REPO,
                             capture_output=True, text=True, timeout=TIMEOUT_S)
     assert result.returncode == 0 and result.stdout.startswith('usage: gyro_node'), result.stdout + result.stderr
@@ -384,7 +384,7 @@ def test_use_sim_time_stamps_follow_clock_and_a_step_re_anchors(tmp_path: Path, 
     # they follow the gyro's period on a steady clock is test_driver's.
     for side in (steps[:jump], steps[jump + 1:]):
         assert side.sum() > 0.1, np.round(side, 4).tolist()
-    # The raw log's time never goes back: it was the stamp, and calibrate refused the node's own log (issue 25).
+    # The raw log's time never goes back: it was the stamp, and calibrate refused the node's own log.
     log = read_log(next(tmp_path.glob('NAVC3545_*.csv')), 0.00305, 0.05)
     assert len(log) >= 100 and np.all(np.diff(log.t) > 0)
     # The warning names the step, measured between two reads of the clock (less a part a late /clock took as its

@@ -76,7 +76,7 @@ def test_reset_drops_a_partial_frame():
 
 
 def test_all_zero_frames_are_not_a_gyro():
-    """0x80 and seven 0x00 pass the checksum: 379 of them from a 9600-baud gyro read at 115200 (issue 25)."""
+    """0x80 and seven 0x00 pass the checksum: 379 of them from a 9600-baud gyro read at 115200."""
     zero = b'\x80' + bytes(7)
     assert encode_binary(0, 0) == zero
     parser = BinaryFrameParser()
@@ -86,7 +86,7 @@ def test_all_zero_frames_are_not_a_gyro():
 
 
 def test_a_locked_parser_accepts_a_frame_only_after_lock_frames_contiguous_ones():
-    """Random windows pass the 8-bit checksum once in 256 (issue 25): a lone one between garbage is no gyro."""
+    """Random windows pass the 8-bit checksum once in 256: a lone one between garbage is no gyro."""
     frames = [encode_binary(i, 500) for i in range(1, 8)]
     parser = BinaryFrameParser(lock_frames=3)
     # One valid frame between garbage, twice: never accepted, counted as unlocked.

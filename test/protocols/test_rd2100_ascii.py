@@ -50,7 +50,7 @@ def test_ascii_overlong_complete_line_is_counted():
 
 
 def test_a_locked_ascii_parser_accepts_a_line_only_after_lock_frames_in_a_row():
-    """A line of digits among noise is no gyro (issue 25): three valid lines in a row lock the stream."""
+    """A line of digits among noise is no gyro: three valid lines in a row lock the stream."""
     parser = AsciiFrameParser(lock_frames=3)
     assert parser.feed(b'1 2\nxx\n3 4\n\x07\n') == []
     assert parser.stats.rejected_by_reason[UNLOCKED] == 2 and parser.stats.rejected_by_reason[MALFORMED] == 2

@@ -1,16 +1,19 @@
-"""The lack-of-fit check without a form (issue 20 item 3): a shape of the held-out residual against a signal.
+"""``analysis.loop``: the effects it writes and those it only reports, and its lack-of-fit check without a form.
 
-A heading sawtooth is a shape no form of the loop has (its harmonic finding takes only part of
-it, and is not written): the model written must not be called adequate. Null logs stay quiet.
+The check without a form: a shape of the held-out residual against a signal. A heading sawtooth is a shape
+no form of the loop has (its harmonic finding takes only part of it, and is not written): the model written
+must not be called adequate. Null logs stay quiet.
 """
 
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from art_gyro_calibration.calibration import load_packaged_calibration
-from art_gyro_calibration.analysis.loop import (REVISIT_S, SHAPE_GROUPS, LoopOptions, close_loop, cross_fitted,
-                                                signal_groups)
+from art_gyro_calibration.analysis.loop import (HEADING_SIGNALS, REVISIT_S, SHAPE_GROUPS, LoopOptions, close_loop,
+                                                cross_fitted, node_signals, not_written_reason, signal_groups)
+from art_gyro_calibration.log import LogError
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 
@@ -156,3 +159,41 @@ def test_cross_fitted_takes_out_what_every_visit_repeats():
     steady = np.zeros(30, dtype=np.int64)
     assert np.array_equal(cross_fitted(steady, np.arange(30) * REVISIT_S / 30, np.ones(30), noise[:30]),
                           noise[:30])
+
+
+def _supply_loop(node: tuple[str, ...] = ()):
+    cal = load_packaged_calibration(SERIAL)
+    log = simulate_run(cal, SimulationSettings(hours=2.0, seed=2, effects=('supply_voltage',))).log(cal)
+    return close_loop(log, 3, 2, LoopOptions(serial_number=SERIAL, rate_scale_factor=cal.rate_scale_factor,
+                                             node_signals=node))
+
+
+def test_an_effect_on_a_log_column_is_a_finding_unless_the_node_is_fed_it():
+    """The node tracks no supply voltage: found and reported, not in the calibration, unless fed by topic."""
+    alone = _supply_loop()
+    assert 'supply_v' in [f.signal for f in alone.findings]
+    assert 'supply_v' not in [t.signal for t in alone.extended.terms]
+    fed = _supply_loop(('supply_v',))
+    assert 'supply_v' in [t.signal for t in fed.extended.terms]
+    assert 'supply_v' not in [f.signal for f in fed.findings]
+    assert [e.term for e in fed.effects] == list(fed.extended.terms)
+    assert fed.held_out_rms_extended_dps < fed.held_out_rms_art_dps
+
+
+def test_node_signals_must_be_log_columns_not_derived_nor_excluded():
+    options = LoopOptions(node_signals=('supply_v',))
+    assert node_signals(options, ('supply_v', 'humidity')) == ('supply_v',)
+    with pytest.raises(LogError, match=r'the log has no column supply_v \(its extra columns: none\)'):
+        node_signals(options, ())
+    with pytest.raises(ValueError, match='temperature is derived from the gyro'):
+        node_signals(LoopOptions(node_signals=('temperature',)), ('temperature',))
+    with pytest.raises(ValueError, match='contradict each other'):
+        node_signals(replace(options, exclude=('supply_v',)), ('supply_v',))
+
+
+def test_the_reason_an_effect_is_not_written_says_what_to_do():
+    assert HEADING_SIGNALS == ('angle',)
+    assert not_written_reason('angle') == 'the node has no absolute heading to apply it with'
+    reason = not_written_reason('supply_v')
+    assert reason.startswith('the node has no supply_v at run time')
+    assert '--node-signal supply_v' in reason and '--exclude supply_v' in reason

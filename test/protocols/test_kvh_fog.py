@@ -238,7 +238,7 @@ def test_kvh_encoder_refuses_what_the_message_cannot_carry():
         encode_kvh_fog((0.0,) * 3, (0.0,) * 3, 0x77, 0, 40000)
 
 
-# --- rates from the measured interval (issue 22) -----------------------------------------------------------------
+# --- rates from the measured interval ---------------------------------------------------------------------------------
 
 def manual_message(message_format, rotation, acceleration, status, sequence, temperature=25, timestamp_us=0):
     """A message laid out byte by byte as the 1775 manual's tables 5-1..5-6 say, its CRC computed bit by bit.
@@ -374,7 +374,7 @@ def test_kvh_bad_crc_is_one_rejected_frame_not_also_a_lost_one():
     assert parser.stats.garbage_runs == 4
 
 
-# --- stamps from Format B's clock (issue 22) ----------------------------------------------------------------------
+# --- stamps from Format B's clock -------------------------------------------------------------------------------------
 
 def test_unit_clock_source_needs_format_b():
     with pytest.raises(ValueError, match='kvh_fog.timestamp_source unit_clock needs kvh_fog.message_format B'):

@@ -1,7 +1,5 @@
 """A term on a signal from outside the gyro (a supply voltage) as the node applies it: fed, held, flagged.
 
-Issue 20 item 4.
-
 Before, the node refused any calibration with such a term: the tracker had no value for it.
 """
 

@@ -1,4 +1,4 @@
-"""A calibration with a supply-voltage term, run by the node fed by a BatteryState topic (issue 20 item 4).
+"""A calibration with a supply-voltage term, run by the node fed by a BatteryState topic.
 
 Before, the node refused such a calibration at startup ("extended terms need signals ['supply_v'] that are
 not available here"). Now it takes the voltage from the topic its parameter names, and flags the rate while

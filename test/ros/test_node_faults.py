@@ -466,14 +466,14 @@ def test_log_failures_stop_logging_not_publishing(tmp_path: Path, loopback: None
 
 
 def _huge_params_file(tmp_path: Path) -> list[str]:
-    """3 MB of valid YAML: rcl's parser takes minutes over it, ignoring SIGINT (issue 25)."""
+    """3 MB of valid YAML: rcl's parser takes minutes over it, ignoring SIGINT."""
     body = ''.join(f'    p{i}: {i}\n' for i in range(200_000))
     (tmp_path / 'huge.yaml').write_text('/**:\n  ros__parameters:\n' + body)
     return ['-p', 'serial_number:=NAVC3545', '--params-file', str(tmp_path / 'huge.yaml')]
 
 
 def _fifo_calibration(tmp_path: Path) -> list[str]:
-    """A FIFO nobody writes: opening it to read blocks for ever (issue 25)."""
+    """A FIFO nobody writes: opening it to read blocks for ever."""
     os.mkfifo(tmp_path / 'cal.yaml')
     return ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={tmp_path}/cal.yaml']
 
@@ -484,7 +484,7 @@ def _fifo_params_file(tmp_path: Path) -> list[str]:
 
 
 def _duplicate_key(tmp_path: Path) -> list[str]:
-    """The polynomial given twice: the last (all zero, the rate uncompensated) won silently (issue 25)."""
+    """The polynomial given twice: the last (all zero, the rate uncompensated) won silently."""
     text = (REPO / 'config' / 'NAVC3545.yaml').read_text()
     (tmp_path / 'cal.yaml').write_text(text + '    polynomial:\n      rows: 1\n      columns: 1\n'
                                        '      coefficients: [0.0]\n')

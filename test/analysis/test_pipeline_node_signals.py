@@ -1,4 +1,4 @@
-"""``calibrate fit`` writes only what the node can run (issue 20 item 4).
+"""``analysis.pipeline``: ``calibrate fit`` writes only what the node can run.
 
 The README's 24 h example wrote a ``supply_v`` term and gyro_node refused the file
 ("extended terms need signals ['supply_v'] that are not available here"). An effect on a

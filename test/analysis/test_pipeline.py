@@ -1,0 +1,89 @@
+"""``analysis.pipeline``: ``fit_log`` on a small simulated log, what it finds, chooses, writes and reports."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from art_gyro_calibration.analysis.loop import DEFAULT_SERIAL, LoopOptions
+from art_gyro_calibration.analysis.pipeline import FitResult, FitSettings, fit_log, scale_factors
+from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
+from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, find_calibration_file,
+                                              load_packaged_calibration)
+
+
+def fit_simulated(directory: Path, serial: str = 'NAVC4058', validate: tuple[str, ...] = (),
+                  warnings: list[str] | None = None) -> FitResult:
+    """A 2 h rate-table log of NAVC4058 with a Shupe effect (2 Hz, seed 4), fitted 3 x 2 as ``calibrate fit`` does.
+
+    ``serial``: the gyro the fit is told (``DEFAULT_SERIAL``: none); ``validate``: other runs to replay.
+    """
+    cal = load_packaged_calibration('NAVC4058')
+    log = directory / 'LOG.csv'
+    write_run(log, simulate_run(cal, SimulationSettings(hours=2.0, rate_hz=2.0, seed=4, effects=('shupe',))))
+    options = LoopOptions(serial_number=serial, rate_scale_factor=cal.rate_scale_factor,
+                          temp_scale_factor=cal.temp_scale_factor)
+    return fit_log(str(log), FitSettings(3, 2, options, validate=validate), str(directory / 'CAL.yaml'),
+                   (warnings if warnings is not None else []).append)
+
+
+@pytest.fixture(scope='module')
+def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, FitResult, list[str]]:
+    directory = tmp_path_factory.mktemp('pipeline')
+    warnings: list[str] = []
+    return directory, fit_simulated(directory, warnings=warnings), warnings
+
+
+def test_the_effect_found_is_the_one_written_and_the_report_says_so(fitted) -> None:
+    directory, result, warnings = fitted
+    assert [e.signal for e in result.loop.effects] == ['temperature_rate']
+    assert [t.signal for t in result.calibration.terms] == ['temperature_rate']
+    assert result.calibration.serial_number == 'NAVC4058'
+    assert result.report['written'] == {'calibration': str(directory / 'CAL.yaml'), 'terms': ['temperature_rate']}
+    assert [e['signal'] for e in result.report['effects']] == ['temperature_rate']
+    assert result.report['findings_not_written'] == []
+    assert result.comment == (f'Fitted by calibrate fit from {directory / "LOG.csv"}: ART polynomial 3 x 2, '
+                              'effects beyond it: temperature_rate.')
+    assert warnings == []   # the model fits, and a log from power-on judges its own warm-up
+
+
+def test_the_refit_is_judged_against_the_packaged_calibration_and_on_restarts_of_the_log(fitted) -> None:
+    _, result, _ = fitted
+    baseline = result.report['baseline']
+    assert baseline['source'] == str(find_calibration_file('NAVC4058')) and baseline['verdict'] == 'refit'
+    assert result.baseline is not None and result.baseline.source == baseline['source']
+    assert result.startup is not None and result.report['startup_check']['runs']
+    assert list(result.report['detection_limit_dph']) == [d.signal for d in result.loop.detection]
+    assert result.validation is None and 'validation' not in result.report
+
+
+def test_without_a_serial_nor_a_baseline_the_refit_is_written_unjudged(tmp_path: Path) -> None:
+    result = fit_simulated(tmp_path, serial=DEFAULT_SERIAL)
+    assert result.baseline is None
+    assert result.report['baseline'] == {'source': None, 'verdict': 'none',
+                                         'message': 'no baseline: neither --serial nor --baseline was given'}
+    assert result.calibration.serial_number == DEFAULT_SERIAL
+    assert [t.signal for t in result.calibration.terms] == ['temperature_rate']
+
+
+def test_validation_runs_are_replayed_and_reported(tmp_path: Path) -> None:
+    other = tmp_path / 'OTHER.csv'
+    write_run(other, simulate_run(load_packaged_calibration('NAVC4058'),
+                                  SimulationSettings(hours=1.0, rate_hz=2.0, seed=5, effects=('shupe',))))
+    result = fit_simulated(tmp_path, validate=(str(other),))
+    assert result.validation is not None and len(result.validation.runs) == 1
+    [run] = result.report['validation']['runs']
+    assert run['source'] == str(other) and {'art', 'extended'} <= set(run['calibrations'])
+    assert result.report['written']['terms'] == [t.signal for t in result.calibration.terms]
+
+
+def test_scale_factors_given_packaged_or_assumed() -> None:
+    packaged = load_packaged_calibration('NAVC4058')
+    given = scale_factors('NAVC4058', 0.001)
+    assert (given.rate, given.temp, given.assumed) == (0.001, TEMP_SCALE_FACTOR, False)
+    found = scale_factors('NAVC4058', None)
+    assert (found.rate, found.temp, found.assumed) == (packaged.rate_scale_factor, packaged.temp_scale_factor, False)
+    for serial in ('NAVC0000', None):   # a gyro never calibrated, or none named
+        assumed = scale_factors(serial, None)
+        assert (assumed.rate, assumed.temp, assumed.assumed) == (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, True)
