@@ -24,7 +24,6 @@ import serial
 
 from art_gyro_calibration.frame import LOCK_FRAMES, Frame, RawSample
 from art_gyro_calibration.protocols import KVH_BAUDS, KvhFogConfig, make_parser
-from art_gyro_calibration.protocols.kvh_fog import NO_INTERVAL, NO_TEMPERATURE_YET
 from art_gyro_calibration.stamper import UnitClock, WireStamper, wire_byte_ns
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
@@ -38,9 +37,6 @@ NO_FRAMES_WARNING_S = 2.0
 # unlocked frames) is warned once, until the share is back under half of it: a baud or protocol changed, or a
 # link that corrupts bytes. A correct link skips almost none (the lock's first frames after a reopen).
 BAD_SHARE_WARNING = 0.5
-# Rejections a protocol makes at the start of every connection by design (a kvh_fog delta angle before its interval
-# is measured, a Format C message before the first temperature): not counted in that share.
-STARTUP_REJECTIONS = (NO_INTERVAL, NO_TEMPERATURE_YET)
 # A port that stays missing (or unreadable) is reported again this often while the driver retries it.
 LINK_DOWN_REPEAT_S = 10.0
 # RD2100 protocols: a yaw rate cannot change faster than this between two frames (deg/s per second between their
@@ -393,9 +389,12 @@ class SerialGyroDriver:
         return f'rejected so far: {", ".join(counts)}' if counts else 'no frame found in them'
 
     def _startup_rejections(self) -> int:
-        """Rejections so far of the kinds every connection makes at its start (:data:`STARTUP_REJECTIONS`)."""
+        """Rejections so far of the kinds every connection makes at its start (the protocol's ``startup_rejections``).
+
+        They are part of a correct link (a kvh_fog delta angle before its interval is measured), not of the bad share.
+        """
         reasons = self._parser.stats.rejected_by_reason
-        return sum(reasons.get(reason, 0) for reason in STARTUP_REJECTIONS)
+        return sum(reasons.get(reason, 0) for reason in self._parser.description.startup_rejections)
 
     def _check_path(self) -> None:
         """A quiet port may be gone without a read error: its path vanished or now names another device."""

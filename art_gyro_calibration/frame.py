@@ -110,8 +110,9 @@ class ProtocolDescription:
     gyro can turn. ``stamps_by_unit_clock``: stamp samples by their ``unit_time_us`` once mapped.
     ``imu_axes``: for the robot's x, y and z (REP 103), the unit's axis and its sign, when samples
     carry the whole IMU; empty otherwise. ``reports_rate``: the parser measures the unit's output
-    rate (the diagnostics report it and :meth:`rate_error`). ``temperature_hint``: what a
-    temperature outside the plausible range says of the settings.
+    rate (the diagnostics report it and :meth:`rate_error`). ``startup_rejections``: reasons the
+    parser rejects frames for at the start of every connection by design, not a sign of a wrong
+    link. ``temperature_hint``: what a temperature outside the plausible range says of the settings.
     """
 
     hardware: str = 'KVH RD2100'
@@ -119,6 +120,7 @@ class ProtocolDescription:
     stamps_by_unit_clock: bool = False
     imu_axes: tuple[tuple[int, float], ...] = ()
     reports_rate: bool = False
+    startup_rejections: tuple[str, ...] = ()
     temperature_hint: str = 'the temperature field is not m[3]:m[4] on this unit'   # m: the RD2100's 7-bit groups
 
     def rate_error(self, measured_hz: float | None) -> str:

@@ -203,6 +203,7 @@ class KvhFogConfig:
         return KvhFogDescription(hardware='KVH FOG', checks_rate_jumps=False,
                                  stamps_by_unit_clock=self.timestamp_source == 'unit_clock', imu_axes=axes,
                                  reports_rate=True, temperature_hint=temperature,
+                                 startup_rejections=(NO_INTERVAL, NO_TEMPERATURE_YET),
                                  output_rate_hz=float(self.output_rate_hz), message_format=self.message_format)
 
     def max_rate_hz(self, baud: int) -> float:
