@@ -57,6 +57,8 @@ SERIAL_PATTERN = re.compile(r'^[A-Za-z0-9_-]+$')
 SIGNAL_PATTERN = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
 # A calibration or params file is a few kB: anything far larger is not one (and is not read whole).
 MAX_YAML_BYTES = 1 << 20
+# Nor is it nested deeper than a few levels (node entry, ros__parameters, extended.<signal>.<field>, a list).
+MAX_YAML_DEPTH = 32
 # An error quoting a file (a YAML error echoes the offending line) is cut to this many characters.
 MAX_MESSAGE_CHARS = 400
 # The rate is a signed 16-bit count: full scale is this many counts times rate_scale_factor.
@@ -440,6 +442,10 @@ def shorten(text: str, limit: int = MAX_MESSAGE_CHARS) -> str:
     return text if len(text) <= limit else f'{text[:limit]}... ({len(text) - limit} more characters)'
 
 
+class _TooDeep(yaml.YAMLError):
+    """A YAML document nested deeper than MAX_YAML_DEPTH, said in one line."""
+
+
 class _NoAliasLoader(yaml.SafeLoader):
     """A safe loader as rcl reads a params file: no aliases, no key given twice, numbers as ``strtod`` spells them.
 
@@ -448,12 +454,22 @@ class _NoAliasLoader(yaml.SafeLoader):
     (no dot, no exponent sign) as a string where rcl reads a double: such numbers are floats here too.
     """
 
+    depth = 0   # of the node being composed: the composer recurses, so a deep file would end in a RecursionError
+
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
             event = self.peek_event()   # type: ignore[no-untyped-call]
             raise yaml.composer.ComposerError(None, None, f'found alias *{event.anchor}: YAML aliases are not '
                                               'allowed here', event.start_mark)
-        return super().compose_node(parent, index)
+        if self.depth >= MAX_YAML_DEPTH:
+            mark = self.peek_event().start_mark   # type: ignore[no-untyped-call]
+            raise _TooDeep(f'nested deeper than {MAX_YAML_DEPTH} levels (line {mark.line + 1}, column '
+                           f'{mark.column + 1})')
+        self.depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
 
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
         if isinstance(node, yaml.MappingNode):
@@ -500,7 +516,7 @@ def special_file_kind(mode: int) -> str:
 
 
 def read_yaml(path: str | os.PathLike[str], what: str = 'file') -> Any:
-    """Parse a small YAML file safely: a regular file, at most MAX_YAML_BYTES, no aliases, no key twice.
+    """Parse a small YAML file safely: regular, within MAX_YAML_BYTES and MAX_YAML_DEPTH, no alias, no key twice.
 
     Anything else is a :class:`CalibrationError` naming the file and a readable part of the problem.
     """
@@ -515,6 +531,8 @@ def read_yaml(path: str | os.PathLike[str], what: str = 'file') -> Any:
         return yaml.load(data.decode('utf-8'), Loader=_NoAliasLoader)
     except UnicodeDecodeError as e:
         raise CalibrationError(f'{where}: not UTF-8 text (byte {e.start}): not a {what}') from None
+    except _TooDeep as e:
+        raise CalibrationError(f'{where}: not a {what}: {e}') from None
     except yaml.YAMLError as e:
         raise CalibrationError(f'{where}: not valid YAML: {shorten(str(e))}') from None
 
