@@ -14,6 +14,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
+import numpy as np
+
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
                                               CalibrationError, find_calibration_file, load_calibration,
                                               node_parameters_needed, unit_range_dps)
@@ -114,7 +116,7 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     still = None if settings.still is None else still_noise(settings.still, settings.loop, settings.topics)
     loop_options = settings.loop if still is None else replace(
         settings.loop, still_instability_dps=still['bias_instability_dps'])
-    log = _log_to_fit(log_path, settings, loop_options, warn)
+    log, rows = _log_to_fit(log_path, settings, loop_options, warn)
     loop = close_loop(log, settings.rows, settings.columns, loop_options)
     # The report and figures are the loop's; what the checks drop is in their sections.
     loop_report = build_report(log, loop, settings.bias_samples, source=str(log_path))
@@ -140,6 +142,7 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
         comment += f' gyro_node needs {" and ".join(needed)} set.'
     report = {
         **loop_report,
+        **rows,   # rows_read and rows_dropped per reason; 'rows' (the loop's) are those fitted
         # Per candidate of the last screen, the smallest effect this log would have found (DetectionLimit.to_dict).
         'detection_limit_dph': {d.signal: d.to_dict() for d in loop.detection},
         **({} if still is None else {'still': still}),
@@ -156,15 +159,59 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
                      baseline if isinstance(baseline, BaselineCheck) else None)
 
 
-def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions, warn: Callable[[str], None]) -> GyroLog:
-    """The log read with ``options``' scale factors, less the rows the node would drop; refused if it is too narrow.
+# Rows repeating the previous stamp beyond this share of a log: its clock is coarser than its rows (1 s stamps on a
+# 10 Hz log), which no dropping mends; fewer are dropped and counted (a logger that wrote a row twice).
+MAX_REPEATED_STAMPS = 0.01
+# A log whose non-finite values would drop more than this share of its rows is refused: a column not measured.
+MAX_NOT_FINITE_ROWS = 0.5
 
-    A log whose steady rates and temperatures cannot determine the polynomial is refused
-    (:class:`LogError`); one without ``ref_rate`` is left for the loop to say what is missing.
+
+def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions,
+                warn: Callable[[str], None]) -> tuple[GyroLog, dict[str, int | dict[str, int]]]:
+    """The log read with ``options``' scale factors, less the rows nothing can fit; refused if it is too narrow.
+
+    Dropped, each counted (REPORT.json's ``rows_dropped``) and told to ``warn``: a row with a value that is not finite
+    in a column the fit uses (``ref_rate``, a signal column), one repeating the previous stamp, one the node
+    drops (the rate clipped). Refused (:class:`LogError`): stamps coarser than the rows, a column mostly not
+    finite, and a log whose steady rates and temperatures cannot determine the polynomial; one without
+    ``ref_rate`` is left for the loop to say what is missing.
     """
     log = read_any_log(log_path, options.rate_scale_factor, options.temp_scale_factor, settings.topics, warn)
+    dropped: dict[str, int] = {}
+    rows: dict[str, int | dict[str, int]] = {'rows_read': len(log), 'rows_dropped': dropped}
+    columns = {'t': log.t, 'rate': log.rate_dps, 'temperature': log.temp_c,
+               **({} if log.ref_rate is None else {'ref_rate': log.ref_rate}), **log.extras}
+    finite = np.ones(len(log), dtype=bool)
+    not_finite: dict[str, int] = {}
+    for name, values in columns.items():
+        bad = ~np.isfinite(values)
+        if bad.any():
+            not_finite[name] = int(bad.sum())
+            finite &= ~bad
+    if not finite.all():
+        dropped.update({f'not finite: {name}': count for name, count in not_finite.items()})
+        counts = ', '.join(f'{count} in {name}' for name, count in not_finite.items())
+        if finite.sum() < (1.0 - MAX_NOT_FINITE_ROWS) * len(log):
+            raise LogError(f'{log_path}: {len(log) - int(finite.sum())} of {len(log)} rows have values that are not '
+                           f'finite ({counts}): too few rows left to fit')
+        warn(f'{log_path}: {len(log) - int(finite.sum())} of {len(log)} rows excluded: values not finite ({counts})')
+        log = log.slice(finite)
+    repeated = np.zeros(len(log), dtype=bool)
+    repeated[1:] = log.t[1:] == log.t[:-1]
+    if repeated.any():
+        count = int(repeated.sum())
+        if count > MAX_REPEATED_STAMPS * len(log):
+            steps = np.diff(log.t[~repeated])
+            raise LogError(f'{log_path}: column t: {count} of {len(log)} rows repeat the previous stamp: the stamps '
+                           f'step by {float(np.median(steps)) if steps.size else 0.0:g} s while the log has '
+                           f'{len(log) / max(float(log.t[-1] - log.t[0]), 1e-300):.3g} rows per second; time too '
+                           'coarse to fit (log t finer than the row interval)')
+        dropped['repeated stamp'] = count
+        warn(f'{log_path}: {count} of {len(log)} rows excluded: they repeat the previous row\'s stamp')
+        log = log.slice(~repeated)
     usable = usable_rates(log.rate_dps, options.rate_scale_factor)
     if not usable.all():   # the node drops these frames: no value to fit (a turn beyond the range reads as slower)
+        dropped['rate beyond range'] = log.t.size - int(usable.sum())
         warn(f'{log.t.size - int(usable.sum())} of {log.t.size} rows excluded: the rate clipped (at '
              f'+-{unit_range_dps(options.rate_scale_factor):g} deg/s) or beyond any unit\'s range (the node '
              'drops such frames)')
@@ -175,7 +222,7 @@ def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions, warn
                            settings.rows, settings.columns)
         except ValueError as e:
             raise LogError(f'{log_path}: {e}') from None
-    return log
+    return log, rows
 
 
 def _warn_loop(loop: LoopResult, warn: Callable[[str], None]) -> None:
