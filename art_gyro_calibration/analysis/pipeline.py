@@ -129,7 +129,7 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     if kept is not None:
         warn(kept.message)
     choice = _choose(result, startup, restarts, validation, refit, kept, settings)
-    calibration = choice.calibration
+    calibration = _with_fitted_ranges(choice.calibration, log)
     judged = settings.validate and settings.validate_powered_on_at_start
     warning = '' if judged else unjudged_warm_up(calibration, result.bias_instability_dph)
     if warning:
@@ -223,6 +223,19 @@ def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions,
         except ValueError as e:
             raise LogError(f'{log_path}: {e}') from None
     return log, rows
+
+
+def _with_fitted_ranges(calibration: Calibration, log: GyroLog) -> Calibration:
+    """``calibration`` with the range over which each of its terms on a log column (a supply voltage) was fitted.
+
+    The node and ``calibrate apply`` take a value far beyond it as wrong (:meth:`Calibration.signal_limits`).
+    """
+    ranges = {}
+    for term in calibration.terms:
+        values = log.extras.get(term.signal)
+        if values is not None and values.size and float(np.min(values)) < float(np.max(values)):
+            ranges[term.signal] = (float(np.min(values)), float(np.max(values)))
+    return replace(calibration, signal_ranges=ranges)
 
 
 def _warn_loop(loop: LoopResult, warn: Callable[[str], None]) -> None:
