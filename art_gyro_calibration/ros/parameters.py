@@ -14,8 +14,6 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-import yaml
-
 # The message wheels ship no type hints.
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor   # type: ignore[import-untyped]
 from rclpy.node import Node
@@ -25,7 +23,7 @@ from std_msgs.msg import Float64   # type: ignore[import-untyped]
 from art_gyro_calibration.calibration import (CALIBRATION_KEYS, EXTRA_SIGNAL_TYPES, SIGNAL_PATTERN, Calibration,
                                               CalibrationError, check_fed, closest, extra_signal_parameter,
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
-                                              load_calibration, read_yaml, resolve_calibration_url)
+                                              load_calibration, read_yaml, resolve_calibration_url, shorten)
 from art_gyro_calibration.driver import BAUDS
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
 from art_gyro_calibration.protocols.kvh_fog import KVH_DEFAULT_BAUD, KvhFogConfig
@@ -378,11 +376,10 @@ def given_values(argv: Sequence[str], name: str, node_name: str,
         rule, separator, text = argument.partition(':=')
         prefix, colon, rule_name = rule.rpartition(':')
         if separator and rule_name == name and (not colon or _entry_pattern(prefix).match(node_name)):
-            try:
-                value = yaml.safe_load(text)
-            except yaml.YAMLError:
-                value = text   # rcl refuses it later, naming it
-            given.append(GivenValue(str(value), f'{option} {argument} on the command line'))
+            value = text.strip()
+            if len(value) > 1 and value[0] == value[-1] and value[0] in '\'"':
+                value = value[1:-1]   # a quoted string, as rcl reads it (anything else that is no string: rcl's)
+            given.append(GivenValue(value, f'{option} {shorten(argument, 80)} on the command line'))
     return given
 
 
@@ -391,8 +388,8 @@ def check_agree(given: Sequence[GivenValue], name: str, why: str) -> GivenValue 
     given = [g for g in given if g.value]
     for other in given[1:]:
         if other.value != given[0].value:
-            raise ParameterError(f'parameter {name} is {given[0].value!r} from {given[0].source} but '
-                                 f'{other.value!r} from {other.source}: {why}')
+            raise ParameterError(f'parameter {name} is {shorten(repr(given[0].value), 80)} from {given[0].source} '
+                                 f'but {shorten(repr(other.value), 80)} from {other.source}: {why}')
     return given[0] if given else None
 
 

@@ -49,6 +49,9 @@ def test_every_source_of_a_parameter_is_found_in_command_line_order(tmp_path: Pa
     assert _given(['--params-file', str(CAL_4058)]) == [('NAVC4058', f'the calibration in {CAL_4058}')]
     assert _given(['-p', "serial_number:='NAVC3545'"]) == [('NAVC3545', '-p serial_number:=\'NAVC3545\' on the '
                                                             'command line')]
+    deep = '[' * 10_000 + ']' * 10_000   # not parsed here: rcl reads what is no string
+    assert _given(['-p', f'serial_number:={deep}']) == [(deep, f'-p serial_number:={deep[:65]}... (19935 more '
+                                                               'characters) on the command line')]
 
 
 def _refused(tmp_path: Path, *args: str) -> str:
@@ -93,6 +96,10 @@ ORDERS: dict[str, tuple[Callable[[Path], list[str]], tuple[str, ...]]] = {
     'calibration_file_then_node_params_file': (
         lambda p: ['-p', f'calibration_file:={CAL_4058}', '--params-file', _node_params(p, 'gyro_node', 'NAVC3545')],
         (f'{CAL_4058}: serial_number is \'NAVC4058\', expected \'NAVC3545\'', 'NAVC3545_gyro_node.yaml')),
+    'deep_p_then_p': (
+        lambda p: ['-p', 'serial_number:=' + '[' * 10_000 + ']' * 10_000, '-p', 'serial_number:=NAVC3545',
+                   '-p', 'port:=/nonexistent'],
+        ("parameter serial_number is '[[[[", '-p serial_number:=NAVC3545 on the command line')),
     'two_calibration_files': (
         lambda p: ['-p', f'calibration_file:={CAL_4058}', '--params-file', _calibration_file_params(p)],
         (f'-p calibration_file:={CAL_4058} on the command line', 'calibration_file.yaml')),
