@@ -122,7 +122,7 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     loop_report = build_report(log, loop, settings.bias_samples, source=str(log_path))
     result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
     _warn_loop(loop, warn)
-    validation = _validate(result, settings) if settings.validate else None
+    validation, validation_dropped = _validate(result, settings, warn) if settings.validate else (None, {})
     refit = result.extended if validation is None else validation.calibration
     baseline = _baseline(log, result, refit, settings)
     kept = baseline if isinstance(baseline, BaselineCheck) and baseline.verdict == BASELINE else None
@@ -147,7 +147,8 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
         'detection_limit_dph': {d.signal: d.to_dict() for d in loop.detection},
         **({} if still is None else {'still': still}),
         **({} if startup is None else {'startup_check': validation_section(startup, restarts)}),
-        **({} if validation is None else {'validation': validation_section(validation, list(settings.validate))}),
+        **({} if validation is None else {'validation': validation_section(validation, list(settings.validate)),
+                                          'validation_rows_dropped': validation_dropped}),
         'baseline': baseline.to_dict() if isinstance(baseline, BaselineCheck) else
         {'source': None, 'verdict': 'none', 'message': baseline},
         **({'warnings': [warning]} if warning else {}),
@@ -170,15 +171,37 @@ def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions,
                 warn: Callable[[str], None]) -> tuple[GyroLog, dict[str, int | dict[str, int]]]:
     """The log read with ``options``' scale factors, less the rows nothing can fit; refused if it is too narrow.
 
-    Dropped, each counted (REPORT.json's ``rows_dropped``) and told to ``warn``: a row with a value that is not finite
-    in a column the fit uses (``ref_rate``, a signal column), one repeating the previous stamp, one the node
-    drops (the rate clipped). Refused (:class:`LogError`): stamps coarser than the rows, a column mostly not
-    finite, and a log whose steady rates and temperatures cannot determine the polynomial; one without
+    Dropped, each counted (REPORT.json's ``rows_dropped``) and told to ``warn``: the rows :func:`_defined_rows`
+    drops, and those the node drops (the rate clipped). Refused (:class:`LogError`): what :func:`_defined_rows`
+    refuses, and a log whose steady rates and temperatures cannot determine the polynomial; one without
     ``ref_rate`` is left for the loop to say what is missing.
     """
-    log = read_any_log(log_path, options.rate_scale_factor, options.temp_scale_factor, settings.topics, warn)
+    read = read_any_log(log_path, options.rate_scale_factor, options.temp_scale_factor, settings.topics, warn)
+    log, dropped = _defined_rows(read, log_path, warn)
+    usable = usable_rates(log.rate_dps, options.rate_scale_factor)
+    if not usable.all():   # the node drops these frames: no value to fit (a turn beyond the range reads as slower)
+        dropped['rate beyond range'] = log.t.size - int(usable.sum())
+        warn(f'{log.t.size - int(usable.sum())} of {log.t.size} rows excluded: the rate clipped (at '
+             f'+-{unit_range_dps(options.rate_scale_factor):g} deg/s) or beyond any unit\'s range (the node '
+             'drops such frames)')
+        log = log.slice(usable)
+    if log.ref_rate is not None:
+        try:
+            check_coverage(log.temp_c, steady_segments(log.t, log.ref_rate, options.settle_s).rate,
+                           settings.rows, settings.columns)
+        except ValueError as e:
+            raise LogError(f'{log_path}: {e}') from None
+    return log, {'rows_read': len(read), 'rows_dropped': dropped}
+
+
+def _defined_rows(log: GyroLog, log_path: str, warn: Callable[[str], None]) -> tuple[GyroLog, dict[str, int]]:
+    """``log`` less the rows whose values do not say what they claim; how many were dropped, per reason.
+
+    Dropped and told to ``warn``: a row with a value that is not finite in any column (``ref_rate``, a signal
+    column), one repeating the previous stamp (a logger that wrote it twice). Refused (:class:`LogError`): a
+    column mostly not finite, and stamps coarser than the rows (1 s stamps on a 10 Hz log), which no drop mends.
+    """
     dropped: dict[str, int] = {}
-    rows: dict[str, int | dict[str, int]] = {'rows_read': len(log), 'rows_dropped': dropped}
     columns = {'t': log.t, 'rate': log.rate_dps, 'temperature': log.temp_c,
                **({} if log.ref_rate is None else {'ref_rate': log.ref_rate}), **log.extras}
     finite = np.ones(len(log), dtype=bool)
@@ -209,20 +232,7 @@ def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions,
         dropped['repeated stamp'] = count
         warn(f'{log_path}: {count} of {len(log)} rows excluded: they repeat the previous row\'s stamp')
         log = log.slice(~repeated)
-    usable = usable_rates(log.rate_dps, options.rate_scale_factor)
-    if not usable.all():   # the node drops these frames: no value to fit (a turn beyond the range reads as slower)
-        dropped['rate beyond range'] = log.t.size - int(usable.sum())
-        warn(f'{log.t.size - int(usable.sum())} of {log.t.size} rows excluded: the rate clipped (at '
-             f'+-{unit_range_dps(options.rate_scale_factor):g} deg/s) or beyond any unit\'s range (the node '
-             'drops such frames)')
-        log = log.slice(usable)
-    if log.ref_rate is not None:
-        try:
-            check_coverage(log.temp_c, steady_segments(log.t, log.ref_rate, options.settle_s).rate,
-                           settings.rows, settings.columns)
-        except ValueError as e:
-            raise LogError(f'{log_path}: {e}') from None
-    return log, rows
+    return log, dropped
 
 
 def _with_fitted_ranges(calibration: Calibration, log: GyroLog) -> Calibration:
@@ -332,12 +342,17 @@ def still_noise(path: str, options: LoopOptions, topics: BagTopics) -> dict[str,
             'materiality_bias_instability_dph': floor * DEG_PER_H_PER_DPS}
 
 
-def _validate(result: LoopResult, settings: FitSettings) -> Validation:
-    """Replay ``result``'s calibrations on the ``validate`` runs, read as the fitted log was."""
-    logs = [read_any_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor, settings.topics)
-            for path in settings.validate]
+def _validate(result: LoopResult, settings: FitSettings,
+              warn: Callable[[str], None]) -> tuple[Validation, dict[str, dict[str, int]]]:
+    """Replay ``result``'s calibrations on the ``validate`` runs, read as the fitted log was; rows dropped per run."""
+    logs, dropped = [], {}
+    for path in settings.validate:
+        log, dropped[path] = _defined_rows(
+            read_any_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor, settings.topics), path,
+            warn)
+        logs.append(log)
     return validate(result, logs, settings.bias_samples, settings.loop.settle_s,
-                    RunStart(powered_on_at_start=settings.validate_powered_on_at_start))
+                    RunStart(powered_on_at_start=settings.validate_powered_on_at_start)), dropped
 
 
 def _dropped(validation: Validation, runs: str) -> str:

@@ -113,3 +113,20 @@ def test_both_sides_refusing_the_static_bias_stops_the_fit(tmp_path, logged, cap
     monkeypatch.setattr(baseline_module, 'field_score_dps', lambda runs: np.inf)
     assert _fit(tmp_path, log, wrong) == 1
     assert 'the node would refuse the static bias with either' in capsys.readouterr().err
+
+
+def test_a_validation_run_with_a_nan_reference_is_judged_on_its_defined_rows(tmp_path, logged, capsys):
+    log, wrong = logged
+
+    def edit(header, rows):
+        rows[30000][header.index('ref_rate')] = 'nan'
+    other = _edited(log, tmp_path / 'OTHER.csv', edit)
+    assert main(['fit', str(log), '--rows', '3', '--columns', '4', '--serial', SERIAL, '--baseline', str(wrong),
+                 '--validate', str(other), '--out', str(tmp_path / 'CAL.yaml'),
+                 '--report', str(tmp_path / 'REPORT.json')]) == 0
+    assert f'{other}: 1 of 72000 rows excluded: values not finite (1 in ref_rate)' in capsys.readouterr().err
+    report = json.loads((tmp_path / 'REPORT.json').read_text())
+    assert report['validation_rows_dropped'] == {str(other): {'not finite: ref_rate': 1}}
+    # Before, the run's scores were NaN (null in REPORT.json): no term could be judged on it.
+    scores = report['validation']['runs'][0]['calibrations']
+    assert all(scores[name]['systematic_rms_dps'] is not None for name in ('art', 'extended')), scores
