@@ -35,7 +35,7 @@ import os
 import re
 import stat
 import sys
-from collections.abc import Collection, Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -57,6 +57,8 @@ SERIAL_PATTERN = re.compile(r'^[A-Za-z0-9_-]+$')
 SIGNAL_PATTERN = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
 # A calibration or params file is a few kB: anything far larger is not one (and is not read whole).
 MAX_YAML_BYTES = 1 << 20
+# Nor is it nested deeper than a few levels (node entry, ros__parameters, extended.<signal>.<field>, a list).
+MAX_YAML_DEPTH = 32
 # An error quoting a file (a YAML error echoes the offending line) is cut to this many characters.
 MAX_MESSAGE_CHARS = 400
 # The rate is a signed 16-bit count: full scale is this many counts times rate_scale_factor.
@@ -71,6 +73,9 @@ PLAUSIBLE_TEMPERATURE_C = (-60.0, 130.0)
 # The widest range of the units this package reads (deg/s): KVH DSP-1750/1760, 1725/1750/1775 measure +-490;
 # an RD2100's range is its counts' full scale (about +-100). A rate beyond a unit's range is no measurement.
 MAX_UNIT_RANGE_DPS = 490.0
+# A signal from outside the gyro may stray beyond the range its term was fitted over by this share of that range on
+# either side (an extrapolation a linear term bears) before its value is taken as wrong (Calibration.signal_limits).
+SIGNAL_RANGE_MARGIN = 0.5
 # Scale factors a calibration may hold: an RD2100's full scale between 1 deg/s and 1 count per deg/s (kvh_fog
 # units send deg/s, factor 1.0); temperatures to between 0.001 and 1 degC per count (RD2100 0.05, kvh_fog 1.0).
 RATE_SCALE_FACTOR_RANGE = (1.0 / FULL_SCALE_COUNTS, 1.0)
@@ -100,6 +105,29 @@ class Calibration:
     terms: tuple[Term, ...] = ()
     filters: SignalFilters = field(default_factory=SignalFilters)
     temperature_warn_range_c: tuple[float, float] | None = None   # warned and counted outside, never clamped
+    # Per signal from outside the gyro (a supply voltage): the range its term was fitted over (none: not known).
+    signal_ranges: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+
+    def signal_limits(self, signal: str) -> tuple[float, float]:
+        """Where a value of ``signal`` is taken as the fit's: its fitted range widened by SIGNAL_RANGE_MARGIN.
+
+        Beyond it the value is no longer the calibration's (24000 for 24 V: millivolts sent as volts): the node
+        and ``calibrate apply`` apply the term at the limit and flag the rate. No range known: unlimited.
+        """
+        span = self.signal_ranges.get(signal)
+        if span is None:
+            return -math.inf, math.inf
+        margin = SIGNAL_RANGE_MARGIN * (span[1] - span[0])
+        return span[0] - margin, span[1] + margin
+
+    def signal_problem(self, signal: str, value: float) -> str:
+        """Why ``value`` of ``signal`` is not taken as it is (beyond :meth:`signal_limits`), or ''."""
+        low, high = self.signal_limits(signal)
+        if low <= value <= high:
+            return ''
+        fitted_low, fitted_high = self.signal_ranges[signal]
+        return (f'{signal} {value:g} is beyond {low:g}..{high:g} (the range it was fitted over, '
+                f'{fitted_low:g}..{fitted_high:g}, and half that each side): applied as {min(max(value, low), high):g}')
 
     @property
     def expected_range_c(self) -> tuple[float, float] | None:
@@ -149,6 +177,8 @@ class Calibration:
                 params[prefix + 'rate_powers'] = list(t.rate_powers)
             if t.form == 'exp_decay' or t.signal == LAGGED_SIGNAL:
                 params[prefix + 'time_constant_s'] = t.time_constant_s
+            if t.signal in self.signal_ranges:
+                params[prefix + 'fitted_range'] = [float(v) for v in self.signal_ranges[t.signal]]
         return params
 
 
@@ -164,7 +194,7 @@ def _key_sets() -> tuple[frozenset[str], frozenset[str]]:
                        coefficients=(0.0,) * Term.width(form, *shapes[form]), powers=shapes[form][0],
                        rate_powers=shapes[form][1], time_constant_s=1.0) for form in FORMS)
     sample = Calibration('SAMPLE', 1.0, ArtPolynomial([[0.0]]), (0.0, 1.0), terms=terms,
-                         temperature_warn_range_c=(0.0, 1.0))
+                         temperature_warn_range_c=(0.0, 1.0), signal_ranges={terms[0].signal: (0.0, 1.0)})
     fixed, fields = set(), set()
     for key in sample.to_parameters():
         parts = key.split('.', 2)
@@ -272,23 +302,39 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
                     'filters.rate_change_tau_s', where))
     except ValueError as e:
         raise CalibrationError(f'{where}: {e}') from None
+    terms = _terms(params, where)
     calibration = Calibration(
         serial_number=serial, rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
         polynomial=ArtPolynomial(np.reshape(coefficients, (rows, columns))),
         temperature_range_c=temp_range, temperature_warn_range_c=warn_range,
-        terms=_terms(params, where), filters=filters)
+        terms=terms, filters=filters, signal_ranges=_signal_ranges(params, terms, where))
     check_envelope(calibration, where)
     return calibration
 
 
 def _range(params: Mapping[str, Any], key: str, where: str) -> tuple[float, float] | None:
-    """An optional [min, max] in degC: absent is None (the report prints no range), anything else is checked."""
+    """An optional [min, max] (degC, or a signal's unit): absent is None (no range known), anything else checked."""
     if key not in params:
         return None
     span = _numbers(params[key], key, where)
     if len(span) != 2 or not span[0] < span[1]:
         raise CalibrationError(f'{where}: {key} must be [min, max] with min < max, got {span}')
     return span[0], span[1]
+
+
+def _signal_ranges(params: Mapping[str, Any], terms: Sequence[Term], where: str) -> dict[str, tuple[float, float]]:
+    """The ``extended.<signal>.fitted_range`` given, for signals from outside the gyro only (optional: older files)."""
+    ranges = {}
+    for term in terms:
+        key = f'extended.{term.signal}.fitted_range'
+        span = _range(params, key, where)
+        if span is None:
+            continue
+        if term.signal in SIGNALS:
+            raise CalibrationError(f'{where}: {key}: {term.signal} is derived from the gyro\'s frames, whose range '
+                                   'the calibration knows: a fitted range is for a signal from outside the gyro')
+        ranges[term.signal] = span
+    return ranges
 
 
 def signal_envelope(calibration: Calibration, signal: str) -> tuple[float, float] | None:
@@ -440,6 +486,10 @@ def shorten(text: str, limit: int = MAX_MESSAGE_CHARS) -> str:
     return text if len(text) <= limit else f'{text[:limit]}... ({len(text) - limit} more characters)'
 
 
+class _TooDeep(yaml.YAMLError):
+    """A YAML document nested deeper than MAX_YAML_DEPTH, said in one line."""
+
+
 class _NoAliasLoader(yaml.SafeLoader):
     """A safe loader as rcl reads a params file: no aliases, no key given twice, numbers as ``strtod`` spells them.
 
@@ -448,12 +498,22 @@ class _NoAliasLoader(yaml.SafeLoader):
     (no dot, no exponent sign) as a string where rcl reads a double: such numbers are floats here too.
     """
 
+    depth = 0   # of the node being composed: the composer recurses, so a deep file would end in a RecursionError
+
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
             event = self.peek_event()   # type: ignore[no-untyped-call]
             raise yaml.composer.ComposerError(None, None, f'found alias *{event.anchor}: YAML aliases are not '
                                               'allowed here', event.start_mark)
-        return super().compose_node(parent, index)
+        if self.depth >= MAX_YAML_DEPTH:
+            mark = self.peek_event().start_mark   # type: ignore[no-untyped-call]
+            raise _TooDeep(f'nested deeper than {MAX_YAML_DEPTH} levels (line {mark.line + 1}, column '
+                           f'{mark.column + 1})')
+        self.depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
 
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
         if isinstance(node, yaml.MappingNode):
@@ -500,7 +560,7 @@ def special_file_kind(mode: int) -> str:
 
 
 def read_yaml(path: str | os.PathLike[str], what: str = 'file') -> Any:
-    """Parse a small YAML file safely: a regular file, at most MAX_YAML_BYTES, no aliases, no key twice.
+    """Parse a small YAML file safely: regular, within MAX_YAML_BYTES and MAX_YAML_DEPTH, no alias, no key twice.
 
     Anything else is a :class:`CalibrationError` naming the file and a readable part of the problem.
     """
@@ -515,6 +575,8 @@ def read_yaml(path: str | os.PathLike[str], what: str = 'file') -> Any:
         return yaml.load(data.decode('utf-8'), Loader=_NoAliasLoader)
     except UnicodeDecodeError as e:
         raise CalibrationError(f'{where}: not UTF-8 text (byte {e.start}): not a {what}') from None
+    except _TooDeep as e:
+        raise CalibrationError(f'{where}: not a {what}: {e}') from None
     except yaml.YAMLError as e:
         raise CalibrationError(f'{where}: not valid YAML: {shorten(str(e))}') from None
 

@@ -24,8 +24,8 @@ hold their window mean for a minute, then follow the refinement's provisional fi
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from typing import overload
 
 import numpy as np
@@ -113,7 +113,8 @@ class Compensator:
     """
 
     __slots__ = ('calibration', '_bias', '_model', '_tracker', '_rate_scale', '_temp_scale', '_range',
-                 '_refinable', '_refinement', 'outside_range', '_feeds', '_unfed', 'current')
+                 '_refinable', '_refinement', 'outside_range', '_feeds', '_limits', 'beyond_limits', '_unfed',
+                 'current')
 
     def __init__(self, calibration: Calibration, start: RunStart = RunStart(),
                  feeds: tuple[SignalFeed, ...] = ()) -> None:
@@ -121,6 +122,9 @@ class Compensator:
         self.calibration = calibration
         self._model = calibration.model
         self._feeds = feeds
+        # A fed value beyond the range its term was fitted over (and the margin) is applied at the limit and flagged.
+        self._limits = tuple(calibration.signal_limits(f.name) for f in feeds)
+        self.beyond_limits = [0] * len(feeds)   # per feed: samples whose value was beyond its limits
         # Until every feed has had a value: the model without their terms (the rate is then uncorrected anyway:
         # no static bias is collected before).
         names = {f.name for f in feeds}
@@ -179,15 +183,23 @@ class Compensator:
         return model.error_one(tracker)
 
     def _read_feeds(self) -> ErrorModel:
-        """Take each feed's latest value and set :attr:`current`; the model to use (their terms only once fed)."""
+        """Take each feed's latest value and set :attr:`current`; the model to use (their terms only once fed).
+
+        A value beyond its :meth:`~Calibration.signal_limits` is taken at the limit, and the sample is not current.
+        """
         values = self._tracker.extras
         current = True
-        for feed in self._feeds:
+        for k, feed in enumerate(self._feeds):
             latest = feed.latest
             if latest is None:
                 self.current = False
                 return self._unfed
             value, received = latest
+            low, high = self._limits[k]
+            if not low <= value <= high:
+                value = high if value > high else low
+                self.beyond_limits[k] += 1
+                current = False
             values[feed.name] = value
             if not feed.clock() - received <= feed.max_age_s:
                 current = False
@@ -312,6 +324,43 @@ class Applied:
     outside_range: int = 0      # kept rows (this chunk and those before) outside the expected temperature range
     refinement: Refinement | None = None   # a static bias refinement still gathering temperatures
     start: RunStart = RunStart()
+    held: Mapping[str, float] = field(default_factory=dict)   # per signal from outside the gyro: its last value
+    # Per signal from outside the gyro, kept rows (this chunk and those before) that took another value than the
+    # log's: (not finite: the last finite value held, beyond Calibration.signal_limits: applied at the limit).
+    flagged: Mapping[str, tuple[int, int]] = field(default_factory=dict)
+
+
+def _fed_values(log: GyroLog, calibration: Calibration,
+                after: Applied | None) -> tuple[GyroLog, dict[str, float], dict[str, tuple[int, int]]]:
+    """``log`` with each signal from outside the gyro that a term needs as the node takes it; last values, counts.
+
+    A value that is not finite holds the last finite one (the previous chunk's, or the first of the column);
+    one beyond :meth:`~Calibration.signal_limits` is taken at the limit. Both are counted (:attr:`Applied.flagged`).
+    """
+    held = dict(after.held) if after is not None else {}
+    flagged = dict(after.flagged) if after is not None else {}
+    extras = dict(log.extras)
+    for name in (t.signal for t in calibration.terms if t.signal in log.extras and t.signal not in DERIVED_SIGNALS):
+        values = extras[name]
+        bad = ~np.isfinite(values)
+        not_finite = int(np.count_nonzero(bad))
+        if not_finite:
+            finite = np.flatnonzero(~bad)
+            if name not in held and not finite.size:
+                raise ValueError(f'column {name} has no finite value in its first {len(values)} rows: the term on it '
+                                 'cannot be applied')
+            first = held.get(name, float(values[finite[0]]) if finite.size else math.nan)
+            index = np.maximum.accumulate(np.where(bad, 0, np.arange(len(values))))
+            values = np.where(bad[index], first, values[index])   # rows before the first finite one: ``first``
+        low, high = calibration.signal_limits(name)
+        beyond = int(np.count_nonzero((values < low) | (values > high)))
+        if beyond:
+            values = np.clip(values, low, high)
+        extras[name] = values
+        held[name] = float(values[-1])
+        before = flagged.get(name, (0, 0))
+        flagged[name] = (before[0] + not_finite, before[1] + beyond)
+    return replace(log, extras=extras), held, flagged
 
 
 def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
@@ -338,6 +387,7 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
         check_signals_available(calibration, DERIVED_SIGNALS + tuple(log.extras))
     else:
         start = after.start
+    log, last_values, flagged = _fed_values(log, calibration, after)
     model = calibration.model
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, calibration.filters,
                               None if after is None else after.state, start.powered_on_at_start)
@@ -368,4 +418,5 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
         if ready < len(log):
             bias, refinement = refinement.refined(), None
             corrected[ready:] = bias.correct(log.rate_dps[ready:], comp[ready:])
-    return Applied(comp, corrected, bias, kept, signals.end_state(), outside_range, refinement, start)
+    return Applied(comp, corrected, bias, kept, signals.end_state(), outside_range, refinement, start, last_values,
+                   flagged)

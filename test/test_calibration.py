@@ -285,7 +285,7 @@ def test_known_keys_follow_to_parameters() -> None:
     """The known keys are what to_parameters writes, for terms of every form."""
     from art_gyro_calibration.calibration import CALIBRATION_KEYS, TERM_FIELDS, is_calibration_key
     assert set(_params()) <= CALIBRATION_KEYS
-    assert TERM_FIELDS == {'form', 'coefficients', 'powers', 'rate_powers', 'time_constant_s'}
+    assert TERM_FIELDS == {'form', 'coefficients', 'powers', 'rate_powers', 'time_constant_s', 'fitted_range'}
     assert is_calibration_key('extended.supply_v.powers') and not is_calibration_key('extnded.signals')
 
 

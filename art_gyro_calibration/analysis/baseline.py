@@ -259,6 +259,32 @@ def held_out(log: GyroLog, runs: Sequence[Run], fold: NDArray[np.int64], calibra
     return out
 
 
+class BaselineComparisonError(ValueError):
+    """The refit cannot be judged against the baseline: neither is chosen (nothing is written)."""
+
+
+def _check_comparable(source: str, refit_dph: float, baseline_dph: float, beyond: BeyondLog | None,
+                      pairs: Sequence[tuple[Run, FieldErrors, FieldErrors]]) -> None:
+    """Refuse scores no verdict can rest on: one not a number, or both infinite (both refused a static bias).
+
+    A comparison with NaN is false whichever way it is asked, so it would keep whichever side the code
+    falls back to, however wrong: the reason is said instead.
+    """
+    scores = (refit_dph, baseline_dph, *(() if beyond is None else (beyond.worse_dph,)))
+    if not any(math.isnan(x) for x in scores) and not (math.isinf(refit_dph) and math.isinf(baseline_dph)):
+        return
+    runs = '; '.join(f'{run.name}: refit {refit.systematic_rms_dps * DEG_PER_H_PER_DPS:.4g}, baseline '
+                     f'{base.systematic_rms_dps * DEG_PER_H_PER_DPS:.4g} deg/h'
+                     + (' (static bias refused)' if refit.bias_refused or base.bias_refused else '')
+                     for run, refit, base in pairs)
+    why = ('the node would refuse the static bias with either' if math.isinf(refit_dph) and math.isinf(baseline_dph)
+           else 'a score is not a number')
+    raise BaselineComparisonError(
+        f'the refit cannot be judged against the baseline {source} ({refit_dph:.4g} against {baseline_dph:.4g} '
+        f'deg/h held out: {why}; {runs}): nothing written; check the log (calibrate fit drops rows that are not '
+        'finite) or give another --baseline')
+
+
 def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration, baseline: Calibration,
                           source: str, bias_samples: int = DEFAULT_SAMPLES,
                           settle_s: float = DEFAULT_SETTLE_S) -> BaselineCheck | None:
@@ -285,6 +311,7 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     materiality = result.materiality_dph
     pairs = tuple(zip(runs, refit_runs, base_runs))
     beyond = beyond_log(written, baseline, result.segments.rate)
+    _check_comparable(source, refit_dph, baseline_dph, beyond, pairs)
     worse_beyond = beyond is not None and beyond.worse_dph > materiality
     if refit_dph + materiality < baseline_dph:
         message = (f'the refit is better than the baseline {source} held out on this log: {refit_dph:.2f} against '

@@ -59,6 +59,11 @@ def _apply(args: argparse.Namespace) -> int:
     print(f'{args.out}: {done.rows - done.dropped} of {done.rows} rows; {done.dropped} dropped as the node drops '
           f'them (temperature outside {low:g}..{high:g} degC); {_outside(calibration, done.outside_range)}'
           f'{done.bias.describe()}')
+    for name, (held, beyond) in done.flagged.items():   # rows the node would flag: not corrected as logged
+        if held or beyond:
+            low, high = calibration.signal_limits(name)
+            _warn(f'{name}: {held} rows not finite (the last finite value held) and {beyond} beyond {low:g}..'
+                  f'{high:g} (applied at the limit): the node flags such rates uncorrected')
     return 0
 
 

@@ -14,6 +14,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
+import numpy as np
+
 from art_gyro_calibration.calibration import (DEFAULT_RATE_SCALE_FACTOR, TEMP_SCALE_FACTOR, Calibration,
                                               CalibrationError, find_calibration_file, load_calibration,
                                               node_parameters_needed, unit_range_dps)
@@ -114,20 +116,20 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     still = None if settings.still is None else still_noise(settings.still, settings.loop, settings.topics)
     loop_options = settings.loop if still is None else replace(
         settings.loop, still_instability_dps=still['bias_instability_dps'])
-    log = _log_to_fit(log_path, settings, loop_options, warn)
+    log, rows = _log_to_fit(log_path, settings, loop_options, warn)
     loop = close_loop(log, settings.rows, settings.columns, loop_options)
     # The report and figures are the loop's; what the checks drop is in their sections.
     loop_report = build_report(log, loop, settings.bias_samples, source=str(log_path))
     result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
     _warn_loop(loop, warn)
-    validation = _validate(result, settings) if settings.validate else None
+    validation, validation_dropped = _validate(result, settings, warn) if settings.validate else (None, {})
     refit = result.extended if validation is None else validation.calibration
     baseline = _baseline(log, result, refit, settings)
     kept = baseline if isinstance(baseline, BaselineCheck) and baseline.verdict == BASELINE else None
     if kept is not None:
         warn(kept.message)
     choice = _choose(result, startup, restarts, validation, refit, kept, settings)
-    calibration = choice.calibration
+    calibration = _with_fitted_ranges(choice.calibration, log)
     judged = settings.validate and settings.validate_powered_on_at_start
     warning = '' if judged else unjudged_warm_up(calibration, result.bias_instability_dph)
     if warning:
@@ -140,11 +142,13 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
         comment += f' gyro_node needs {" and ".join(needed)} set.'
     report = {
         **loop_report,
+        **rows,   # rows_read and rows_dropped per reason; 'rows' (the loop's) are those fitted
         # Per candidate of the last screen, the smallest effect this log would have found (DetectionLimit.to_dict).
         'detection_limit_dph': {d.signal: d.to_dict() for d in loop.detection},
         **({} if still is None else {'still': still}),
         **({} if startup is None else {'startup_check': validation_section(startup, restarts)}),
-        **({} if validation is None else {'validation': validation_section(validation, list(settings.validate))}),
+        **({} if validation is None else {'validation': validation_section(validation, list(settings.validate)),
+                                          'validation_rows_dropped': validation_dropped}),
         'baseline': baseline.to_dict() if isinstance(baseline, BaselineCheck) else
         {'source': None, 'verdict': 'none', 'message': baseline},
         **({'warnings': [warning]} if warning else {}),
@@ -156,15 +160,27 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
                      baseline if isinstance(baseline, BaselineCheck) else None)
 
 
-def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions, warn: Callable[[str], None]) -> GyroLog:
-    """The log read with ``options``' scale factors, less the rows the node would drop; refused if it is too narrow.
+# Rows repeating the previous stamp beyond this share of a log: its clock is coarser than its rows (1 s stamps on a
+# 10 Hz log), which no dropping mends; fewer are dropped and counted (a logger that wrote a row twice).
+MAX_REPEATED_STAMPS = 0.01
+# A log whose non-finite values would drop more than this share of its rows is refused: a column not measured.
+MAX_NOT_FINITE_ROWS = 0.5
 
-    A log whose steady rates and temperatures cannot determine the polynomial is refused
-    (:class:`LogError`); one without ``ref_rate`` is left for the loop to say what is missing.
+
+def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions,
+                warn: Callable[[str], None]) -> tuple[GyroLog, dict[str, int | dict[str, int]]]:
+    """The log read with ``options``' scale factors, less the rows nothing can fit; refused if it is too narrow.
+
+    Dropped, each counted (REPORT.json's ``rows_dropped``) and told to ``warn``: the rows :func:`_defined_rows`
+    drops, and those the node drops (the rate clipped). Refused (:class:`LogError`): what :func:`_defined_rows`
+    refuses, and a log whose steady rates and temperatures cannot determine the polynomial; one without
+    ``ref_rate`` is left for the loop to say what is missing.
     """
-    log = read_any_log(log_path, options.rate_scale_factor, options.temp_scale_factor, settings.topics, warn)
+    read = read_any_log(log_path, options.rate_scale_factor, options.temp_scale_factor, settings.topics, warn)
+    log, dropped = _defined_rows(read, log_path, warn)
     usable = usable_rates(log.rate_dps, options.rate_scale_factor)
     if not usable.all():   # the node drops these frames: no value to fit (a turn beyond the range reads as slower)
+        dropped['rate beyond range'] = log.t.size - int(usable.sum())
         warn(f'{log.t.size - int(usable.sum())} of {log.t.size} rows excluded: the rate clipped (at '
              f'+-{unit_range_dps(options.rate_scale_factor):g} deg/s) or beyond any unit\'s range (the node '
              'drops such frames)')
@@ -175,7 +191,61 @@ def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions, warn
                            settings.rows, settings.columns)
         except ValueError as e:
             raise LogError(f'{log_path}: {e}') from None
-    return log
+    return log, {'rows_read': len(read), 'rows_dropped': dropped}
+
+
+def _defined_rows(log: GyroLog, log_path: str, warn: Callable[[str], None]) -> tuple[GyroLog, dict[str, int]]:
+    """``log`` less the rows whose values do not say what they claim; how many were dropped, per reason.
+
+    Dropped and told to ``warn``: a row with a value that is not finite in any column (``ref_rate``, a signal
+    column), one repeating the previous stamp (a logger that wrote it twice). Refused (:class:`LogError`): a
+    column mostly not finite, and stamps coarser than the rows (1 s stamps on a 10 Hz log), which no drop mends.
+    """
+    dropped: dict[str, int] = {}
+    columns = {'t': log.t, 'rate': log.rate_dps, 'temperature': log.temp_c,
+               **({} if log.ref_rate is None else {'ref_rate': log.ref_rate}), **log.extras}
+    finite = np.ones(len(log), dtype=bool)
+    not_finite: dict[str, int] = {}
+    for name, values in columns.items():
+        bad = ~np.isfinite(values)
+        if bad.any():
+            not_finite[name] = int(bad.sum())
+            finite &= ~bad
+    if not finite.all():
+        dropped.update({f'not finite: {name}': count for name, count in not_finite.items()})
+        counts = ', '.join(f'{count} in {name}' for name, count in not_finite.items())
+        if finite.sum() < (1.0 - MAX_NOT_FINITE_ROWS) * len(log):
+            raise LogError(f'{log_path}: {len(log) - int(finite.sum())} of {len(log)} rows have values that are not '
+                           f'finite ({counts}): too few rows left to fit')
+        warn(f'{log_path}: {len(log) - int(finite.sum())} of {len(log)} rows excluded: values not finite ({counts})')
+        log = log.slice(finite)
+    repeated = np.zeros(len(log), dtype=bool)
+    repeated[1:] = log.t[1:] == log.t[:-1]
+    if repeated.any():
+        count = int(repeated.sum())
+        if count > MAX_REPEATED_STAMPS * len(log):
+            steps = np.diff(log.t[~repeated])
+            raise LogError(f'{log_path}: column t: {count} of {len(log)} rows repeat the previous stamp: the stamps '
+                           f'step by {float(np.median(steps)) if steps.size else 0.0:g} s while the log has '
+                           f'{len(log) / max(float(log.t[-1] - log.t[0]), 1e-300):.3g} rows per second; time too '
+                           'coarse to fit (log t finer than the row interval)')
+        dropped['repeated stamp'] = count
+        warn(f'{log_path}: {count} of {len(log)} rows excluded: they repeat the previous row\'s stamp')
+        log = log.slice(~repeated)
+    return log, dropped
+
+
+def _with_fitted_ranges(calibration: Calibration, log: GyroLog) -> Calibration:
+    """``calibration`` with the range over which each of its terms on a log column (a supply voltage) was fitted.
+
+    The node and ``calibrate apply`` take a value far beyond it as wrong (:meth:`Calibration.signal_limits`).
+    """
+    ranges = {}
+    for term in calibration.terms:
+        values = log.extras.get(term.signal)
+        if values is not None and values.size and float(np.min(values)) < float(np.max(values)):
+            ranges[term.signal] = (float(np.min(values)), float(np.max(values)))
+    return replace(calibration, signal_ranges=ranges)
 
 
 def _warn_loop(loop: LoopResult, warn: Callable[[str], None]) -> None:
@@ -269,12 +339,17 @@ def still_noise(path: str, options: LoopOptions, topics: BagTopics) -> dict[str,
             'materiality_bias_instability_dph': floor * DEG_PER_H_PER_DPS}
 
 
-def _validate(result: LoopResult, settings: FitSettings) -> Validation:
-    """Replay ``result``'s calibrations on the ``validate`` runs, read as the fitted log was."""
-    logs = [read_any_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor, settings.topics)
-            for path in settings.validate]
+def _validate(result: LoopResult, settings: FitSettings,
+              warn: Callable[[str], None]) -> tuple[Validation, dict[str, dict[str, int]]]:
+    """Replay ``result``'s calibrations on the ``validate`` runs, read as the fitted log was; rows dropped per run."""
+    logs, dropped = [], {}
+    for path in settings.validate:
+        log, dropped[path] = _defined_rows(
+            read_any_log(path, result.art.rate_scale_factor, result.art.temp_scale_factor, settings.topics), path,
+            warn)
+        logs.append(log)
     return validate(result, logs, settings.bias_samples, settings.loop.settle_s,
-                    RunStart(powered_on_at_start=settings.validate_powered_on_at_start))
+                    RunStart(powered_on_at_start=settings.validate_powered_on_at_start)), dropped
 
 
 def _dropped(validation: Validation, runs: str) -> str:

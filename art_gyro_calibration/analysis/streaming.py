@@ -8,6 +8,7 @@ whole log: each chunk goes through that same function, continuing the previous o
 from __future__ import annotations
 
 import itertools
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -32,6 +33,7 @@ class Streamed:
     dropped: int    # rows dropped as the node drops their frames (implausible temperature)
     bias: StaticBias
     outside_range: int    # kept rows outside the calibration's expected temperature range
+    flagged: Mapping[str, tuple[int, int]]   # per signal from outside the gyro: rows held, rows beyond its limits
 
 
 def apply_to_csv(log_path: str | Path, calibration: Calibration, bias_samples: int, out: IO[bytes],
@@ -63,4 +65,4 @@ def apply_to_csv(log_path: str | Path, calibration: Calibration, bias_samples: i
         rows += len(chunk)
         dropped += len(chunk) - len(kept_log)
     assert applied is not None   # the loop ran: an empty log is refused by the reader
-    return Streamed(rows, dropped, applied.bias, applied.outside_range)
+    return Streamed(rows, dropped, applied.bias, applied.outside_range, applied.flagged)

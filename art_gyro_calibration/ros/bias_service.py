@@ -1,7 +1,8 @@
 """Service ``imu/static_bias`` (std_srvs/Trigger): a static bias collection, its deferred replies, its lifecycle.
 
 A call starts a collection over ``bias_samples`` frames, or joins the one running and gets its
-result; the reply comes when it ends. Motion refuses it and keeps the previous bias (if there
+result; the reply comes when it ends. At most :data:`MAX_WAITING_CALLS` calls wait for one collection:
+a call beyond is refused at once, with a reply that says so. Motion refuses it and keeps the previous bias (if there
 is one: else the rate stays uncorrected); publishing goes on meanwhile with the previous bias.
 ``on_bias`` hears of every bias put in force (the node's ``imu/is_calibrated``, its covariance).
 A collection the node's stop cuts short is not a refusal: it ends without a word, and only the
@@ -20,7 +21,7 @@ from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.qos import HistoryPolicy, QoSProfile
 from std_srvs.srv import Trigger  # type: ignore[import-untyped]  # ROS messages: untyped
 
 from art_gyro_calibration.compensation import FrameCorrector
@@ -29,8 +30,8 @@ from art_gyro_calibration.static_bias import MotionError, StaticBias, StaticBias
 
 # A static bias collection with no frame for this long has lost its gyro: it is abandoned.
 COLLECTION_STALL_S = 5.0
-# Calls to imu/static_bias that can wait for one collection at once (requests and replies are queued this deep).
-SERVICE_QUEUE_DEPTH = 1000
+# Calls to imu/static_bias that can wait for one collection at once: a call beyond is refused at once, with a reply.
+MAX_WAITING_CALLS = 256
 
 
 class _Collection(StaticBiasCollector):
@@ -96,9 +97,10 @@ class StaticBiasService:
         # The reply is deferred: the callback returns at once and the executor sends the reply
         # through send_response, which this takes over to hold it until the collection ends.
         # (rclpy 7 re-runs a waiting coroutine callback in a busy loop, so an async callback is not used.)
-        # Deep queues: the replies to every joined call go out at once, and a reliable writer keeping
-        # the default last 10 would drop all but 10 of them.
-        queue = QoSProfile(depth=SERVICE_QUEUE_DEPTH)   # type: ignore[no-untyped-call]  # rclpy leaves it unannotated
+        # Queues that keep all: a burst of requests reaches the callback (which answers each, joined or
+        # refused), and the replies to every joined call, sent at once, all go out. Keeping the last N
+        # dropped the rest unanswered (3000 calls at once: 1037 replies with N = 1000).
+        queue = QoSProfile(history=HistoryPolicy.KEEP_ALL)   # type: ignore[no-untyped-call]  # unannotated
         self._service = node.create_service(Trigger, 'imu/static_bias', lambda request, response: response,
                                             qos_profile=queue)
         self._send_reply = self._service.send_response
@@ -176,9 +178,16 @@ class StaticBiasService:
         collection = self.start()
         with self._lock:
             if self._collection is collection:
-                collection.waiting.append(header)
-                return
-        self._send_reply(self._reply(collection), header)   # it ended meanwhile
+                if len(collection.waiting) >= MAX_WAITING_CALLS:
+                    response.success, response.message = False, (
+                        f'refused: {MAX_WAITING_CALLS} calls already wait for the running collection (the most '
+                        'the node keeps); call again when it ends')
+                else:
+                    collection.waiting.append(header)
+                    return
+            else:
+                response = self._reply(collection)   # it ended meanwhile
+        self._send_reply(response, header)
 
     @staticmethod
     def _reply(collection: _Collection) -> Trigger.Response:

@@ -212,14 +212,23 @@ class Diagnostics:
 
     def _extra_signal_status(self, extra: ExtraSignal, feed: SignalFeed, topic: str,
                              not_finite: SinceLastReport) -> DiagnosticStatus:
-        """A signal from outside the gyro: ERROR while it has no current value (the rate is flagged meanwhile)."""
+        """A signal from outside the gyro: ERROR while it has no current value, or one beyond its limits (flagged)."""
         latest = feed.latest
         values = {'topic': topic, 'type': extra.type, 'value': 'none' if latest is None else f'{latest[0]:g}',
                   'age_s': 'none' if latest is None else f'{feed.clock() - latest[1]:.1f}',
                   'max_age_s': extra.max_age_s, 'received': feed.received, 'not_finite': feed.not_finite}
+        calibration = self._node.calibration
+        if extra.signal in calibration.signal_ranges:
+            low, high = calibration.signal_limits(extra.signal)
+            values['limits'] = f'{low:g}..{high:g}'
+            values['beyond_limits'] = self._node.corrector.compensator.beyond_limits[self._node.feeds.index(feed)]
         refused = not_finite.take(feed.not_finite)
         problem = feed.problem()
         name = f'extra signal {extra.signal}'
+        beyond = '' if latest is None else calibration.signal_problem(extra.signal, latest[0])
+        if beyond and not problem:
+            return self._status(name, DiagnosticStatus.ERROR, f'{beyond} on {topic}: the rate is flagged uncorrected '
+                                '(covariance), no static bias is taken', values)
         if problem:
             effect = ('its terms are left out and no static bias is taken until one arrives' if latest is None
                       else 'the last value is applied')

@@ -29,8 +29,10 @@ voltage, fitted with ``calibrate fit --node-signal``), ``extra_signals.<signal>.
 (std_msgs/Float64 ``data`` or sensor_msgs/BatteryState ``voltage``, best effort, so that it matches
 any publisher). Each frame takes the latest finite value. Until one has arrived, the terms on these
 signals are left out and no static bias is collected (the start-up one waits for it); while a value
-is older than ``extra_signals.<signal>.max_age_s`` it is still applied, the last known. Either way
-the rate is flagged: covariance[8] is :data:`UNCORRECTED_YAW_VARIANCE` and the signal's status an ERROR.
+is older than ``extra_signals.<signal>.max_age_s`` it is still applied, the last known; one beyond the
+calibration's limits for it (:meth:`~art_gyro_calibration.calibration.Calibration.signal_limits`) is applied
+at the limit. In each case the rate is flagged: covariance[8] is :data:`UNCORRECTED_YAW_VARIANCE` and the
+signal's status an ERROR.
 
 Service ``imu/static_bias`` (std_srvs/Trigger): collect a new static bias (:mod:`.bias_service`).
 The raw log: :mod:`.raw_log`. Parameters are strict (:mod:`.parameters`): an unknown name, a value
@@ -243,8 +245,13 @@ class GyroNode(Node):
 
     def extra_signal_problems(self) -> str:
         """Why the extra signals are not all current now ('' when they are), for a static bias that waits."""
-        problems = ((feed.problem(), topic) for feed, topic in zip(self.feeds, self.extra_topics))
-        return '; '.join(f'{problem} on {topic}' for problem, topic in problems if problem)
+        problems = []
+        for feed, topic in zip(self.feeds, self.extra_topics):
+            latest = feed.latest   # a value beyond the calibration's limits is not current either
+            problem = feed.problem() or (self.calibration.signal_problem(feed.name, latest[0]) if latest else '')
+            if problem:
+                problems.append(f'{problem} on {topic}')
+        return '; '.join(problems)
 
     def _fill_imu(self, imu: Imu, reading: ImuReading) -> None:
         """The x and y rates and the accelerations of a whole IMU in REP 103 axes (z is the calibrated yaw)."""

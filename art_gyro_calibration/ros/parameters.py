@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -23,7 +23,7 @@ from std_msgs.msg import Float64   # type: ignore[import-untyped]
 from art_gyro_calibration.calibration import (CALIBRATION_KEYS, EXTRA_SIGNAL_TYPES, SIGNAL_PATTERN, Calibration,
                                               CalibrationError, check_fed, closest, extra_signal_parameter,
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
-                                              load_calibration, read_yaml, resolve_calibration_url)
+                                              load_calibration, read_yaml, resolve_calibration_url, shorten)
 from art_gyro_calibration.driver import BAUDS
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
 from art_gyro_calibration.protocols.kvh_fog import KVH_DEFAULT_BAUD, KvhFogConfig
@@ -326,18 +326,73 @@ def usage(summary: str) -> str:
     return '\n'.join(lines)
 
 
-def params_files(argv: Sequence[str]) -> list[str]:
-    """The ``--params-file`` paths among the ROS arguments of a command line."""
-    files = []
+# The rcl options that give parameters, each followed by its argument: a rule ``[node:]name:=value``, or a file.
+PARAMETER_RULE_OPTIONS = ('-p', '--param')
+PARAMS_FILE_OPTION = '--params-file'
+
+
+def ros_parameter_options(argv: Sequence[str]) -> Iterator[tuple[str, str]]:
+    """(option, argument) of each ``-p``/``--param`` and ``--params-file`` among a command line's ROS arguments."""
     in_ros_args = False
-    for i, arg in enumerate(argv):
+    args = iter(argv)
+    for arg in args:
         if arg == '--ros-args':
             in_ros_args = True
         elif arg == '--':
             in_ros_args = False
-        elif in_ros_args and arg == '--params-file' and i + 1 < len(argv):
-            files.append(argv[i + 1])
-    return files
+        elif in_ros_args and arg in (*PARAMETER_RULE_OPTIONS, PARAMS_FILE_OPTION):
+            value = next(args, None)
+            if value is not None:
+                yield arg, value
+
+
+def params_files(argv: Sequence[str]) -> list[str]:
+    """The ``--params-file`` paths among the ROS arguments of a command line."""
+    return [value for option, value in ros_parameter_options(argv) if option == PARAMS_FILE_OPTION]
+
+
+@dataclass(frozen=True)
+class GivenValue:
+    """One value the user gave a parameter (as text), and where, for people."""
+
+    value: str
+    source: str
+
+
+def given_values(argv: Sequence[str], name: str, node_name: str,
+                 files: Mapping[str, Mapping[str, Any]]) -> list[GivenValue]:
+    """Every value of parameter ``name`` given to node ``node_name`` (fully qualified), in command-line order.
+
+    From each ``-p [node:]name:=value`` whose node prefix (a name, ``*`` or ``**``, as rcl accepts) matches, and
+    each params file in ``files`` (:func:`params_file_values`) that sets it. rcl merges them by node entry, not
+    by their order, so a value that differs from another is the user's mistake whichever rcl keeps.
+    """
+    given = []
+    for option, argument in ros_parameter_options(argv):
+        if option == PARAMS_FILE_OPTION:
+            values = files.get(argument, {})
+            if name in values:
+                what = 'calibration' if 'polynomial.coefficients' in values else 'parameters'
+                given.append(GivenValue(str(values[name]), f'the {what} in {argument}'))
+            continue
+        rule, separator, text = argument.partition(':=')
+        prefix, colon, rule_name = rule.rpartition(':')
+        if separator and rule_name == name and (not colon or _entry_pattern(prefix).match(node_name)):
+            value = text.strip()
+            if len(value) > 1 and value[0] == value[-1] and value[0] in '\'"':
+                value = value[1:-1]   # a quoted string, as rcl reads it (anything else that is no string: rcl's)
+            given.append(GivenValue(value, f'{option} {shorten(argument, 80)} on the command line'))
+    return given
+
+
+def check_agree(given: Sequence[GivenValue], name: str, why: str) -> GivenValue | None:
+    """The first of values given a parameter (empty ones left out) if all agree, else a :class:`ParameterError`."""
+    given = [g for g in given if g.value]
+    for other in given[1:]:
+        if other.value != given[0].value:
+            raise ParameterError(f'parameter {name} is {shorten(repr(given[0].value), 80)} from {given[0].source} '
+                                 f'but {shorten(repr(other.value), 80)} from {other.source}: {why}')
+    return given[0] if given else None
 
 
 def check_params_files(argv: Sequence[str]) -> None:
@@ -383,6 +438,7 @@ class NodeParameters:
 
     def __init__(self, node: Node, argv: Sequence[str]) -> None:
         self._node = node
+        self._argv = argv
         self._files = params_file_values(params_files(argv), node.get_fully_qualified_name())
         # Known now: the node's own, a calibration's, rclpy's (use_sim_time); QoS overrides once the publisher is made.
         self.check_known_names(lambda name: name in PARAMETERS or name in KVH_FOG_PARAMETERS
@@ -460,15 +516,12 @@ class NodeParameters:
         serial = self.settings.serial_number
         given = {name: p.value for name, p in self._node._parameter_overrides.items()
                  if is_calibration_key(name) and name != 'serial_number'}
-        # Every params file that names a serial must agree with the node's (a node params file and
-        # another gyro's calibration file would otherwise load that gyro's calibration silently).
-        for file, values in self._files.items():
-            file_serial = values.get('serial_number')
-            if file_serial is not None and serial and str(file_serial) != serial:
-                what = (f'the calibration in {file} is' if 'polynomial.coefficients' in values
-                        else f'the parameters in {file} are')
-                raise ParameterError(f'parameter serial_number is {serial!r} but {what} for '
-                                     f'{str(file_serial)!r}: refusing a calibration of another gyro')
+        # Every serial and calibration file the user gave must agree: rcl keeps one of them, not by their order.
+        name = self._node.get_fully_qualified_name()
+        given_serial = check_agree(given_values(self._argv, 'serial_number', name, self._files), 'serial_number',
+                                   'refusing a calibration of another gyro')
+        check_agree(given_values(self._argv, 'calibration_file', name, self._files), 'calibration_file',
+                    'give one calibration file')
         if given:
             if self.settings.calibration_file:
                 raise ParameterError(f'parameter calibration_file is set and a calibration came in as parameters '
@@ -478,7 +531,11 @@ class NodeParameters:
             calibration = from_parameters({**given, 'serial_number': serial}, where)
         elif self.settings.calibration_file:
             path = resolve_calibration_url(self.settings.calibration_file)
-            calibration, where = load_calibration(path, expected_serial=serial or None), str(path)
+            calibration, where = load_calibration(path), str(path)
+            if given_serial is not None and calibration.serial_number != given_serial.value:
+                raise ParameterError(f'{path}: serial_number is {calibration.serial_number!r}, '
+                                     f'expected {given_serial.value!r} '
+                                     f'(from {given_serial.source}): refusing a calibration of another gyro')
         elif not serial:
             raise ParameterError('parameter serial_number is required: the KVH serial number (such as '
                                  'NAVC3545) of the packaged calibration to load, unless calibration_file is '

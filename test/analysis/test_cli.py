@@ -93,7 +93,7 @@ def test_node_path_matches_apply(fitted):
     (['fit', 'noref.csv', '--rows', '3', '--columns', '2', '--out', 'c.yaml', '--report', 'r.json'], 'ref_rate'),
     (['apply', 'bad.csv', '--calibration', 'CAL.yaml', '--out', 'o.csv'], 'bad.csv'),
     (['fit', 'nanextra.csv', '--rows', '3', '--columns', '2', '--out', 'c.yaml', '--report', 'r.json'],
-     'column supply_v is not a finite number at row 3'),
+     '1 of 200 rows excluded: values not finite (1 in supply_v)'),
 ])
 def test_bad_inputs_are_clear_errors(fitted, monkeypatch, capsys, args, message):
     monkeypatch.chdir(fitted)

@@ -201,7 +201,7 @@ def _malformed(tmp_path: Path) -> list[str]:
 @pytest.mark.parametrize('args, message', [
     (_malformed, 'bad.yaml): polynomial.coefficients has 5 numbers, rows x columns = 3 x 2 needs 6'),
     (lambda p: ['--params-file', str(REPO / 'config' / 'NAVC4058.yaml'), '-p', 'serial_number:=NAVC3545'],
-     "calibration in {repo}/config/NAVC4058.yaml is for 'NAVC4058'"),
+     "'NAVC4058' from the calibration in {repo}/config/NAVC4058.yaml but 'NAVC3545' from -p"),
     (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'protocol:=morse'], 'parameter protocol must be one of'),
     (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', 'baud:=fast'], 'parameter baud must be an integer'),
     (lambda p: ['-p', 'serial_number:=NAVC9999'], 'parameter serial_number: no calibration file NAVC9999.yaml'),
@@ -218,8 +218,8 @@ def _malformed(tmp_path: Path) -> list[str]:
      'parameter bias_samples must be in 2..1000000, got 100000000'),
     (lambda p: ['--params-file', str(REPO / 'config' / 'gyro_node.params.yaml'),
                 '--params-file', str(REPO / 'config' / 'NAVC4058.yaml')],
-     "parameter serial_number is 'NAVC4058' but the parameters in {repo}/config/gyro_node.params.yaml are for "
-     "'NAVC3545'"),
+     "parameter serial_number is 'NAVC3545' from the parameters in {repo}/config/gyro_node.params.yaml but "
+     "'NAVC4058' from the calibration in"),
     (_misspelt_key, "unknown parameter 'extnded.signals' (from {tmp}/cal.yaml) (did you mean 'extended.signals'?)"),
     (_overflowing_term, '{tmp}/cal.yaml): extended.rate: the power term overflows'),
     (lambda p: ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={REPO}/config/NAVC4058.yaml'],
