@@ -268,6 +268,19 @@ def unknown_beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDA
                             float(rate[i]))
 
 
+def _unasked(baseline: Calibration, operating_c: Span | None, operating: Span | None) -> str:
+    """A clause for a refit written where no operating range was given and the baseline was calibrated wider.
+
+    The refit holds its value beyond the log; over the rest of the baseline's calibrated
+    range it is judged only when the robot is said to run there.
+    """
+    calibrated = baseline.temperature_range_c
+    if operating_c is not None or operating is None or calibrated is None or not _outside(calibrated, operating):
+        return ''
+    return (f', held at the log\'s edge beyond it; the baseline was calibrated over {calibrated[0]:g}..'
+            f'{calibrated[1]:g} degC: give --operating-range if the robot runs beyond the log, to judge it there')
+
+
 def check_baseline(baseline: Calibration, source: str, log_rate_scale: float, log_temp_scale: float) -> None:
     """Refuse a baseline that reads the log's counts with other scale factors than the fit (names the file)."""
     if (baseline.rate_scale_factor, baseline.temp_scale_factor) != (log_rate_scale, log_temp_scale):
@@ -400,7 +413,8 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
                    f'{baseline_dph:.2f} deg/h (materiality {materiality:.2f} deg/h)')
         if not worse_beyond:
             return BaselineCheck(source, refit_dph, baseline_dph, None, materiality, REFIT, pairs, written,
-                                 message + '; the refit is written', beyond, operating, unknown)
+                                 message + '; the refit is written' + _unasked(baseline, operating_c, operating),
+                                 beyond, operating, unknown)
         assert beyond is not None
         verdict = f'{message}, but {beyond.describe()}'
     else:

@@ -104,7 +104,10 @@ def test_beyond_the_log_where_the_baseline_is_calibrated_the_baseline_still_wins
     baseline = tmp_path / 'calibrated.yaml'
     write_calibration(baseline, dataclasses.replace(load_packaged_calibration(SERIAL), temperature_range_c=(0.0, 60.0),
                                                     temperature_warn_range_c=None))
-    refit, _ = _fit(tmp_path, 'bias', '--baseline', str(baseline), name='default')
+    refit, default = _fit(tmp_path, 'bias', '--baseline', str(baseline), name='default')
+    # Asked nothing, the refit is written for the log's 14..54 degC, and the report says where else it could be judged.
+    assert default['baseline']['verdict'] == 'refit'
+    assert 'the baseline was calibrated over 0..60 degC: give --operating-range' in default['baseline']['message']
     kept, report = _fit(tmp_path, 'bias', '--baseline', str(baseline), '--operating-range', '5', '54', name='wide')
     section = report['baseline']
     assert section['refit_field_dph'] + report['materiality_dph'] < section['baseline_field_dph']
