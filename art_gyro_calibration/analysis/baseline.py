@@ -18,11 +18,16 @@ A slow bias wander of a short log, or a polynomial order too low for the gyro, i
 makes a refit worse than the baseline. The terms keep their fit on the
 whole log in both (a warm-up lives in the first block alone): the polynomial is judged.
 
-Held out on the log, the refit is judged only at the log's temperatures. Beyond them it
-holds its value at the log's edge (its ``temperature_range_c``), where the baseline was
-calibrated (:func:`beyond_log`): a polynomial fitted over a narrow span of temperatures
-can be far off outside it, where the baseline holds. A refit that is worse there than the
-baseline by the materiality is not written either.
+Where the robot will run (the operating range: by default the logged temperatures) decides
+where else it is judged. Held out on the log, the refit is judged only at the log's
+temperatures. Beyond them it holds its value at the log's edge (its ``temperature_range_c``),
+and over the operating range's part where the baseline was calibrated (its
+``temperature_range_c``) it is judged against the baseline there (:func:`beyond_log`): a
+polynomial fitted over a narrow span of temperatures can be far off outside it, where the
+baseline holds. A refit that is worse there than the baseline by the materiality is not
+written either. Where neither the log nor the baseline's calibration reaches (a
+``temperature_warn_range_c`` is an assumption, not a calibration) nothing was measured: how
+far the two disagree there is said (:func:`unknown_beyond_log`), never judged.
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.analysis.loop import LoopResult
 from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, field_errors, steady_segments
 from art_gyro_calibration.analysis.replay import RESTART_FRACTIONS, field_score_dps, own_restarts, replay_anyway
-from art_gyro_calibration.calibration import Calibration, CalibrationError
+from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibration, CalibrationError
 from art_gyro_calibration.compensation import RunStart
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
@@ -55,21 +60,25 @@ REFIT, BASELINE = 'refit', 'baseline'
 BEYOND_STEP_C = 0.5
 
 
+Span = tuple[float, float]
+
+
 @dataclass(frozen=True)
 class BeyondLog:
-    """The refit against the baseline where the baseline is calibrated and the log is not.
+    """The refit against the baseline where the robot will run, the baseline is calibrated and the log is not.
 
     Beyond the log's temperatures the refit holds its value at the log's edge. Taking the
     correction the log measured (refit less baseline at the edge) as holding on beyond it,
     which is what the refit's clamp assumes, the refit errs there by how far the baseline
     moves from the edge and the baseline by that correction. ``worse_dph`` is the most the
-    first exceeds the second over the logged table rates and the baseline's range beyond
-    the log (deg/h; at most 0: the refit is nowhere worse there), at ``at_temperature_c``
-    and ``at_rate_dps``.
+    first exceeds the second over the logged table rates and ``judged_c`` (the operating
+    range beyond the log, within the baseline's calibrated range; deg/h; at most 0: the
+    refit is nowhere worse there), at ``at_temperature_c`` and ``at_rate_dps``.
     """
 
-    log_range_c: tuple[float, float]
-    baseline_range_c: tuple[float, float]
+    log_range_c: Span
+    baseline_range_c: Span
+    judged_c: tuple[Span, ...]
     worse_dph: float
     at_temperature_c: float
     at_rate_dps: float
@@ -77,15 +86,57 @@ class BeyondLog:
     def to_dict(self) -> dict[str, Any]:
         """REPORT.json's ``baseline.beyond_log``."""
         return {'log_range_c': list(self.log_range_c), 'baseline_range_c': list(self.baseline_range_c),
-                'refit_worse_dph': self.worse_dph, 'at_temperature_c': self.at_temperature_c,
-                'at_rate_dps': self.at_rate_dps}
+                'judged_c': [list(span) for span in self.judged_c], 'refit_worse_dph': self.worse_dph,
+                'at_temperature_c': self.at_temperature_c, 'at_rate_dps': self.at_rate_dps}
 
     def describe(self) -> str:
         """One clause for the verdict's message."""
         (low, high), (b_low, b_high) = self.log_range_c, self.baseline_range_c
-        return (f'the log covers {low:g}..{high:g} degC of the baseline\'s {b_low:g}..{b_high:g} degC, and beyond it '
-                f'the refit, held at the log\'s edge, is worse than the baseline by up to {self.worse_dph:.2f} deg/h '
+        return (f'the log covers {low:g}..{high:g} degC, and beyond it over {_spans(self.judged_c)} degC of the '
+                f'operating range, where the baseline is calibrated ({b_low:g}..{b_high:g} degC), the refit, held at '
+                f'the log\'s edge, is worse than the baseline by up to {self.worse_dph:.2f} deg/h '
                 f'(at {self.at_temperature_c:g} degC and {self.at_rate_dps:g} deg/s)')
+
+
+@dataclass(frozen=True)
+class UnknownBeyondLog:
+    """The operating range that no log covers and the baseline was never calibrated over: nothing measured there.
+
+    There the refit holds its value at the log's edge and the baseline is applied as the node
+    applies it (held at its calibrated range's edge, or its polynomial as it is when it has
+    none); neither is known to hold. ``disagree_dph``: the most the two differ over the logged
+    table rates and ``ranges_c`` (deg/h), at ``at_temperature_c`` and ``at_rate_dps``: what a
+    run there would have to settle, not a verdict.
+    """
+
+    log_range_c: Span
+    baseline_range_c: Span | None
+    ranges_c: tuple[Span, ...]
+    disagree_dph: float
+    at_temperature_c: float
+    at_rate_dps: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """REPORT.json's ``baseline.unknown_beyond_log``."""
+        return {'log_range_c': list(self.log_range_c),
+                'baseline_range_c': None if self.baseline_range_c is None else list(self.baseline_range_c),
+                'ranges_c': [list(span) for span in self.ranges_c], 'disagree_dph': self.disagree_dph,
+                'at_temperature_c': self.at_temperature_c, 'at_rate_dps': self.at_rate_dps,
+                'message': self.describe()}
+
+    def describe(self) -> str:
+        """What is unknown, in one sentence."""
+        calibrated = ('it has no calibrated temperature_range_c' if self.baseline_range_c is None else
+                      'it was calibrated over {:g}..{:g} degC'.format(*self.baseline_range_c))
+        return (f'no log covers {_spans(self.ranges_c)} degC of the operating range and the baseline was never '
+                f'calibrated there ({calibrated}), so neither is judged there; the refit, held at the log\'s edge, and '
+                f'the baseline differ there by up to {self.disagree_dph:.2f} deg/h (at {self.at_temperature_c:g} degC '
+                f'and {self.at_rate_dps:g} deg/s), which only a log over it can settle')
+
+
+def _spans(spans: Sequence[Span]) -> str:
+    """``10..14 and 50..54``."""
+    return ' and '.join(f'{low:g}..{high:g}' for low, high in spans)
 
 
 @dataclass(frozen=True)
@@ -117,6 +168,8 @@ class BaselineCheck:
     calibration: Calibration
     message: str
     beyond: BeyondLog | None = None
+    operating_c: Span | None = None
+    unknown: UnknownBeyondLog | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """REPORT.json's ``baseline``."""
@@ -132,34 +185,100 @@ class BaselineCheck:
             'written_polynomial': self.verdict,
             'written_terms': [t.signal for t in self.calibration.terms],
             'message': self.message,
+            'operating_range_c': None if self.operating_c is None else list(self.operating_c),
             'beyond_log': None if self.beyond is None else self.beyond.to_dict(),
+            'unknown_beyond_log': None if self.unknown is None else self.unknown.to_dict(),
             'runs': [{'run': run.name, 'refit': refit.to_dict(), 'baseline': base.to_dict()}
                      for run, refit, base in self.runs],
         }
 
 
-def beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64]) -> BeyondLog | None:
+def operating_range(low: float, high: float) -> Span:
+    """``--operating-range LO HI`` checked: finite degC the node takes, LO < HI."""
+    p_low, p_high = PLAUSIBLE_TEMPERATURE_C
+    if not (math.isfinite(low) and math.isfinite(high)):
+        raise ValueError(f'--operating-range {low:g} {high:g}: both ends must be finite temperatures (degC)')
+    if not low < high:
+        raise ValueError(f'--operating-range {low:g} {high:g}: give LO < HI (degC)')
+    if not (p_low <= low and high <= p_high):
+        raise ValueError(f'--operating-range {low:g} {high:g}: outside the plausible {p_low:g}..{p_high:g} degC '
+                         '(the node drops frames beyond it)')
+    return low, high
+
+
+def _outside(span: Span, cut: Span | None) -> list[Span]:
+    """The parts of ``span`` outside ``cut`` (all of it without a ``cut``)."""
+    if cut is None:
+        return [span]
+    (low, high), (c_low, c_high) = span, cut
+    return [(a, b) for a, b in ((low, min(high, c_low)), (max(low, c_high), high)) if a < b]
+
+
+def _grid(spans: Sequence[Span], rates_dps: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Temperatures every :data:`BEYOND_STEP_C` over ``spans`` (ends included) by ``rates_dps`` and rest."""
+    temps = np.concatenate([np.linspace(a, b, max(int(np.ceil((b - a) / BEYOND_STEP_C)), 1) + 1) for a, b in spans])
+    temp, rate = np.meshgrid(temps, np.union1d(rates_dps, [0.0]), indexing='ij')
+    return temp, rate
+
+
+def beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64],
+               operating_c: Span) -> BeyondLog | None:
     """The refit (clamped to the log's temperatures) against the baseline beyond them, at ``rates_dps`` and at rest.
 
-    None where there is no beyond: the refit is not clamped, the baseline gives no range
-    it holds over, or the log covers that range.
+    Judged over ``operating_c`` beyond the log, where the baseline is calibrated (its
+    ``temperature_range_c``). None where there is no such place: the refit is not clamped,
+    the baseline was calibrated nowhere, or the log covers the operating range there.
     """
-    log_range, baseline_range = refit.temperature_range_c, baseline.expected_range_c
+    log_range, baseline_range = refit.temperature_range_c, baseline.temperature_range_c
     if log_range is None or baseline_range is None:
         return None
-    (low, high), (b_low, b_high) = log_range, baseline_range
-    pieces = [np.linspace(a, b, max(int(np.ceil((b - a) / BEYOND_STEP_C)), 1) + 1)
-              for a, b in ((b_low, min(low, b_high)), (max(high, b_low), b_high)) if a < b]
-    if not pieces:
+    span = (max(operating_c[0], baseline_range[0]), min(operating_c[1], baseline_range[1]))
+    judged = _outside(span, log_range) if span[0] < span[1] else []
+    if not judged:
         return None
-    temp, rate = np.meshgrid(np.concatenate(pieces), np.union1d(rates_dps, [0.0]), indexing='ij')
-    edge = np.clip(temp, low, high)
+    temp, rate = _grid(judged, rates_dps)
+    edge = np.clip(temp, *log_range)
     at_edge = baseline.polynomial.error(rate, edge)
     moves = np.abs(baseline.polynomial.error(rate, temp) - at_edge)
     correction = np.abs(refit.polynomial.error(rate, edge) - at_edge)
     worse = (moves - correction) * DEG_PER_H_PER_DPS
     i = np.unravel_index(int(np.argmax(worse)), worse.shape)
-    return BeyondLog(log_range, baseline_range, float(worse[i]), float(temp[i]), float(rate[i]))
+    return BeyondLog(log_range, baseline_range, tuple(judged), float(worse[i]), float(temp[i]), float(rate[i]))
+
+
+def unknown_beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64],
+                       operating_c: Span) -> UnknownBeyondLog | None:
+    """How far the refit and the baseline, as the node applies them, disagree where nothing was measured.
+
+    That is ``operating_c`` beyond both the log and the baseline's calibrated range. None where
+    there is no such place, or the refit is not clamped to a log's range.
+    """
+    log_range, baseline_range = refit.temperature_range_c, baseline.temperature_range_c
+    if log_range is None:
+        return None
+    unknown = [part for beyond in _outside(operating_c, log_range) for part in _outside(beyond, baseline_range)]
+    if not unknown:
+        return None
+    temp, rate = _grid(unknown, rates_dps)
+    applied = temp if baseline_range is None else np.clip(temp, *baseline_range)
+    disagree = np.abs(refit.polynomial.error(rate, np.clip(temp, *log_range))
+                      - baseline.polynomial.error(rate, applied)) * DEG_PER_H_PER_DPS
+    i = np.unravel_index(int(np.argmax(disagree)), disagree.shape)
+    return UnknownBeyondLog(log_range, baseline_range, tuple(unknown), float(disagree[i]), float(temp[i]),
+                            float(rate[i]))
+
+
+def _unasked(baseline: Calibration, operating_c: Span | None, operating: Span | None) -> str:
+    """A clause for a refit written where no operating range was given and the baseline was calibrated wider.
+
+    The refit holds its value beyond the log; over the rest of the baseline's calibrated
+    range it is judged only when the robot is said to run there.
+    """
+    calibrated = baseline.temperature_range_c
+    if operating_c is not None or operating is None or calibrated is None or not _outside(calibrated, operating):
+        return ''
+    return (f', held at the log\'s edge beyond it; the baseline was calibrated over {calibrated[0]:g}..'
+            f'{calibrated[1]:g} degC: give --operating-range if the robot runs beyond the log, to judge it there')
 
 
 def check_baseline(baseline: Calibration, source: str, log_rate_scale: float, log_temp_scale: float) -> None:
@@ -286,10 +405,11 @@ def _check_comparable(source: str, refit_dph: float, baseline_dph: float, beyond
 
 
 def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration, baseline: Calibration,
-                          source: str, bias_samples: int = DEFAULT_SAMPLES,
-                          settle_s: float = DEFAULT_SETTLE_S) -> BaselineCheck | None:
-    """Judge ``written`` (the refit) against ``baseline`` held out on ``log``; decide what to write.
+                          source: str, bias_samples: int = DEFAULT_SAMPLES, settle_s: float = DEFAULT_SETTLE_S,
+                          operating_c: Span | None = None) -> BaselineCheck | None:
+    """Judge ``written`` (the refit) against ``baseline`` held out on ``log`` and over ``operating_c``; decide.
 
+    ``operating_c``: where the robot will run (default: the log's range, the refit's clamp).
     None when the log has no run the node could start (no rest of ``bias_samples`` rows) or
     fewer than two held-out blocks.
     """
@@ -310,7 +430,9 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     baseline_dph = field_score_dps(base_runs) * DEG_PER_H_PER_DPS
     materiality = result.materiality_dph
     pairs = tuple(zip(runs, refit_runs, base_runs))
-    beyond = beyond_log(written, baseline, result.segments.rate)
+    operating = operating_c if operating_c is not None else written.temperature_range_c
+    beyond = None if operating is None else beyond_log(written, baseline, result.segments.rate, operating)
+    unknown = None if operating is None else unknown_beyond_log(written, baseline, result.segments.rate, operating)
     _check_comparable(source, refit_dph, baseline_dph, beyond, pairs)
     worse_beyond = beyond is not None and beyond.worse_dph > materiality
     if refit_dph + materiality < baseline_dph:
@@ -318,7 +440,8 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
                    f'{baseline_dph:.2f} deg/h (materiality {materiality:.2f} deg/h)')
         if not worse_beyond:
             return BaselineCheck(source, refit_dph, baseline_dph, None, materiality, REFIT, pairs, written,
-                                 message + '; the refit is written', beyond)
+                                 message + '; the refit is written' + _unasked(baseline, operating_c, operating),
+                                 beyond, operating, unknown)
         assert beyond is not None
         verdict = f'{message}, but {beyond.describe()}'
     else:
@@ -342,4 +465,4 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     dropped = f' (its own terms {", ".join(t.signal for t in baseline.terms)} are not kept)' if baseline.terms else ''
     message = f'{verdict}: the written file keeps the baseline polynomial{dropped}{kept_terms}'
     return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, BASELINE, pairs,
-                         calibration, message, beyond)
+                         calibration, message, beyond, operating, unknown)

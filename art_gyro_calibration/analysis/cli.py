@@ -80,8 +80,10 @@ def _outside(calibration: Calibration, rows: int) -> str:
 
 
 def _fit(args: argparse.Namespace) -> int:
+    from art_gyro_calibration.analysis.baseline import operating_range
     from art_gyro_calibration.analysis.pipeline import FitSettings, fit_log, scale_factors
     from art_gyro_calibration.analysis.report import write_report
+    operating = None if args.operating_range is None else operating_range(*args.operating_range)
     with Outputs([args.log, *args.validate, args.still, *([args.baseline] if args.baseline else [])],
                  args.force) as outputs:
         out = outputs.claim(args.out)
@@ -98,7 +100,7 @@ def _fit(args: argparse.Namespace) -> int:
                            from_power_on=not args.not_from_power_on, node_signals=tuple(args.node_signal))
         settings = FitSettings(args.rows, args.columns, loop, args.bias_samples, tuple(args.validate),
                                args.validate_powered_on_at_start, topics=_topics(args), still=args.still,
-                               baseline=args.baseline)
+                               baseline=args.baseline, operating_range_c=operating)
         with Ticker(f'calibrate fit: {Path(args.log).name}'):
             fitted = fit_log(args.log, settings, str(args.out),
                              lambda warning: _stderr(f'calibrate fit: warning: {warning}'))
@@ -389,6 +391,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help='the gyro\'s current calibration (default: the packaged file of --serial): the refit is '
                         'judged against it held out, as the node applies both, and where its polynomial is not '
                         'better by the materiality the written file keeps the baseline\'s polynomial')
+    p.add_argument('--operating-range', nargs=2, type=float, metavar=('LO', 'HI'),
+                   help='temperatures (degC) the robot will run in (default: the log\'s): beyond the log the refit '
+                        'is judged against the baseline only where the baseline was calibrated (temperature_range_c); '
+                        'elsewhere the report says how far the two disagree, unjudged')
     _bag_options(p)
     _force_option(p)
     p.set_defaults(run=_fit)

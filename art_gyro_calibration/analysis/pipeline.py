@@ -82,6 +82,7 @@ class FitSettings:
     topics: BagTopics = BagTopics()   # which topics of a rosbag2 log (and validation run) make its columns
     still: str | None = None          # a record at rest: its bias instability for the materiality and budget
     baseline: str | None = None       # the gyro's current calibration (default: the packaged file of the serial)
+    operating_range_c: tuple[float, float] | None = None   # where the robot will run (default: the log's envelope)
 
 
 @dataclass(frozen=True)
@@ -128,6 +129,8 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     kept = baseline if isinstance(baseline, BaselineCheck) and baseline.verdict == BASELINE else None
     if kept is not None:
         warn(kept.message)
+    if isinstance(baseline, BaselineCheck) and baseline.unknown is not None:
+        warn(baseline.unknown.describe())
     choice = _choose(result, startup, restarts, validation, refit, kept, settings)
     calibration = _with_fitted_ranges(choice.calibration, log)
     judged = settings.validate and settings.validate_powered_on_at_start
@@ -312,7 +315,7 @@ def _baseline(log: GyroLog, result: LoopResult, calibration: Calibration,
     baseline = load_calibration(path, expected_serial=None if serial == DEFAULT_SERIAL else serial)
     check_baseline(baseline, path, settings.loop.rate_scale_factor, settings.loop.temp_scale_factor)
     check = compare_with_baseline(log, result, calibration, baseline, path, settings.bias_samples,
-                                  settings.loop.settle_s)
+                                  settings.loop.settle_s, settings.operating_range_c)
     if check is None:
         return (f'not judged against the baseline {path}: the log has no run the node could start '
                 f'({settings.bias_samples} rows at rest) or fewer than two held-out blocks')

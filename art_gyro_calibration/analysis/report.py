@@ -291,7 +291,12 @@ def baseline_markdown(baseline: dict[str, Any]) -> list[str]:
     lines += field_table([(run['run'], name, run[name]) for run in baseline['runs'] for name in ('refit', 'baseline')])
     verdict = '**Verdict: the refit is written.**' if baseline['verdict'] == 'refit' else \
         '**Verdict: the baseline polynomial is kept.**'
-    return lines + ['', f'{verdict} {baseline["message"][0].upper() + baseline["message"][1:]}.']
+    lines += ['', f'{verdict} {baseline["message"][0].upper() + baseline["message"][1:]}.']
+    operating, unknown = baseline.get('operating_range_c'), baseline.get('unknown_beyond_log')
+    if operating is not None:
+        lines += ['', f'Operating range {operating[0]:g}..{operating[1]:g} degC (--operating-range; default the '
+                  'log\'s).' + ('' if unknown is None else f' Unknown: {unknown["message"]}.')]
+    return lines
 
 
 def write_report(path: str | os.PathLike[str], report: dict[str, Any]) -> Path:

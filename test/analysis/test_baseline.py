@@ -40,9 +40,14 @@ def _fit(tmp_path, settings, *extra, chamber_c=None):
     return load_calibration(tmp_path / 'CAL.yaml', expected_serial=SERIAL), report, second
 
 
-def _stale_baseline(tmp_path):
-    """The gyro's file gone stale: its rate scale factor 300 ppm off (0.03 deg/s at 100 deg/s)."""
+def _stale_baseline(tmp_path, calibrated_c=None):
+    """The gyro's file gone stale: its rate scale factor 300 ppm off (0.03 deg/s at 100 deg/s).
+
+    ``calibrated_c``: its calibrated range (default: none, the packaged file's assumed 10..50 degC).
+    """
     packaged = load_packaged_calibration(SERIAL)
+    if calibrated_c is not None:
+        packaged = dataclasses.replace(packaged, temperature_range_c=calibrated_c, temperature_warn_range_c=None)
     coefficients = packaged.polynomial.coefficients.copy()
     coefficients[-1, -2] += 3e-4
     stale = tmp_path / 'stale.yaml'
@@ -96,10 +101,11 @@ def test_a_refit_better_than_a_stale_baseline_is_written(tmp_path):
 def test_a_refit_is_not_written_where_the_log_has_no_temperatures(tmp_path, capsys):
     # The same stale file, fitted from a log over 20..32 degC alone: held out on it the refit is far
     # better (4.4 against 33.1 deg/h), and was written; clamped at 20 and 32 degC, it was 115.8 deg/h
-    # on a second run over 10..50 degC, where the stale file is 33.2.
-    stale = _stale_baseline(tmp_path)
+    # on a second run over 10..50 degC, where the stale file is 33.2. Judged so where the robot runs over 10..50
+    # degC and the stale file was calibrated over it.
+    stale = _stale_baseline(tmp_path, calibrated_c=(10.0, 50.0))
     written, report, second = _fit(tmp_path, SimulationSettings(hours=2.0, seed=1), '--rows', '3', '--columns', '4',
-                                   '--baseline', str(stale), chamber_c=(20.0, 32.0))
+                                   '--baseline', str(stale), '--operating-range', '10', '50', chamber_c=(20.0, 32.0))
     section = report['baseline']
     assert section['refit_field_dph'] + report['materiality_dph'] < section['baseline_field_dph']
     assert section['verdict'] == 'baseline'
@@ -108,15 +114,17 @@ def test_a_refit_is_not_written_where_the_log_has_no_temperatures(tmp_path, caps
     assert beyond['refit_worse_dph'] > report['materiality_dph']
     np.testing.assert_array_equal(written.polynomial.coefficients, load_calibration(stale).polynomial.coefficients)
     assert _field_dph(second, written) <= _field_dph(second, load_calibration(stale)) + 0.5
-    assert 'the log covers 20..32 degC of the baseline\'s 10..50 degC' in capsys.readouterr().err
+    assert 'the log covers 20..32 degC, and beyond it over 10..20 and 32..50 degC of the operating range, where the ' \
+        'baseline is calibrated (10..50 degC)' in capsys.readouterr().err
 
 
 def test_beyond_the_log_the_refit_is_judged_by_how_far_the_baseline_moves():
-    packaged = load_packaged_calibration(SERIAL)
+    packaged = dataclasses.replace(load_packaged_calibration(SERIAL), temperature_range_c=(10.0, 50.0),
+                                   temperature_warn_range_c=None)   # calibrated over 10..50 degC
     rates = np.array([-100.0, 10.0, 100.0])
     refit = dataclasses.replace(packaged, temperature_range_c=(20.0, 32.0))
     # The refit equal to the baseline inside the log: it loses, beyond, all the baseline moves.
-    beyond = beyond_log(refit, packaged, rates)
+    beyond = beyond_log(refit, packaged, rates, (10.0, 50.0))
     temp = np.arange(10.0, 50.5, 0.5)
     r, t = np.meshgrid(np.append(rates, 0.0), temp)
     moves = np.abs(packaged.polynomial.error(r, t) - packaged.polynomial.error(r, np.clip(t, 20.0, 32.0)))
@@ -124,10 +132,12 @@ def test_beyond_the_log_the_refit_is_judged_by_how_far_the_baseline_moves():
     assert (beyond.log_range_c, beyond.baseline_range_c) == ((20.0, 32.0), (10.0, 50.0))
     # A baseline that does not move with temperature costs the clamp nothing.
     flat = dataclasses.replace(packaged, polynomial=ArtPolynomial(np.array([[1e-6, 0.0, 3e-4, 0.01]])))
-    assert beyond_log(dataclasses.replace(flat, temperature_range_c=(20.0, 32.0)), flat, rates).worse_dph == 0.0
-    # A log over the baseline's whole range, or a baseline with no range, has no beyond.
-    assert beyond_log(dataclasses.replace(packaged, temperature_range_c=(10.0, 50.0)), packaged, rates) is None
-    assert beyond_log(refit, dataclasses.replace(packaged, temperature_warn_range_c=None), rates) is None
+    assert beyond_log(dataclasses.replace(flat, temperature_range_c=(20.0, 32.0)), flat, rates,
+                      (10.0, 50.0)).worse_dph == 0.0
+    # A log over the baseline's whole range, or a baseline calibrated nowhere, has no beyond.
+    assert beyond_log(dataclasses.replace(packaged, temperature_range_c=(10.0, 50.0)), packaged, rates,
+                      (10.0, 50.0)) is None
+    assert beyond_log(refit, load_packaged_calibration(SERIAL), rates, (10.0, 50.0)) is None
 
 
 def test_a_baseline_with_other_scale_factors_is_refused(tmp_path, capsys):
