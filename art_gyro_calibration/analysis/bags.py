@@ -347,17 +347,20 @@ class BagWriter:
     """A rosbag2 (MCAP) of the node's ``imu/uncalibrated`` (sensor_msgs/Imu) and ``imu/temperature`` (Float64).
 
     What :func:`read_bag` reads by default. Messages are either serialised here from a frame
-    (:meth:`write_frame`) or written as received (:meth:`write_cdr`). ``path`` is a directory that must not exist.
+    (:meth:`write_frame`) or written as received (:meth:`write_cdr`), in the node's ``namespace``. ``path`` is a
+    directory that must not exist.
     """
 
-    def __init__(self, path: str | Path, serial: str | None = None, frame_id: str = 'imu_link') -> None:
+    def __init__(self, path: str | Path, serial: str | None = None, frame_id: str = 'imu_link',
+                 namespace: str = '/') -> None:
         from rosbags.rosbag2 import StoragePlugin, Writer
         self.typestore = _typestore()
         self._writer = Writer(Path(path), version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
         if serial:
             self._writer.set_custom_data(SERIAL_KEY, serial)
         self._writer.open()
-        self.connections = {topic: self._writer.add_connection('/' + topic, msgtype, typestore=self.typestore)
+        self.connections = {topic: self._writer.add_connection(f'{namespace.rstrip("/")}/{topic}', msgtype,
+                                                               typestore=self.typestore)
                             for topic, msgtype in ((BagTopics.rate, IMU), (BagTopics.temperature, FLOAT64))}
         self.count = 0   # messages of the rate topic written
         types = self.typestore.types

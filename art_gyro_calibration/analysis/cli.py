@@ -16,7 +16,8 @@ and ``--extra-topic NAME=TOPIC`` say which of its topics make the log.
 Errors in the input (a bad log, a bad calibration, a gyro that moved during the
 static bias) are reported on stderr with a non-zero exit status. Outputs are checked
 before the work starts and written whole or not at all (:mod:`.outputs`): an existing
-one is replaced only with ``--force``, an input never.
+one is replaced only with ``--force``, an input never. ``record`` alone writes in place
+as frames come, so that a stop keeps what nothing can make again.
 """
 
 from __future__ import annotations
