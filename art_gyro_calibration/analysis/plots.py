@@ -102,6 +102,7 @@ def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
         ax.plot(centres[full], sums[full] / counts[full], 'o-', ms=3)
         ax.axhline(0.0, color='grey', lw=0.8)
         ax.set_xlabel(signal_label(name))
+        ax.locator_params(axis='x', nbins=5)   # a rate's ticks (-0.015, ...) would run into each other
         if name in found:
             ax.set_title(f'shape beyond chance: {found[name].shape_dph:.1f} deg/h', color='red', fontsize=10)
         ax.grid(True, alpha=0.3)
