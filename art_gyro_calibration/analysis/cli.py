@@ -128,6 +128,7 @@ def _replay(args: argparse.Namespace) -> int:
     from art_gyro_calibration.analysis.report import field_table
     from art_gyro_calibration.analysis.bags import read_any_log
     calibration = load_calibration(args.calibration)
+    _recorded_serial(args.log, calibration.serial_number, f'the calibration\'s ({args.calibration})')
     log = read_any_log(args.log, calibration.rate_scale_factor, calibration.temp_scale_factor, _topics(args), _warn)
     if args.start_s:
         log = restart(log, args.start_s)
@@ -175,6 +176,7 @@ def _allan(args: argparse.Namespace) -> int:
         if is_bag(args.log):
             total, chunks = rate_chunks(args.log, args.rate_topic)
         else:
+            args.serial = _recorded_serial(args.log, args.serial, '--serial')
             given = args.serial or args.rate_scale_factor is not None
             scale = scale_factors(args.serial, args.rate_scale_factor) if given else None
             rate_scale, temp_scale = (scale.rate, scale.temp) if scale else (None, None)

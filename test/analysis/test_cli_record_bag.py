@@ -102,3 +102,13 @@ def test_a_record_stopped_by_sigint_keeps_what_came_and_rows_land_as_they_come(t
         log = read_bag(out)
         assert len(log) == frames
         assert math.isclose(float(np.median(log.rate_dps)), 30.0, abs_tol=1.0)
+
+
+def test_allan_scales_a_csv_record_by_the_serial_it_kept(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / 'REC.csv'
+    _record(out, '--serial', 'NAVC3545', seconds='2.0', profile='0')
+    capsys.readouterr()
+    assert main(['allan', str(out), '--out', str(tmp_path / 'A.json')]) == 0   # no --serial: the kept one
+    assert f'{out}: recorded from gyro NAVC3545: taken as its serial number' in capsys.readouterr().err
+    assert main(['allan', str(out), '--serial', 'NAVC4058', '--out', str(tmp_path / 'B.json')]) == 1
+    assert 'recorded from gyro NAVC3545, not NAVC4058 as --serial says' in capsys.readouterr().err
