@@ -28,6 +28,8 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
+
 DEFAULT_SAMPLES = 100
 # At rest an RD2100 reads its modelled error plus well under 0.02 deg/s of bias drift and
 # Earth rate, with a per-sample noise of a few counts (0.00305 deg/s each) at 10 Hz. So the
@@ -101,7 +103,8 @@ class StaticBias:
 
     def describe(self) -> str:
         """One line for people: the values found."""
-        refined = f', refined by {self.refined_dps:+.6f} deg/s' if self.refined_dps else ''
+        # In deg/h to 3 significant digits: a refinement is often far below the 1e-6 deg/s printed beside it.
+        refined = f', refined by {self.refined_dps * DEG_PER_H_PER_DPS:+.3g} deg/h' if self.refined_dps else ''
         return (f'StaticBiasDrift={self.static_bias_drift_dps:.6f} deg/s, '
                 f'CalcStaticBiasDrift={self.calc_static_bias_drift_dps:.6f} deg/s{refined} '
                 f'over {self.samples} samples (rate std {self.rate_std_dps:.6f} deg/s)')

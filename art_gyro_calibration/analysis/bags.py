@@ -11,12 +11,18 @@ geometry_msgs/TwistStamped or sensor_msgs/Imu angular z in rad/s matched by head
 stamp), held from each message to the next as a table's command is; ``extras`` are
 further numeric topics, extra columns of the log (matched as the temperature is). A
 topic named relatively matches the bag's topic of that name in any namespace, if one.
+
+:class:`BagWriter` writes such a bag (MCAP storage) as messages come: ``calibrate record``'s
+frames, or the node's topics as ``imu_echo --record`` receives them. The gyro's serial number
+goes into the bag's ``custom_data`` (a CSV log's into a ``# serial_number:`` line after its
+header), where :func:`recorded_serial` reads it back.
 """
 
 from __future__ import annotations
 
 import math
 import struct
+import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +42,9 @@ NUMERIC = {FLOAT64: 'data', 'std_msgs/msg/Float32': 'data', 'sensor_msgs/msg/Tem
 REFERENCE_TYPES = (FLOAT64, TWIST_STAMPED, IMU)
 # Rate messages read per chunk while streaming.
 BAG_CHUNK_ROWS = READ_CHUNK_ROWS
+# Key of the gyro's serial number in a recorded bag's custom_data, and a CSV log's comment line that holds it.
+SERIAL_KEY = 'serial_number'
+SERIAL_COMMENT = f'# {SERIAL_KEY}: '
 
 
 @dataclass(frozen=True)
@@ -316,3 +325,66 @@ def csv_rate_chunks(path: str | Path, rate_scale_factor: float | None,
     lines = max(head.count(b'\n'), 1)
     estimate = size / (len(head) / lines) if head else math.nan
     return estimate, ((c.t, c.rate_dps) for c in read_log_chunks(path, rate_scale_factor, temp_scale_factor))
+
+
+def recorded_serial(path: str | Path) -> str | None:
+    """The serial number ``calibrate record`` kept in a log (None if it kept none, or the log is not one of its)."""
+    if is_bag(path):
+        with _Bag(path) as bag:
+            metadata = getattr(bag.reader.storage, 'metadata', None)   # a bag directory's metadata.yaml
+        value = (getattr(metadata, 'custom', None) or {}).get(SERIAL_KEY)
+        return str(value) if value else None
+    try:
+        with open(path, encoding='utf-8') as f:
+            f.readline()   # the header
+            second = f.readline()
+    except (OSError, UnicodeDecodeError):
+        return None   # reading the log itself says what is wrong with it
+    return (second[len(SERIAL_COMMENT):].strip() or None) if second.startswith(SERIAL_COMMENT) else None
+
+
+class BagWriter:
+    """A rosbag2 (MCAP) of the node's ``imu/uncalibrated`` (sensor_msgs/Imu) and ``imu/temperature`` (Float64).
+
+    What :func:`read_bag` reads by default. Messages are either serialised here from a frame
+    (:meth:`write_frame`) or written as received (:meth:`write_cdr`), in the node's ``namespace``. ``path`` is a
+    directory that must not exist.
+    """
+
+    def __init__(self, path: str | Path, serial: str | None = None, frame_id: str = 'imu_link',
+                 namespace: str = '/') -> None:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        self.typestore = _typestore()
+        self._writer = Writer(Path(path), version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+        if serial:
+            self._writer.set_custom_data(SERIAL_KEY, serial)
+        self._writer.open()
+        self.connections = {topic: self._writer.add_connection(f'{namespace.rstrip("/")}/{topic}', msgtype,
+                                                               typestore=self.typestore)
+                            for topic, msgtype in ((BagTopics.rate, IMU), (BagTopics.temperature, FLOAT64))}
+        self.count = 0   # messages of the rate topic written
+        types = self.typestore.types
+        header = types['std_msgs/msg/Header'](types['builtin_interfaces/msg/Time'](0, 0), frame_id)
+        vector = types['geometry_msgs/msg/Vector3']
+        unmeasured = np.zeros(9)
+        unmeasured[0] = -1.0   # REP 145: not measured, as the node says of orientation and acceleration
+        self._imu = types[IMU](header, types['geometry_msgs/msg/Quaternion'](0.0, 0.0, 0.0, 1.0), unmeasured,
+                               vector(0.0, 0.0, 0.0), np.zeros(9), vector(0.0, 0.0, 0.0), unmeasured.copy())
+        self._float = types[FLOAT64]
+
+    def write_frame(self, stamp_ns: int, rate_dps: float, temp_c: float) -> None:
+        """One frame as the node publishes it: the scaled rate (rad/s) at its stamp, and its temperature."""
+        now = time.time_ns()
+        self._imu.header.stamp.sec, self._imu.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        self._imu.angular_velocity.z = math.radians(rate_dps)
+        self.write_cdr(BagTopics.rate, now, self.typestore.serialize_cdr(self._imu, IMU))
+        self.write_cdr(BagTopics.temperature, now, self.typestore.serialize_cdr(self._float(temp_c), FLOAT64))
+
+    def write_cdr(self, topic: str, recorded_ns: int, raw: bytes | memoryview) -> None:
+        """A message of ``topic`` (:attr:`BagTopics.rate` or ``.temperature``), CDR-serialised, received at a time."""
+        self._writer.write(self.connections[topic], recorded_ns, raw)
+        self.count += topic == BagTopics.rate
+
+    def close(self) -> None:
+        """Finish the bag (its summary and metadata.yaml): readable from then on."""
+        self._writer.close()

@@ -6,7 +6,7 @@
 - ``calibrate replay OTHER_LOG.csv --calibration CAL.yaml [--start-s S] [--bias-samples N]``
 - ``calibrate simulate --serial SN --hours H --out LOG.csv [--effect NAME ...] [--self-heating-c DT]
   [--self-heating-tau-s TAU]``
-- ``calibrate record --port P --out LOG.csv [--protocol binary] [--baud 9600] [--serial SN] [--duration S]``
+- ``calibrate record --port P --out BAG_OR_LOG.csv [--protocol binary] [--baud 9600] [--serial SN] [--duration S]``
 - ``calibrate allan LOG_OR_BAG --out ALLAN.json [--plots DIR] [--serial SN] [--node-rate-hz F]``
 
 Wherever a log is read, a rosbag2 (a directory with metadata.yaml, an .mcap or a .db3) is
@@ -16,7 +16,8 @@ and ``--extra-topic NAME=TOPIC`` say which of its topics make the log.
 Errors in the input (a bad log, a bad calibration, a gyro that moved during the
 static bias) are reported on stderr with a non-zero exit status. Outputs are checked
 before the work starts and written whole or not at all (:mod:`.outputs`): an existing
-one is replaced only with ``--force``, an input never.
+one is replaced only with ``--force``, an input never. ``record`` alone writes in place
+as frames come, so that a stop keeps what nothing can make again.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ def _apply(args: argparse.Namespace) -> int:
     with Outputs([args.log, args.calibration], args.force) as outputs:
         out = outputs.claim(args.out)
         calibration = load_calibration(args.calibration)
+        _recorded_serial(args.log, calibration.serial_number, f'the calibration\'s ({args.calibration})')
         _warn_if(unapplied_warm_up(calibration, RunStart(args.powered_on_at_start)))
         with open(out, 'wb') as stream:
             done = apply_to_csv(args.log, calibration, args.bias_samples, stream,
@@ -65,6 +67,20 @@ def _apply(args: argparse.Namespace) -> int:
             _warn(f'{name}: {held} rows not finite (the last finite value held) and {beyond} beyond {low:g}..'
                   f'{high:g} (applied at the limit): the node flags such rates uncorrected')
     return 0
+
+
+def _recorded_serial(log: str, serial: str | None, whose: str) -> str | None:
+    """The gyro's serial number: ``serial``, checked against the one ``calibrate record`` kept in ``log``, else that.
+
+    A log recorded from another gyro is refused: its calibration would be nonsense.
+    """
+    from art_gyro_calibration.analysis.bags import recorded_serial
+    recorded = recorded_serial(log)
+    if recorded and serial and recorded != serial:
+        raise ValueError(f'{log}: recorded from gyro {recorded}, not {serial} as {whose} says')
+    if recorded and not serial:
+        _stderr(f'calibrate: {log}: recorded from gyro {recorded}: taken as its serial number')
+    return serial or recorded
 
 
 def _outside(calibration: Calibration, rows: int) -> str:
@@ -89,6 +105,7 @@ def _fit(args: argparse.Namespace) -> int:
         out = outputs.claim(args.out)
         report_path = outputs.claim(args.report, beside=[Path(args.report).with_suffix('.md')])
         plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
+        args.serial = _recorded_serial(args.log, args.serial, '--serial')
         scale = scale_factors(args.serial, args.rate_scale_factor)
         if scale.assumed:   # said whether the log is raw or not: the node scales by the factor written
             print(f'calibrate fit: no --rate-scale-factor and no packaged calibration of {args.serial or "the gyro"}: '
@@ -118,6 +135,7 @@ def _replay(args: argparse.Namespace) -> int:
     from art_gyro_calibration.analysis.report import field_table
     from art_gyro_calibration.analysis.bags import read_any_log
     calibration = load_calibration(args.calibration)
+    _recorded_serial(args.log, calibration.serial_number, f'the calibration\'s ({args.calibration})')
     log = read_any_log(args.log, calibration.rate_scale_factor, calibration.temp_scale_factor, _topics(args), _warn)
     if args.start_s:
         log = restart(log, args.start_s)
@@ -165,6 +183,7 @@ def _allan(args: argparse.Namespace) -> int:
         if is_bag(args.log):
             total, chunks = rate_chunks(args.log, args.rate_topic)
         else:
+            args.serial = _recorded_serial(args.log, args.serial, '--serial')
             given = args.serial or args.rate_scale_factor is not None
             scale = scale_factors(args.serial, args.rate_scale_factor) if given else None
             rate_scale, temp_scale = (scale.rate, scale.temp) if scale else (None, None)
@@ -243,35 +262,88 @@ RECORD_SILENCE_S = 1.0
 
 def _record(args: argparse.Namespace) -> int:
     from art_gyro_calibration.driver import SerialGyroDriver
+    from art_gyro_calibration.analysis.outputs import OutputError
+    from art_gyro_calibration.analysis.pipeline import scale_factors
     if args.serial:
         load_calibration(find_calibration_file(args.serial), expected_serial=args.serial)
-    with Outputs([args.port], args.force, keep_if_killed=True) as outputs:   # rows nothing can make again
-        out = outputs.claim(args.out)
-        frames: queue.SimpleQueue[tuple[int, float, float]] = queue.SimpleQueue()
-        driver = SerialGyroDriver(args.port, args.baud, args.protocol,
-                                  lambda f: frames.put((f.stamp_ns, f.sample.raw_rate, f.sample.raw_temp)))
-        previous = signal.signal(signal.SIGTERM, _interrupt)   # end as on Ctrl-C: keep what was recorded
-        driver.start()   # opens the port on its thread; the log is created at the first frame
-        try:
-            count = _record_frames(frames, out, args.port, args.duration, lambda: driver.stats.last_error)
-        finally:
-            driver.stop()
-            signal.signal(signal.SIGTERM, previous)
-        stats = driver.stats
-        if not count:
-            raise OSError(f'no frames from {args.port} ({stats.last_error or "nothing received"}); '
-                          f'{args.out} not written')
-    print(f'{args.out}: {count} frames from {args.port} ({stats.rejected} rejected, {stats.reopens} reopens)')
+    bag = (args.format or ('csv' if Path(args.out).suffix.lower() == '.csv' else 'bag')) == 'bag'
+    if bag and Path(args.out).suffix.lower() in ('.mcap', '.db3'):
+        raise OutputError(f'{args.out}: a bag is written as a directory (metadata.yaml and an .mcap file in it): '
+                          'name it without .mcap')
+    if bag and Path(args.out).exists():
+        raise OutputError(f'{args.out}: exists; a bag is never replaced (--force or not): name another')
+    out = Outputs([args.port], args.force).check(args.out)   # written in place: what came is kept if stopped
+    scale = scale_factors(args.serial, args.rate_scale_factor)
+    if bag and scale.assumed:
+        _warn(f'no --rate-scale-factor and no --serial: the bag\'s rates use the usual {scale.rate} deg/s per count')
+    frames: queue.SimpleQueue[tuple[int, float, float]] = queue.SimpleQueue()
+    driver = SerialGyroDriver(args.port, args.baud, args.protocol,
+                              lambda f: frames.put((f.stamp_ns, f.sample.raw_rate, f.sample.raw_temp)))
+    previous = signal.signal(signal.SIGTERM, _interrupt)   # end as on Ctrl-C: keep what was recorded
+    driver.start()   # opens the port on its thread; the log is created at the first frame
+    try:
+        sink = _BagRecord(out, args.serial, scale.rate, scale.temp) if bag else _CsvRecord(out, args.serial, args.force)
+        count = _record_frames(frames, sink, args.port, args.duration, lambda: driver.stats.last_error)
+    finally:
+        driver.stop()
+        signal.signal(signal.SIGTERM, previous)
+    stats = driver.stats
+    if not count:
+        raise OSError(f'no frames from {args.port} ({stats.last_error or "nothing received"}); '
+                      f'{args.out} not written')
+    print(f'{args.out}: {count} frames from {args.port} ({stats.rejected} rejected, {stats.reopens} reopens)'
+          f'{"; serial number " + args.serial + " kept in it" if args.serial else ""}')
     return 0
+
+
+class _CsvRecord:
+    """A raw CSV log (t, raw_rate, raw_temp) created at the first frame, rows flushed in batches as they come."""
+
+    def __init__(self, out: Path, serial: str | None, replace: bool) -> None:
+        self._out, self._serial, self._mode = out, serial, 'w' if replace else 'x'
+        self._writer: RawLogWriter | None = None
+
+    def write(self, stamp_ns: int, raw_rate: float, raw_temp: float) -> None:
+        if self._writer is None:
+            from art_gyro_calibration.analysis.bags import SERIAL_COMMENT
+            stream = open(self._out, self._mode, encoding='utf-8')
+            self._writer = RawLogWriter(stream)
+            if self._serial:
+                stream.write(f'{SERIAL_COMMENT}{self._serial}\n')   # a comment line: the readers skip it
+        self._writer.write(stamp_ns * 1e-9, raw_rate, raw_temp)
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+
+
+class _BagRecord:
+    """A rosbag2 of the node's topics (:class:`.bags.BagWriter`) created at the first frame, scaled as the node does."""
+
+    def __init__(self, out: Path, serial: str | None, rate_scale: float, temp_scale: float) -> None:
+        from art_gyro_calibration.analysis.bags import BagWriter
+        self._out, self._serial = out, serial
+        self._scale = rate_scale, temp_scale
+        self._writer: BagWriter | None = None
+
+    def write(self, stamp_ns: int, raw_rate: float, raw_temp: float) -> None:
+        if self._writer is None:
+            from art_gyro_calibration.analysis.bags import BagWriter
+            self._writer = BagWriter(self._out, self._serial)
+        self._writer.write_frame(stamp_ns, raw_rate * self._scale[0], raw_temp * self._scale[1])
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
 
 
 def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Path, port: str,
+def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], sink: _CsvRecord | _BagRecord, port: str,
                    duration_s: float | None, last_error: Callable[[], str]) -> int:
-    """Write frames to ``out`` until ``duration_s`` or Ctrl-C.
+    """Write frames to ``sink`` until ``duration_s`` or Ctrl-C (or SIGTERM); it is closed, whole, either way.
 
     Says on stderr when none arrive for a second, and again every LINK_DOWN_REPEAT_S while none do.
     """
@@ -282,7 +354,6 @@ def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Pat
     silent = False
     said = -math.inf
     count = 0
-    writer = None
     try:
         while (now := time.monotonic()) < end:
             # With --duration, the time recorded (the time left is known); else the frames so far.
@@ -296,9 +367,7 @@ def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Pat
                     _stderr(f'calibrate record: nothing from {port} for {now - last:.0f} s '
                             f'({last_error() or "port open, no frames"}); still waiting')
                 continue
-            if writer is None:
-                writer = RawLogWriter(open(out, 'x', encoding='utf-8'))
-            writer.write(stamp_ns * 1e-9, raw_rate, raw_temp)
+            sink.write(stamp_ns, raw_rate, raw_temp)
             count += 1
             last = time.monotonic()
             if silent:
@@ -308,8 +377,7 @@ def _record_frames(frames: queue.SimpleQueue[tuple[int, float, float]], out: Pat
         pass
     finally:
         bar.done()
-        if writer is not None:
-            writer.close()
+        sink.close()
     return count
 
 
@@ -451,13 +519,23 @@ def build_parser() -> argparse.ArgumentParser:
     _force_option(p)
     p.set_defaults(run=_simulate)
 
-    p = sub.add_parser('record', help='record a gyro through the node\'s driver into a raw log')
+    p = sub.add_parser('record', help='record a gyro through the node\'s driver into a rosbag2 or a raw CSV log')
     p.add_argument('--port', required=True, help='serial port, e.g. /dev/ttyUSB0')
-    p.add_argument('--out', required=True, help='CSV log to write (t, raw_rate, raw_temp)')
+    p.add_argument('--out', required=True,
+                   help='where to write: a name ending in .csv is a raw CSV log (t, raw_rate, raw_temp), any other '
+                        'a rosbag2 directory (MCAP) with the node\'s imu/uncalibrated and imu/temperature, as '
+                        'fit, apply and allan read it; written as frames come, kept if stopped (Ctrl-C, SIGTERM)')
+    p.add_argument('--format', choices=('bag', 'csv'),
+                   help='bag or csv whatever --out is named (default: from --out\'s name)')
     p.add_argument('--protocol', choices=PROTOCOLS, default=PROTOCOLS[0],
                    help='frame format on the wire, as the node\'s parameter (default %(default)s)')
     p.add_argument('--baud', type=int, default=9600, help='serial baud rate (default %(default)s)')
-    p.add_argument('--serial', help='check that a calibration of this gyro is packaged (default: no check)')
+    p.add_argument('--serial', help='the gyro recorded: its packaged calibration must exist and gives a bag\'s scale '
+                                    'factors; kept in the output (bag metadata, CSV comment line) for fit and apply '
+                                    'to check (default: none)')
+    p.add_argument('--rate-scale-factor', type=float,
+                   help='bag: deg/s per count (default: the packaged calibration\'s of --serial, '
+                        f'else {DEFAULT_RATE_SCALE_FACTOR})')
     p.add_argument('--duration', type=float, help='seconds to record (default: until Ctrl-C)')
     _force_option(p)
     p.set_defaults(run=_record)

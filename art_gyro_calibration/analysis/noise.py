@@ -442,14 +442,15 @@ def plot_allan(result: AllanResult, path: str | os.PathLike[str]) -> Path:
     ax.loglog(tau, result.terms.adev(tau) * dph, 'k-', lw=1, label='fitted sum')
     window = result.node.bias_window_s
     ax.axvline(window, color='grey', lw=0.8)
-    ax.annotate(f'bias window {window:.4g} s (bias_samples {result.node.bias_samples} at {result.node.rate_hz:g} Hz)',
-                (window, ax.get_ylim()[0]), rotation=90,
-                va='bottom', ha='right', fontsize=8, color='grey')
+    # At the top, beside the line: the deviation falls with tau, so the curve is low where the window is.
+    ax.text(window, 0.98, f'bias window {window:.4g} s\n(bias_samples {result.node.bias_samples} at '
+            f'{result.node.rate_hz:g} Hz) ', transform=ax.get_xaxis_transform(), va='top', ha='right', fontsize=8,
+            color='dimgrey')
     ax.set_xlabel('averaging time tau (s)')
     ax.set_ylabel('Allan deviation (deg/h)')
     ax.set_title(f'{Path(result.source).name}: {result.stats.samples} samples at {result.stats.sample_rate_hz:.4g} Hz')
     ax.grid(True, which='both', alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc='lower left')
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=110)

@@ -6,9 +6,10 @@ into place, and when it fails (an error, Ctrl-C) the staging directory is remove
 outputs are as they were. Only a regular file is ever replaced: a FIFO or a device given
 as an output is refused, with ``--force`` too. A staging directory is named after its
 process (``.calibrate-<pid>-...``): one left by a process that no longer runs (SIGKILL, a
-power cut) is removed by the next command that stages in that directory. Outputs that hold
-data nothing can make again (``calibrate record``'s rows) are staged as ``.calibrate-keep-<pid>-...``
-instead, which is never removed.
+power cut) is removed by the next command that stages in that directory (one named
+``.calibrate-keep-<pid>-...``, where ``calibrate record`` once staged its rows, never is). Outputs that
+hold data nothing can make again (``calibrate record``'s rows) are not staged: :meth:`Outputs.check`
+checks them, and they are written in place as the data comes.
 """
 
 from __future__ import annotations
@@ -62,18 +63,18 @@ def remove_stale_stages(directory: Path) -> list[Path]:
 class Outputs:
     """The outputs of one command; use as a context manager: they are renamed into place when it ends well."""
 
-    def __init__(self, inputs: Iterable[StrPath | None], force: bool = False, keep_if_killed: bool = False) -> None:
+    def __init__(self, inputs: Iterable[StrPath | None], force: bool = False) -> None:
         self._inputs = [Path(p) for p in inputs if p is not None]
         self._force = force
-        self._prefix = f'{STAGE_PREFIX}{"keep-" if keep_if_killed else ""}{os.getpid()}-'
+        self._prefix = f'{STAGE_PREFIX}{os.getpid()}-'
         self._claimed: list[Path] = []
         self._stages: list[tuple[Path, Path]] = []   # (staging directory, directory its files go to)
 
     def claim(self, path: StrPath, beside: Iterable[StrPath] = ()) -> Path:
         """Check ``path`` and the files the work writes ``beside`` it; returns where to write ``path`` now."""
-        target = self._check(path)
+        target = self.check(path)
         for other in beside:
-            self._check(other)
+            self.check(other)
         stage = next((s for s, d in self._stages if d == target.parent), None) or self._stage(target.parent, path)
         return stage / target.name
 
@@ -94,7 +95,8 @@ class Outputs:
         self._stages[-1] = (stage, real)
         return stage
 
-    def _check(self, path: StrPath) -> Path:
+    def check(self, path: StrPath) -> Path:
+        """Check an output the work writes in place (not staged); returns its real path."""
         p = Path(path)
         real = Path(os.path.realpath(p))
         for given in self._inputs:

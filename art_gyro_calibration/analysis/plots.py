@@ -1,11 +1,16 @@
 """The report's figures, before and after calibration, as PNG (matplotlib, Agg backend).
 
-- ``error-vs-rate.png``: mean error of each steady segment against the table rate, one
+- ``error-vs-rate.png``: mean error of each steady segment (deg/h) against the table rate, one
   colour per temperature band, for the uncalibrated, ART and extended models;
-- ``heading-360.png``: heading error after a full turn against the rate, one line per
-  temperature band;
-- ``residual-<signal>.png``: for each traced effect, what the model without it leaves,
+- ``heading-360.png``: heading error after a full turn (deg) against the rate, one line per
+  temperature band and turning direction;
+- ``residual-<signal>.png``: for each traced effect, what the model without it leaves (deg/h),
   against the effect's signal, with the fitted term.
+
+The three stages' panels share one y scale, symmetric-logarithmic (linear within a small
+band around 0) so that the uncalibrated error and the calibrated one, a thousand times
+smaller, show on it together; the rate axis is symmetric-logarithmic beyond 1 deg/s, where
+the table's rates lie.
 """
 
 from __future__ import annotations
@@ -32,6 +37,14 @@ from art_gyro_calibration.terms import Term  # noqa: E402
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS  # noqa: E402
 
 BAND_C = 10.0
+# Where the shared symmetric-log y scales turn linear: about the bias instability (deg/h) of the gyros calibrated,
+# and a little less than the heading that 1 deg/h gives over a 6 min turn (deg); the rate axis within the table's
+# slowest rate (deg/s).
+ERROR_LINEAR_DPH = 1.0
+HEADING_LINEAR_DEG = 0.01
+RATE_LINEAR_DPS = 1.0
+# A warm-up's residual is shown over this many time constants after power-on; the rest is summarised.
+WARM_UP_SHOWN_TAUS = 5.0
 TITLES = {'uncalibrated': 'uncalibrated (scale factor, static bias)', 'art': 'ART polynomial',
           'extended': 'ART + traced effects'}
 
@@ -70,7 +83,8 @@ def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
     residual = (result.error - result.extended.model.error(result.signals))[rows] * DEG_PER_H_PER_DPS
     names = [*LOOK_AT, *result.signals.extras]
     found = {s.signal: s for s in (result.adequacy.signals if result.adequacy else ()) if s.found}
-    fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7), squeeze=False)
+    fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(4 * ((len(names) + 1) // 2), 7), squeeze=False,
+                             sharey=True)   # one residual: its size against each signal compared at a glance
     for ax, name in zip(axes.ravel(), names):
         x = result.signals.get(name)[rows]
         if name == 'angle':
@@ -88,6 +102,7 @@ def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
         ax.plot(centres[full], sums[full] / counts[full], 'o-', ms=3)
         ax.axhline(0.0, color='grey', lw=0.8)
         ax.set_xlabel(signal_label(name))
+        ax.locator_params(axis='x', nbins=5)   # a rate's ticks (-0.015, ...) would run into each other
         if name in found:
             ax.set_title(f'shape beyond chance: {found[name].shape_dph:.1f} deg/h', color='red', fontsize=10)
         ax.grid(True, alpha=0.3)
@@ -104,16 +119,23 @@ def _residual_vs_signals(result: LoopResult, path: Path) -> Path:
     return path
 
 
-def _per_stage(path: Path, ylabel: str, draw: Callable[[Axes, str], None]) -> Path:
-    """One panel per stage (uncalibrated, ART, extended), each drawn by ``draw(ax, stage)``."""
-    fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 4.5))
+def _per_stage(path: Path, ylabel: str, linear_within: float, draw: Callable[[Axes, str], None],
+               title: str) -> Path:
+    """One panel per stage (uncalibrated, ART, extended) on a shared y scale, each drawn by ``draw(ax, stage)``."""
+    fig, axes = plt.subplots(1, len(STAGES), figsize=(15, 5), sharey=True)
     for ax, stage in zip(axes, STAGES):
         draw(ax, stage)
         ax.set_title(TITLES[stage])
-        ax.set_xlabel('table rate (deg/s)')
-        ax.grid(True, alpha=0.3)
+        ax.set_xscale('symlog', linthresh=RATE_LINEAR_DPS)
+        ax.set_yscale('symlog', linthresh=linear_within)
+        ax.set_xlabel(f'table rate (deg/s, logarithmic beyond {RATE_LINEAR_DPS:g})')
+        ax.axhline(0.0, color='grey', lw=0.8)
+        ax.grid(True, which='major', alpha=0.3)
+        ax.legend(title='temperature', fontsize=9, title_fontsize=9)
     axes[0].set_ylabel(ylabel)
-    axes[-1].legend(title='temperature', fontsize=8)
+    unit = ylabel.rsplit('(', 1)[-1].rstrip(')')
+    fig.suptitle(f'{title}\none y scale for the three panels: linear within +-{linear_within:g} {unit}, '
+                 'logarithmic beyond', fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -125,15 +147,17 @@ def _error_vs_rate(errors: dict[str, NDArray[np.float64]], result: LoopResult, p
     colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
 
     def draw(ax: Axes, stage: str) -> None:
-        means = result.segments.means(errors[stage])
+        means = result.segments.means(errors[stage]) * DEG_PER_H_PER_DPS
         for b, colour in zip(bands, colours):
             sel = band == b
             ax.plot(result.segments.rate[sel], means[sel], 'o', ms=3, color=colour, label=f'{b:.0f} degC')
 
-    return _per_stage(path, 'mean error of a steady segment (deg/s)', draw)
+    return _per_stage(path, 'mean rate error of a steady segment (deg/h)', ERROR_LINEAR_DPH, draw,
+                      'mean rate error of each steady segment of the table')
 
 
 def _heading_360(errors: dict[str, NDArray[np.float64]], result: LoopResult, path: Path) -> Path:
+    """Heading error after a full turn: the rate error times the turn's 360/|rate| s, so a bias weighs as 1/rate."""
     band, bands = _bands(result)
     turning = result.segments.rate != 0.0
     colours = plt.cm.coolwarm(np.linspace(0, 1, len(bands)))
@@ -144,12 +168,19 @@ def _heading_360(errors: dict[str, NDArray[np.float64]], result: LoopResult, pat
             sel = band[turning] == b
             if not sel.any():
                 continue
-            # One line per band: the mean over the segments at each rate.
+            # One line per band and direction (a line through 0 deg/s would join two different turns): the mean
+            # over the segments at each rate.
             rates = np.unique(rate[sel])
-            mean = [heading[sel][rate[sel] == r].mean() for r in rates]
-            ax.plot(rates, mean, '.-', color=colour, label=f'{b:.0f} degC')
+            mean = np.array([heading[sel][rate[sel] == r].mean() for r in rates])
+            gap = np.flatnonzero(np.diff(np.sign(rates)) != 0) + 1
+            ax.plot(np.insert(rates, gap, np.nan), np.insert(mean, gap, np.nan), '.-', color=colour,
+                    label=f'{b:.0f} degC')
 
-    return _per_stage(path, 'heading error after a full turn (deg)', draw)
+    slowest = float(np.min(np.abs(result.segments.rate[turning]))) if turning.any() else RATE_LINEAR_DPS
+    return _per_stage(path, 'heading error after a full turn (deg)', HEADING_LINEAR_DEG, draw,
+                      'heading error after a full turn = the rate error integrated over the turn, '
+                      f'which lasts 360/|rate| s ({360 / slowest:.0f} s at {slowest:g} deg/s, '
+                      f'{360 / 100:.1f} s at 100 deg/s): near 0 deg/s a bias weighs most')
 
 
 def signal_label(name: str) -> str:
@@ -183,19 +214,33 @@ def _residual(result: LoopResult, i: int, path: Path) -> Path:
     partial = (result.error - without.error(result.signals))[rows]
     # The term on the same samples (a term with rate powers is no curve of its signal alone).
     term = model.term_error(effect.term, result.signals)[rows]
-    order = np.argsort(x, kind='stable')
+    # A warm-up is shown where it is: its first time constants, binned there; the rest is summarised.
+    shown = x <= WARM_UP_SHOWN_TAUS * effect.term.time_constant_s if effect.term.form == 'exp_decay' else \
+        np.ones(len(x), dtype=bool)
+    if not shown.any() or shown.all():
+        shown = np.ones(len(x), dtype=bool)
+    order = np.flatnonzero(shown)[np.argsort(x[shown], kind='stable')]
     chunks = np.array_split(order, min(60, len(order)))
     bx = np.array([x[c].mean() for c in chunks])
     by = np.array([partial[c].mean() for c in chunks])
     bt = np.array([term[c].mean() for c in chunks])
+    offset = float(np.mean(partial[shown]) - np.mean(term[shown]))   # the term drawn through the residual's mean
     fig, ax = plt.subplots(figsize=(7, 4.5))
     ax.plot(bx, by * DEG_PER_H_PER_DPS, 'o', ms=4, label='what the model leaves without this effect (binned means)')
-    ax.plot(bx, (bt - bt.mean() + by.mean()) * DEG_PER_H_PER_DPS, '-', label=plain_term(effect.term))
+    ax.plot(bx, (bt + offset) * DEG_PER_H_PER_DPS, '-', label=plain_term(effect.term))
+    if not shown.all():
+        rest = ~shown
+        ax.set_xlim(0.0, WARM_UP_SHOWN_TAUS * effect.term.time_constant_s)
+        ax.text(0.98, 0.5, f'after {WARM_UP_SHOWN_TAUS:g} time constants (to {x[rest].max():.0f} s, '
+                f'{100 * rest.mean():.0f} % of the samples):\nleft {np.mean(partial[rest]) * DEG_PER_H_PER_DPS:.2f} '
+                f'deg/h on average, the term {(np.mean(term[rest]) + offset) * DEG_PER_H_PER_DPS:.2f} deg/h',
+                transform=ax.transAxes, ha='right', va='center', fontsize=8,
+                bbox={'facecolor': 'white', 'edgecolor': 'grey', 'alpha': 0.9})
     ax.set_xlabel(signal_label(effect.signal))
     ax.set_ylabel('rate error left (deg/h)')
     ax.set_title(f'effect found: {effect.signal}')
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

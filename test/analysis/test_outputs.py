@@ -103,10 +103,3 @@ def test_stale_stages_of_dead_processes_are_removed_and_kept_ones_are_not(tmp_pa
     mine.mkdir()
     assert remove_stale_stages(tmp_path) == [stale]
     assert _stages(tmp_path) == sorted([kept.name, mine.name])
-
-
-def test_keep_if_killed_stages_under_a_name_never_removed(tmp_path: Path) -> None:
-    outputs = Outputs([], keep_if_killed=True)
-    staged = outputs.claim(tmp_path / 'record.csv')
-    assert staged.parent.name.startswith(f'{STAGE_PREFIX}keep-{os.getpid()}-')
-    outputs.discard()

@@ -1,0 +1,63 @@
+"""``imu_echo --record``: the node's topics into a rosbag2 without ros2cli, read by ``calibrate``; readable stamps."""
+
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip('rclpy')
+
+from rosproc import REPO, TIMEOUT_S, domain_id, node_env, start_node, stop_node, wait_until  # noqa: E402
+
+from art_gyro_calibration.analysis.bags import read_bag  # noqa: E402
+from art_gyro_calibration.fake_gyro import FakeGyro  # noqa: E402
+from art_gyro_calibration.ros.monitor import stamp_text  # noqa: E402
+
+
+def test_a_stamp_reads_as_utc_time_not_an_epoch_float() -> None:
+    assert stamp_text(1_795_819_011, 137_907_979) == '2026-11-27T22:36:51.137907Z'
+    assert stamp_text(0, 5_000) == '1970-01-01T00:00:00.000005Z'
+
+
+def test_imu_echo_records_the_node_into_a_bag_calibrate_reads(tmp_path: Path) -> None:
+    domain = domain_id()
+    output = tmp_path / 'node.log'
+    bag = tmp_path / 'BAG'
+    with FakeGyro('NAVC3545', rate_hz=50.0, profile='20', temperature=30.0, seed=3) as fake:
+        node = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
+                          '-p', 'baud:=115200', '-p', 'publish_uncalibrated:=true', '-p', 'bias_samples:=20')
+        try:
+            recorder = subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--record',
+                                         str(bag), '--duration', '20'], env=node_env(domain), cwd=REPO,
+                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            try:
+                wait_until(bag.exists, 'the first message recorded', node, output)
+                time.sleep(2.0)
+            finally:
+                recorder.send_signal(signal.SIGINT)   # a stop as asked: the bag is finished
+                out, err = recorder.communicate(timeout=TIMEOUT_S)
+        finally:
+            stop_node(node, signal.SIGINT, output)
+    assert recorder.returncode == 0, err
+    written = int(re.match(rf'{re.escape(str(bag))}: (\d+) messages of /imu/uncalibrated', out)[1])
+    log = read_bag(bag)
+    assert len(log) == written > 50
+    assert np.median(log.rate_dps) == pytest.approx(20.0, abs=1.0)
+    assert np.median(log.temp_c) == pytest.approx(30.0, abs=0.2)
+
+
+def test_imu_echo_record_without_a_node_writes_nothing_and_says_so(tmp_path: Path) -> None:
+    bag = tmp_path / 'BAG'
+    proc = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--record', str(bag),
+                           '--duration', '2', '--quiet-s', '1'], env=node_env(domain_id()), cwd=REPO,
+                          capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert proc.returncode == 1
+    assert 'publish_uncalibrated:=true' in proc.stderr and f'{bag} not written' in proc.stderr
+    assert not bag.exists()
