@@ -61,20 +61,20 @@ class _Collection(StaticBiasCollector):
 class _ParkedCollection(_Collection):
     """A collection the robot's being parked started: refused if its mean, with the bias in force, shows a turn."""
 
-    __slots__ = ('reference', 'max_mean_dps', 'gyro_stillness')
+    __slots__ = ('reference', 'relative_max_mean_dps', 'gyro_stillness')
 
     def __init__(self, samples: int, max_mean_dps: float, max_std_dps: float, keep_window: bool,
                  reference: StaticBias, gyro_stillness: bool) -> None:
         # The service's mean check is on the mean itself; this one's is relative to the bias in force (result).
         super().__init__(samples, math.inf, max_std_dps, keep_window)
         self.reference = reference
-        self.max_mean_dps = max_mean_dps
+        self.relative_max_mean_dps = max_mean_dps   # not max_mean_dps: the service's check, off here
         self.gyro_stillness = gyro_stillness
 
     def result(self) -> StaticBias:
         """The bias, refused (:class:`~art_gyro_calibration.parked.ParkedRefusal`) if it shows a turn."""
         bias = super().result()
-        check_parked(bias, self.reference, self.max_mean_dps, self.gyro_stillness)
+        check_parked(bias, self.reference, self.relative_max_mean_dps, self.gyro_stillness)
         return bias
 
 
