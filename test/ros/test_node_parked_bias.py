@@ -39,13 +39,15 @@ class Robot:
         listener.node.create_timer(0.05, self._publish)
 
     def set(self, value: Any) -> None:
-        """Parked (bool), or the odometry's yaw rate (deg/s)."""
+        """Parked (bool), or the odometry's yaw rate (deg/s); None: silent."""
         with self._lock:
             self._value = value
 
     def _publish(self) -> None:
         with self._lock:
             value = self._value
+        if value is None:   # silent
+            return
         if self._odometry:
             message = nav_msgs.Odometry()
             message.twist.twist.angular.z = math.radians(value)
@@ -126,3 +128,22 @@ def test_odometry_reporting_a_creep_is_not_parked(tmp_path: Path, loopback: None
         robot.set(0.0)
         wait_parked(listener, proc, output, 'updates', '1', 'a parked bias once the odometry stops')
         assert len(parked_biases(output)) == 1
+
+
+def test_a_collection_is_aborted_when_the_robot_moves_or_its_topic_falls_silent(tmp_path: Path,
+                                                                                 loopback: None) -> None:
+    output = tmp_path / 'node.log'
+    with (FakeGyro('NAVC3545', rate_hz=RATE_HZ, profile='0', temperature=25.0, seed=13) as fake,
+          node_with_listener(domain_id(), output, *NODE_ARGS, '-p', f'port:={fake.path}',
+                             '-p', 'parked_bias.topic:=parked') as (proc, listener)):
+        robot = Robot(listener, odometry=False)
+        listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the start-up bias', proc, output)
+        for n, (stop, reason) in enumerate(((False, 'moved'), (None, 'stale')), 1):
+            robot.set(True)
+            wait_parked(listener, proc, output, 'state', 'collecting', 'a parked collection')
+            robot.set(stop)
+            status = wait_parked(listener, proc, output, f'refused_{reason}', '1', f'the collection aborted: {reason}')
+            assert (status['updates'], status['refused']) == ('0', str(n)), status
+            assert status['last_refusal'].startswith(f'{reason}: '), status
+        static = listener.status('static bias')
+        assert static is not None and static['state'] == 'ok', static   # the start-up bias kept, no service refusal
