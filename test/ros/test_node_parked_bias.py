@@ -130,8 +130,8 @@ def test_odometry_reporting_a_creep_is_not_parked(tmp_path: Path, loopback: None
         assert len(parked_biases(output)) == 1
 
 
-def test_a_collection_is_aborted_when_the_robot_moves_or_its_topic_falls_silent(tmp_path: Path,
-                                                                                 loopback: None) -> None:
+def test_a_collection_is_aborted_when_the_robot_moves_or_its_topic_falls_silent(
+        tmp_path: Path, loopback: None) -> None:
     output = tmp_path / 'node.log'
     with (FakeGyro('NAVC3545', rate_hz=RATE_HZ, profile='0', temperature=25.0, seed=13) as fake,
           node_with_listener(domain_id(), output, *NODE_ARGS, '-p', f'port:={fake.path}',
