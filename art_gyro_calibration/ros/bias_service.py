@@ -11,6 +11,10 @@ the callback returns at once and the executor thread is free. A collection that 
 frame for :data:`COLLECTION_STALL_S`, or that the shutdown cuts short, ends with the reason. Frames
 come to a collection only while the signals from outside the gyro the calibration needs are current
 (:class:`~art_gyro_calibration.compensation.FrameCorrector`): it waits for them, and a call says why it stalled.
+
+With a parked bias (:meth:`StaticBiasService.enable_parked`) a timer also starts a collection whenever the robot is
+parked, and aborts it when the robot moves; it ends as a call's does (a call meanwhile joins it), its refusals
+counted by :class:`~art_gyro_calibration.parked.ParkedBias`, not told as the service's.
 """
 
 from __future__ import annotations

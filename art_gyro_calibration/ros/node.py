@@ -34,6 +34,9 @@ calibration's limits for it (:meth:`~art_gyro_calibration.calibration.Calibratio
 at the limit. In each case the rate is flagged: covariance[8] is :data:`UNCORRECTED_YAW_VARIANCE` and the
 signal's status an ERROR.
 
+Subscribed with ``parked_bias.enabled``: ``parked_bias.topic`` (std_msgs/Bool or nav_msgs/Odometry, best effort),
+which says when the robot is parked: a static bias is then taken (:mod:`art_gyro_calibration.parked`).
+
 Service ``imu/static_bias`` (std_srvs/Trigger): collect a new static bias (:mod:`.bias_service`).
 The raw log: :mod:`.raw_log`. Parameters are strict (:mod:`.parameters`): an unknown name, a value
 of the wrong type or out of its range, or a calibration that does not fit, ends the node at
