@@ -9,7 +9,7 @@ PYTHON=${PYTHON:-python3.11}
 VENV=.venv
 REQUIREMENTS=(
     'ros-jazzy-rclpy[fastrtps]' ros-jazzy-sensor-msgs ros-jazzy-std-msgs ros-jazzy-std-srvs
-    ros-jazzy-diagnostic-msgs
+    ros-jazzy-diagnostic-msgs ros-jazzy-nav-msgs
     numpy scipy pyyaml pyserial matplotlib h5py threadpoolctl 'rosbags==0.11.9'
     allantools
     pytest hypothesis flake8 pydocstyle mypy types-PyYAML types-pyserial

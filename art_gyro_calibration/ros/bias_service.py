@@ -11,10 +11,15 @@ the callback returns at once and the executor thread is free. A collection that 
 frame for :data:`COLLECTION_STALL_S`, or that the shutdown cuts short, ends with the reason. Frames
 come to a collection only while the signals from outside the gyro the calibration needs are current
 (:class:`~art_gyro_calibration.compensation.FrameCorrector`): it waits for them, and a call says why it stalled.
+
+With a parked bias (:meth:`StaticBiasService.enable_parked`) a timer also starts a collection whenever the robot is
+parked, and aborts it when the robot moves; it ends as a call's does (a call meanwhile joins it), its refusals
+counted by :class:`~art_gyro_calibration.parked.ParkedBias`, not told as the service's.
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -25,11 +30,14 @@ from rclpy.qos import HistoryPolicy, QoSProfile
 from std_srvs.srv import Trigger  # type: ignore[import-untyped]  # ROS messages: untyped
 
 from art_gyro_calibration.compensation import FrameCorrector
+from art_gyro_calibration.parked import ParkedBias, check_parked
 from art_gyro_calibration.ros.parameters import Settings
 from art_gyro_calibration.static_bias import MotionError, StaticBias, StaticBiasCollector
 
 # A static bias collection with no frame for this long has lost its gyro: it is abandoned.
 COLLECTION_STALL_S = 5.0
+# How often the parked bias looks whether to start a collection or abort the running one (s).
+PARKED_CHECK_PERIOD_S = 0.1
 # Calls to imu/static_bias that can wait for one collection at once: a call beyond is refused at once, with a reply.
 MAX_WAITING_CALLS = 256
 
@@ -54,6 +62,26 @@ class _Collection(StaticBiasCollector):
         return super().add(rate_dps, error_dps, t, temp_c, causal_dps)
 
 
+class _ParkedCollection(_Collection):
+    """A collection the robot's being parked started: refused if its mean, with the bias in force, shows a turn."""
+
+    __slots__ = ('reference', 'relative_max_mean_dps', 'gyro_stillness')
+
+    def __init__(self, samples: int, max_mean_dps: float, max_std_dps: float, keep_window: bool,
+                 reference: StaticBias, gyro_stillness: bool) -> None:
+        # The service's mean check is on the mean itself; this one's is relative to the bias in force (result).
+        super().__init__(samples, math.inf, max_std_dps, keep_window)
+        self.reference = reference
+        self.relative_max_mean_dps = max_mean_dps   # not max_mean_dps: the service's check, off here
+        self.gyro_stillness = gyro_stillness
+
+    def result(self) -> StaticBias:
+        """The bias, refused (:class:`~art_gyro_calibration.parked.ParkedRefusal`) if it shows a turn."""
+        bias = super().result()
+        check_parked(bias, self.reference, self.relative_max_mean_dps, self.gyro_stillness)
+        return bias
+
+
 class BiasState(NamedTuple):
     """One consistent look at the static bias, for its diagnostics status.
 
@@ -66,6 +94,17 @@ class BiasState(NamedTuple):
     refusal: str
     bias_time: float   # time.monotonic() when ``bias`` was found
     collected: int
+
+
+class ParkedState(NamedTuple):
+    """One consistent look at the parked bias, for its diagnostics status (``age_s``: inf before the first)."""
+
+    parked: bool
+    collecting: bool
+    updates: int
+    age_s: float
+    refused: dict[str, int]
+    last_refusal: str
 
 
 class StaticBiasService:
@@ -94,6 +133,7 @@ class StaticBiasService:
         self._outcome = 'none'
         self._refusal = ''
         self._bias_time = 0.0
+        self.parked: ParkedBias | None = None   # with parked_bias.enabled: when a parked collection runs
         # The reply is deferred: the callback returns at once and the executor sends the reply
         # through send_response, which this takes over to hold it until the collection ends.
         # (rclpy 7 re-runs a waiting coroutine callback in a busy loop, so an async callback is not used.)
@@ -120,21 +160,69 @@ class StaticBiasService:
                                   'keep the gyro still')
             return self._collection
 
+    def enable_parked(self, parked: ParkedBias) -> None:
+        """Take a bias whenever ``parked`` says the robot is parked (its topic's words come to :meth:`put_parked`)."""
+        self.parked = parked
+        self._node.create_timer(PARKED_CHECK_PERIOD_S, self._check_parked)
+
+    def put_parked(self, parked: bool) -> None:
+        """The parked topic's word (executor thread)."""
+        assert self.parked is not None
+        with self._lock:
+            self.parked.put(parked, time.monotonic())
+
+    def _check_parked(self) -> None:
+        """Start a parked collection when due; abort the running one when the robot moved or its topic fell silent."""
+        parked = self.parked
+        assert parked is not None
+        if self._closing.is_set():
+            return
+        settings = self._settings
+        with self._lock:
+            now = time.monotonic()
+            collection = self._collection
+            if collection is None and parked.due(now):
+                parked.start(now)
+                max_std = settings.static_bias_max_std_dps
+                if settings.parked_bias_gyro_stillness:
+                    max_std = min(max_std, settings.parked_bias_max_std_dps)
+                self._collection = _ParkedCollection(
+                    settings.bias_samples, settings.static_bias_max_mean_dps, max_std,
+                    self._corrector.compensator.refinable, self._corrector.compensator.bias,
+                    settings.parked_bias_gyro_stillness)
+                self._corrector.collect(self._collection, self._collected)
+                self._logger.info(f'parked bias: collecting {settings.bias_samples} samples')
+                return
+            broken = parked.broken(now) if isinstance(collection, _ParkedCollection) else None
+        if broken is not None:
+            assert collection is not None
+            self._end(collection, None, str(broken), broken)
+
     def _collected(self, collection: StaticBiasCollector) -> None:
         """The frame that completed ``collection`` (reader thread): its bias is used from that frame on.
 
         The one place a bias is put in force (:meth:`_end`, on the reader thread, inside the frame's step).
         """
         assert isinstance(collection, _Collection)
+        parked = self.parked
         try:
+            if parked is not None and isinstance(collection, _ParkedCollection):
+                with self._lock:
+                    broken = parked.broken(time.monotonic())
+                if broken is not None:   # the robot moved since the timer last looked
+                    raise broken
             bias = collection.result()
         except (MotionError, ValueError) as e:
-            self._end(collection, None, str(e))
+            self._end(collection, None, str(e), e)
         else:
             self._end(collection, bias, '')
 
-    def _end(self, collection: _Collection, bias: StaticBias | None, error: str, stopping: bool = False) -> None:
+    def _end(self, collection: _Collection, bias: StaticBias | None, error: str, exception: Exception | None = None,
+             stopping: bool = False) -> None:
         """End ``collection`` with ``bias`` or refused for ``error``; ``stopping``: cut short by the node's stop.
+
+        A parked collection's refusal (``exception``, counted by the parked bias logic) is no service refusal:
+        it is logged, and the static bias state stays as it was.
 
         The hand-off (:meth:`FrameCorrector.end_collection`) runs under the service's lock, with what
         :meth:`state` reads. A bias comes only from the reader thread; the timer and the stop end a
@@ -145,10 +233,18 @@ class StaticBiasService:
                 return   # abandoned meanwhile
             self._collection = None
             self._corrector.end_collection(bias)
+            parked = isinstance(collection, _ParkedCollection)
+            if self.parked is not None:
+                if parked and not stopping:
+                    self.parked.ended(time.monotonic(), exception if bias is None else None)
+                elif bias is not None:
+                    self.parked.bias_taken(time.monotonic())
             if bias is not None:
                 self._outcome = 'ok'
                 self._bias_time = time.monotonic()
-                self._logger.info(f'static bias: {bias.describe()}')
+                self._logger.info(f'{"parked" if parked else "static"} bias: {bias.describe()}')
+            elif parked and not stopping:
+                self._logger.info(f'parked bias refused, {self._kept()}: {error}')
             elif not stopping:   # a stop is not a refusal: the state stays as it was, nothing is logged
                 self._outcome = 'refused'
                 self._refusal = error
@@ -225,6 +321,16 @@ class StaticBiasService:
             return BiasState('collecting' if collection is not None else self._outcome,
                              self._corrector.compensator.bias, self._refusal, self._bias_time,
                              collection.count if collection is not None else 0)
+
+    def parked_state(self) -> ParkedState | None:
+        """Where the parked bias stands (None: not enabled)."""
+        with self._lock:
+            parked = self.parked
+            if parked is None:
+                return None
+            now = time.monotonic()
+            return ParkedState(parked.parked(now), isinstance(self._collection, _ParkedCollection), parked.updates,
+                               now - parked.last_update, dict(parked.refused), parked.last_refusal)
 
     def close(self) -> None:
         """End a running collection (the driver is stopped): the calls waiting for it hear why, rather than time out."""

@@ -23,7 +23,7 @@ from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibratio
 from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, FrameCorrector
 from art_gyro_calibration.driver import DriverStats, SerialGyroDriver
 from art_gyro_calibration.frame import AXIS_INVALID, NOT_FINITE, ProtocolDescription
-from art_gyro_calibration.ros.bias_service import StaticBiasService
+from art_gyro_calibration.ros.bias_service import ParkedState, StaticBiasService
 from art_gyro_calibration.ros.parameters import EXTRA_SIGNAL_MESSAGES, ExtraSignal, Settings, ros_type_name
 from art_gyro_calibration.ros.raw_log import LOG_RETRY_S, RawLog
 from art_gyro_calibration.ros.rclpy_typed import Logger
@@ -107,6 +107,9 @@ class Diagnostics:
         msg.status = [self._link_status(), self._bias_status(), self._temperature_status(),
                       *map(self._extra_signal_status, node.extra_signals, node.feeds, node.extra_topics,
                            self._not_finite)]
+        parked = node.bias_service.parked_state()
+        if parked is not None:
+            msg.status.append(self._parked_status(parked))
         if node.settings.log_path:
             node.raw_log.check_file()
             msg.status.append(self._log_status())
@@ -209,6 +212,19 @@ class Diagnostics:
                                 values)
         return self._status('static bias', DiagnosticStatus.WARN,
                             'none: call imu/static_bias with the gyro still', values)
+
+    def _parked_status(self, parked: ParkedState) -> DiagnosticStatus:
+        """The parked bias: the last update, its age, the refusals by reason."""
+        refused = sum(parked.refused.values())
+        values: dict[str, Any] = {
+            'parked': parked.parked, 'state': 'collecting' if parked.collecting else 'waiting',
+            'updates': parked.updates, 'age_s': f'{parked.age_s:.0f}' if parked.updates else 'none',
+            'refused': refused, **{f'refused_{reason}': n for reason, n in parked.refused.items()},
+            'last_refusal': parked.last_refusal}
+        last = f'last {parked.age_s:.0f} s ago' if parked.updates else 'none yet'
+        return self._status('parked bias', DiagnosticStatus.OK,
+                            f'{parked.updates} taken ({last}), {refused} refused'
+                            + (', collecting' if parked.collecting else ''), values)
 
     def _extra_signal_status(self, extra: ExtraSignal, feed: SignalFeed, topic: str,
                              not_finite: SinceLastReport) -> DiagnosticStatus:

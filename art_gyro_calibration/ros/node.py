@@ -34,6 +34,9 @@ calibration's limits for it (:meth:`~art_gyro_calibration.calibration.Calibratio
 at the limit. In each case the rate is flagged: covariance[8] is :data:`UNCORRECTED_YAW_VARIANCE` and the
 signal's status an ERROR.
 
+Subscribed with ``parked_bias.enabled``: ``parked_bias.topic`` (std_msgs/Bool or nav_msgs/Odometry, best effort),
+which says when the robot is parked: a static bias is then taken (:mod:`art_gyro_calibration.parked`).
+
 Service ``imu/static_bias`` (std_srvs/Trigger): collect a new static bias (:mod:`.bias_service`).
 The raw log: :mod:`.raw_log`. Parameters are strict (:mod:`.parameters`): an unknown name, a value
 of the wrong type or out of its range, or a calibration that does not fit, ends the node at
@@ -48,6 +51,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import MutableMapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -66,6 +70,7 @@ from art_gyro_calibration.calibration import CalibrationError, extra_signal_para
 from art_gyro_calibration.compensation import FrameCorrector, RunStart
 from art_gyro_calibration.driver import SerialGyroDriver
 from art_gyro_calibration.frame import STANDARD_GRAVITY, Frame, ImuReading, RawSample
+from art_gyro_calibration.parked import ParkedBias, odometry_parked
 from art_gyro_calibration.protocols import describe
 from art_gyro_calibration.ros.bias_service import StaticBiasService
 from art_gyro_calibration.ros.diagnostics import Diagnostics
@@ -156,6 +161,8 @@ class GyroNode(Node):
         self.bias_service = StaticBiasService(self, self.settings, self.corrector, self._closing,
                                               lambda: self.driver.stats.last_error, self._on_bias,
                                               self.extra_signal_problems)
+        if self.settings.parked_bias_enabled:
+            self._subscribe_parked()
         self._diagnostics = Diagnostics(self)
 
         if self.settings.static_bias_on_startup:
@@ -242,6 +249,38 @@ class GyroNode(Node):
                        f'{extra.max_age_s:g} s')
         name: str = subscription.topic_name
         return name
+
+    def _subscribe_parked(self) -> None:
+        """Take a static bias whenever the robot is parked: per its topic, or the gyro's stillness alone."""
+        settings = self.settings
+        service = self.bias_service
+        service.enable_parked(ParkedBias(settings.parked, time.monotonic()))
+        topic = settings.parked_bias_topic
+        stillness = ' and the gyro\'s stillness (its mean within the Earth\'s rate)' \
+            if settings.parked_bias_gyro_stillness else ''
+        if not topic.strip():
+            self._log.info(f'parked bias: the gyro\'s stillness alone says when the robot is parked{stillness}')
+            return
+        max_linear, max_angular = settings.parked_bias_max_linear_mps, settings.parked_bias_max_angular_dps
+
+        def received(message: Any) -> None:
+            if kind is Bool:
+                service.put_parked(bool(message.data))
+                return
+            linear, angular = message.twist.twist.linear, message.twist.twist.angular
+            service.put_parked(odometry_parked((linear.x, linear.y, linear.z), (angular.x, angular.y, angular.z),
+                                               max_linear, max_angular))
+        kind: Any = Bool
+        if settings.parked_bias_type == 'odometry':
+            # Imported only here: a node without odometry does not load its message.
+            from nav_msgs.msg import Odometry   # type: ignore[import-untyped]  # ROS messages: untyped
+            kind = Odometry
+        try:
+            subscription = self.create_subscription(kind, topic, received, EXTRA_SIGNAL_QOS)
+        except Exception as e:   # rclpy raises several types for a bad topic name
+            raise ParameterError(f'parameter parked_bias.topic: {e}') from None
+        self._log.info(f'parked bias: parked per {subscription.topic_name} ({settings.parked_bias_type}){stillness}; '
+                       f'a message older than {settings.parked_bias_max_age_s:g} s is not parked')
 
     def extra_signal_problems(self) -> str:
         """Why the extra signals are not all current now ('' when they are), for a static bias that waits."""

@@ -25,12 +25,15 @@ from art_gyro_calibration.calibration import (CALIBRATION_KEYS, EXTRA_SIGNAL_TYP
                                               find_calibration_file, flatten, from_parameters, is_calibration_key,
                                               load_calibration, read_yaml, resolve_calibration_url, shorten)
 from art_gyro_calibration.driver import BAUDS
+from art_gyro_calibration.parked import ParkedSettings
 from art_gyro_calibration.protocols import KVH_FOG, PROTOCOLS
 from art_gyro_calibration.protocols.kvh_fog import KVH_DEFAULT_BAUD, KvhFogConfig
 from art_gyro_calibration.signals import SIGNALS
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES
 
 NODE_NAME = 'gyro_node'
+# What says parked_bias.topic's robot is parked.
+PARKED_TYPES = ('bool', 'odometry')
 IMU_TOPIC = 'imu/data_raw'
 
 
@@ -75,6 +78,29 @@ PARAMETERS: dict[str, tuple[Any, ...]] = {
     'publish_uncalibrated': (False, 'Also publish imu/uncalibrated (sensor_msgs/Imu): the rate with only the scale '
                                     'factor applied, rad/s, at the same stamps: with imu/temperature, a recorded bag '
                                     'then holds what calibrate fit and calibrate allan need.'),
+    # A static bias whenever the robot is parked (art_gyro_calibration.parked).
+    'parked_bias.enabled': (False, 'Take a static bias whenever the robot is parked for bias_samples frames (the '
+                                   'service\'s checks, the mean relative to the bias in force); needs '
+                                   'parked_bias.topic or parked_bias.gyro_stillness.'),
+    'parked_bias.topic': ('', 'Topic that says the robot is parked (relative names follow the namespace and '
+                              'remappings); empty: none (then parked_bias.gyro_stillness must be true).'),
+    'parked_bias.type': ('bool', 'Its message: bool (std_msgs/Bool, true = parked) or odometry (nav_msgs/Odometry: '
+                                 'parked while its twist is within parked_bias.max_linear_mps and max_angular_dps).',
+                         PARKED_TYPES),
+    'parked_bias.max_age_s': (1.0, 'A parked message older than this (s) is not "parked": a collection the topic '
+                                   'falls silent in is aborted.', Range(0.01, 3600.0)),
+    'parked_bias.max_linear_mps': (0.01, 'Odometry: parked while the linear speed (m/s) is at most this.',
+                                   Range(0.0, 10.0)),
+    'parked_bias.max_angular_dps': (0.02, 'Odometry: parked while the angular rate (deg/s) is at most this: the '
+                                          'slowest turn the odometry can refuse.', Range(0.0, 10.0)),
+    'parked_bias.gyro_stillness': (False, 'Also let the gyro\'s own stillness decide (without a topic: alone): '
+                                          'refused unless the rate spread is within parked_bias.max_std_dps and the '
+                                          'mean compensated rate within the Earth\'s rate plus 3 standard errors.'),
+    'parked_bias.max_std_dps': (0.02, 'With gyro_stillness: a parked bias whose rate spread (deg/s) exceeds this '
+                                      '(or static_bias_max_std_dps, if smaller) is refused.', Range(1e-6, 10.0)),
+    'parked_bias.settle_s': (1.0, 'Seconds parked before a collection starts.', Range(0.0, 3600.0)),
+    'parked_bias.min_interval_s': (600.0, 'After a bias, the next parked one waits until the robot moved and parked '
+                                          'again, or this long (s).', Range(0.0, 604800.0)),
 }
 
 # --- protocol kvh_fog (KVH DSP-1760, 1725/1750/1775 IMUs) ----------------------------------------
@@ -224,6 +250,26 @@ class Settings:
     powered_on_at_start: bool
     log_path: str
     publish_uncalibrated: bool = False
+    parked_bias_enabled: bool = False
+    parked_bias_topic: str = ''
+    parked_bias_type: str = 'bool'
+    parked_bias_max_age_s: float = 1.0
+    parked_bias_max_linear_mps: float = 0.01
+    parked_bias_max_angular_dps: float = 0.02
+    parked_bias_gyro_stillness: bool = False
+    parked_bias_max_std_dps: float = 0.02
+    parked_bias_settle_s: float = 1.0
+    parked_bias_min_interval_s: float = 600.0
+
+    def value(self, name: str) -> Any:
+        """A parameter's value by its name (``parked_bias.topic`` is field ``parked_bias_topic``)."""
+        return getattr(self, name.replace('.', '_'))
+
+    @property
+    def parked(self) -> ParkedSettings:
+        """What the parked bias logic needs."""
+        return ParkedSettings(bool(self.parked_bias_topic.strip()), self.parked_bias_gyro_stillness,
+                              self.parked_bias_max_age_s, self.parked_bias_settle_s, self.parked_bias_min_interval_s)
 
 
 def _entry(name: str) -> tuple[Any, ...]:
@@ -260,7 +306,11 @@ def check_settings(values: dict[str, Any]) -> Settings:
                 raise ParameterError(f'parameter {name} must be in {describe_constraint(name)}, got {value!r}')
         elif constraint and value not in constraint:
             raise ParameterError(f'parameter {name} must be {describe_constraint(name)}, got {value!r}')
-    return Settings(**values)
+    source = values.get('parked_bias.topic', '').strip() or values.get('parked_bias.gyro_stillness')
+    if values.get('parked_bias.enabled') and not source:
+        raise ParameterError('parameter parked_bias.topic must name the topic that says the robot is parked '
+                             '(or parked_bias.gyro_stillness be true) when parked_bias.enabled is true')
+    return Settings(**{name.replace('.', '_'): value for name, value in values.items()})
 
 
 def descriptor(name: str) -> ParameterDescriptor:
@@ -322,7 +372,7 @@ def usage(summary: str) -> str:
               'topics out: imu/data_raw (sensor_msgs/Imu), imu/temperature (std_msgs/Float64), imu/is_calibrated '
               '(std_msgs/Bool, latched: true once a static bias is in force), imu/uncalibrated (sensor_msgs/Imu, '
               'with publish_uncalibrated), /diagnostics (diagnostic_msgs/DiagnosticArray); topics in: each '
-              'extra_signals.<signal>.topic; service: imu/static_bias (std_srvs/Trigger)']
+              'extra_signals.<signal>.topic, parked_bias.topic; service: imu/static_bias (std_srvs/Trigger)']
     return '\n'.join(lines)
 
 
@@ -450,7 +500,7 @@ class NodeParameters:
         self.settings = check_settings(values)
         for name in PARAMETERS:
             # Read-only: the node reads them once at startup, so a later change is refused, not ignored.
-            node.declare_parameter(name, getattr(self.settings, name), descriptor(name), ignore_override=True)
+            node.declare_parameter(name, self.settings.value(name), descriptor(name), ignore_override=True)
         self.kvh_fog, self.kvh_rate_stddev, self.kvh_acceleration_stddev = self._kvh_fog_config()
         if self.settings.protocol == KVH_FOG:
             carried = self.kvh_fog.max_rate_hz(self.settings.baud)

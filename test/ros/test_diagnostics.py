@@ -44,7 +44,7 @@ class StandInNode:
         self.driver = SimpleNamespace(stats=DriverStats(frames=0, rejected=0, rejected_by_reason={}, bytes_skipped=0,
                                                         reopens=0, connected=True, last_error='', port='/dev/ttyUSB0'))
         self.bias_service = SimpleNamespace(state=lambda: ('none', StaticBias(0.0, 0.0, 0, 0.0), '', 0.0, 0),
-                                            signal_problems=lambda: '')
+                                            signal_problems=lambda: '', parked_state=lambda: None)
         self.raw_log = None
         self.published = 0
         self.last_temp_c = math.nan

@@ -32,6 +32,10 @@ SAMPLES: dict[str, Any] = {
     'static_bias_on_startup': False, 'static_bias_max_mean_dps': 0.2, 'static_bias_max_std_dps': 0.1,
     'yaw_rate_stddev': 0.002, 'powered_on_at_start': True, 'log_path': 'TMP',   # the test's directory
     'publish_uncalibrated': True,
+    'parked_bias.enabled': True, 'parked_bias.topic': 'odom', 'parked_bias.type': 'odometry',
+    'parked_bias.max_age_s': 2.0, 'parked_bias.max_linear_mps': 0.02, 'parked_bias.max_angular_dps': 0.05,
+    'parked_bias.gyro_stillness': True, 'parked_bias.max_std_dps': 0.03, 'parked_bias.settle_s': 2.0,
+    'parked_bias.min_interval_s': 60.0,
     'kvh_fog.message_format': 'B', 'kvh_fog.yaw_axis': '-z', 'kvh_fog.rotation': 'rate', 'kvh_fog.angle_units': 'deg',
     'kvh_fog.output_rate_hz': 500.0, 'kvh_fog.temperature_units': 'F', 'kvh_fog.forward_axis': '+x',
     'kvh_fog.timestamp_source': 'unit_clock', 'kvh_fog.rate_stddev': 0.002, 'kvh_fog.acceleration_stddev': 0.1,
