@@ -13,7 +13,7 @@ further numeric topics, extra columns of the log (matched as the temperature is)
 topic named relatively matches the bag's topic of that name in any namespace, if one.
 
 :class:`BagWriter` writes such a bag (MCAP storage) as messages come: ``calibrate record``'s
-frames, or the node's topics as ``imu_echo --record`` receives them. The gyro's serial number
+frames, or the node's topics as ``calibrate record-topics`` receives them. The gyro's serial number
 goes into the bag's ``custom_data`` (a CSV log's into a ``# serial_number:`` line after its
 header), where :func:`recorded_serial` reads it back.
 """

@@ -539,7 +539,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--duration', type=float, help='seconds to record (default: until Ctrl-C)')
     _force_option(p)
     p.set_defaults(run=_record)
+    p = sub.add_parser('record-topics', help='record the running node\'s imu/uncalibrated and imu/temperature into '
+                                             'a rosbag2, without ros2cli (needs rclpy: run it where the node runs)')
+    p.add_argument('out', metavar='BAG', help='the rosbag2 directory (MCAP) to write; never replaced')
+    p.add_argument('--namespace', default='/', help='the node\'s namespace (default %(default)s)')
+    p.add_argument('--duration', type=float, help='seconds to record (default: until Ctrl-C)')
+    p.add_argument('--quiet-s', type=float, default=5.0,
+                   help='after this many seconds without a message, say once what to check (default %(default)s)')
+    p.set_defaults(run=_record_topics)
     return parser
+
+
+def _record_topics(args: argparse.Namespace) -> int:
+    from art_gyro_calibration.analysis.record_topics import record_topics
+    return record_topics(args.out, args.namespace, args.duration, args.quiet_s)
 
 
 def _force_option(p: argparse.ArgumentParser) -> None:

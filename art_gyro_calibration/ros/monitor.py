@@ -1,8 +1,7 @@
-"""``imu_echo``: print the compensated yaw rate the node publishes, in deg/s; or ask for a static bias; or record.
+"""``imu_echo``: print the compensated yaw rate the node publishes, in deg/s; or ask for a static bias.
 
-For a machine with the package's venv but without the ``ros2`` command line tools: ``--record
-BAG`` writes the node's ``imu/uncalibrated`` and ``imu/temperature`` into a rosbag2 (MCAP, with
-``rosbags``: the "analysis" extra) that ``calibrate`` reads, as ``ros2 bag record`` would.
+For a machine with the package's venv but without the ``ros2`` command line tools. Recording the
+node's topics into a bag needs ``rosbags`` (the "analysis" extra): ``calibrate record-topics``.
 """
 
 from __future__ import annotations
@@ -12,7 +11,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # type: ignore[import-untyped]  # untyped
@@ -127,49 +126,6 @@ def echo(every: int, count: int, quiet_s: float) -> int:
     return 0
 
 
-def record(out: str, duration_s: float | None, quiet_s: float) -> int:
-    """Record the node's topics into the bag ``out`` until Ctrl-C or ``duration_s``; 1 if nothing came."""
-    from pathlib import Path
-    from art_gyro_calibration.analysis.bags import BagTopics, BagWriter
-    if Path(out).exists():
-        print(f'imu_echo: {out}: exists; a bag is never replaced: name another', file=sys.stderr)
-        return 1
-    node = Node('imu_record')
-    rate_topic = node.resolve_topic_name(BagTopics.rate)
-    topics = (BagTopics.rate, BagTopics.temperature)
-    # Created at the first message, the namespace as the node's; messages written as received (CDR, not decoded).
-    writer: list[BagWriter] = []
-
-    def on_message(topic: str) -> Callable[[bytes], None]:
-        def write(raw: bytes) -> None:
-            if not writer:
-                writer.append(BagWriter(out, namespace=node.get_namespace()))
-            writer[0].write_cdr(topic, time.time_ns(), raw)
-        return write
-    for topic, kind in zip(topics, (Imu, Float64)):
-        node.create_subscription(kind, topic, on_message(topic), 100, raw=True)
-    end = math.inf if duration_s is None else time.monotonic() + duration_s
-    hint_at = time.monotonic() + quiet_s
-    try:
-        while rclpy.utilities.ok() and time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=min(0.5, max(0.0, end - time.monotonic())))
-            if hint_at and not writer and time.monotonic() >= hint_at:
-                print(silence_hint(rate_topic, quiet_s) +
-                      ' The node publishes it only with publish_uncalibrated:=true.', file=sys.stderr, flush=True)
-                hint_at = 0.0
-    except KeyboardInterrupt:
-        pass   # a stop as asked: the bag is finished below
-    finally:
-        node.destroy_node()   # type: ignore[no-untyped-call]  # rclpy leaves it unannotated
-        if writer:
-            writer[0].close()
-    if not writer:
-        print(f'imu_echo: nothing received; {out} not written', file=sys.stderr)
-        return 1
-    print(f'{out}: {writer[0].count} messages of {rate_topic} and the temperature')
-    return 0
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry: print the rate (default) or call the static bias service (``--static-bias``)."""
     full = sys.argv if argv is None else ['imu_echo', *argv]
@@ -182,13 +138,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='instead: wait until a gyro_node reports its static bias (exit 0) or its refusal (exit 1)')
     parser.add_argument('--timeout', type=float, default=60.0,
                         help='--static-bias, --wait-static-bias: seconds to wait (default 60)')
-    parser.add_argument('--record', metavar='BAG',
-                        help='instead: record imu/uncalibrated (the node\'s publish_uncalibrated:=true) and '
-                             'imu/temperature into the rosbag2 directory BAG (MCAP) for calibrate, until Ctrl-C or '
-                             '--duration; needs rosbags (the "analysis" extra)')
-    parser.add_argument('--duration', type=float, help='--record: seconds to record (default: until Ctrl-C)')
     parser.add_argument('--quiet-s', type=float, default=5.0,
-                        help='echo, --record: after this many seconds without a message, say once what to check '
+                        help='after this many seconds without a message, say once what to check '
                              '(default 5)')
     options = parser.parse_args(rclpy.utilities.remove_ros_args(full)[1:])
     rclpy.init(args=full)
@@ -197,8 +148,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             return call_static_bias(options.timeout)
         if options.wait_static_bias:
             return wait_static_bias(options.timeout)
-        if options.record:
-            return record(options.record, options.duration, options.quiet_s)
         return echo(options.every, options.count, options.quiet_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0

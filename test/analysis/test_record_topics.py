@@ -1,4 +1,4 @@
-"""``imu_echo --record``: the node's topics into a rosbag2 without ros2cli, read by ``calibrate``; readable stamps."""
+"""``calibrate record-topics``: the running node's topics into a rosbag2 without ros2cli, read by ``calibrate``."""
 
 from __future__ import annotations
 
@@ -18,15 +18,9 @@ from rosproc import REPO, TIMEOUT_S, domain_id, node_env, start_node, stop_node,
 
 from art_gyro_calibration.analysis.bags import read_bag  # noqa: E402
 from art_gyro_calibration.fake_gyro import FakeGyro  # noqa: E402
-from art_gyro_calibration.ros.monitor import stamp_text  # noqa: E402
 
 
-def test_a_stamp_reads_as_utc_time_not_an_epoch_float() -> None:
-    assert stamp_text(1_795_819_011, 137_907_979) == '2026-11-27T22:36:51.137907Z'
-    assert stamp_text(0, 5_000) == '1970-01-01T00:00:00.000005Z'
-
-
-def test_imu_echo_records_the_node_into_a_bag_calibrate_reads(tmp_path: Path) -> None:
+def test_the_node_is_recorded_into_a_bag_calibrate_reads(tmp_path: Path) -> None:
     domain = domain_id()
     output = tmp_path / 'node.log'
     bag = tmp_path / 'BAG'
@@ -34,7 +28,7 @@ def test_imu_echo_records_the_node_into_a_bag_calibrate_reads(tmp_path: Path) ->
         node = start_node(domain, output, '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}',
                           '-p', 'baud:=115200', '-p', 'publish_uncalibrated:=true', '-p', 'bias_samples:=20')
         try:
-            recorder = subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--record',
+            recorder = subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration', 'record-topics',
                                          str(bag), '--duration', '20'], env=node_env(domain), cwd=REPO,
                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             try:
@@ -53,9 +47,9 @@ def test_imu_echo_records_the_node_into_a_bag_calibrate_reads(tmp_path: Path) ->
     assert np.median(log.temp_c) == pytest.approx(30.0, abs=0.2)
 
 
-def test_imu_echo_record_without_a_node_writes_nothing_and_says_so(tmp_path: Path) -> None:
+def test_without_a_node_nothing_is_written_and_it_says_so(tmp_path: Path) -> None:
     bag = tmp_path / 'BAG'
-    proc = subprocess.run([sys.executable, '-m', 'art_gyro_calibration.ros.monitor', '--record', str(bag),
+    proc = subprocess.run([sys.executable, '-m', 'art_gyro_calibration', 'record-topics', str(bag),
                            '--duration', '2', '--quiet-s', '1'], env=node_env(domain_id()), cwd=REPO,
                           capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 1
