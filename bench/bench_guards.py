@@ -32,6 +32,7 @@ TEMP_COUNTS = 500   # 25 degC at 0.05 degC per count
 NOISE_DPS = 0.02
 BAUD = 115200
 CORRUPT_SHARE = 0.05
+BUMP_OFFSETS = np.random.default_rng(7).uniform(0.0, 0.1, 10)
 CORRUPT_FRAMES = 100_000   # of each corrupt-frame run, at every rate
 
 
@@ -41,8 +42,11 @@ def vibration(freq_hz: float, amp_dps: float) -> Callable[[NDArray[np.float64]],
 
 
 def bumps(t: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Ten bumps a second apart: a 10 ms half-sine of 80 deg/s, then ringing at 40 Hz (40 deg/s, 25 ms decay)."""
-    tau = np.mod(t, 1.0) - 0.5
+    """Ten bumps about a second apart: a 10 ms half-sine of 80 deg/s, then ringing at 40 Hz (40 deg/s, 25 ms decay).
+
+    Each starts at a random time in its second's middle 100 ms (fixed seed): some land on a frame at 10 Hz.
+    """
+    tau = np.mod(t, 1.0) - 0.5 - BUMP_OFFSETS[np.minimum(t.astype(np.int64), 9)]
     half = np.where((tau >= 0) & (tau < 0.01), 80 * np.sin(np.pi * np.clip(tau, 0, 0.01) / 0.01), 0.0)
     after = np.clip(tau - 0.01, 0, None)
     ring = np.where(tau >= 0.01, -40 * np.sin(2 * np.pi * 40 * after) * np.exp(-after / 0.025), 0.0)
