@@ -1,13 +1,13 @@
 """The RD2100 frame guards measured: real motion they drop, and corrupt frames they let through.
 
-``python bench/bench_guards.py [--seconds 10] [--seed 1]`` drives :class:`SerialGyroDriver`'s per-chunk path
+``python bench/bench_guards.py [--seconds 10] [--seed 1] [--mean]`` drives :class:`SerialGyroDriver`'s per-chunk path
 (parser, stream lock, stamper, guard) without a port: each encoded frame is one read, returned after its wire
 time and a random latency of up to 30 % of the period (stamp jitter). At 10, 100 and 1000 Hz it reports:
 
-- real motion (no corruption), point-sampled with 0.02 deg/s of noise: vibrations of 10, 23, 37 and 50 Hz at
-  30 and 50 deg/s, ten bumps (a 10 ms half-sine of 80 deg/s ringing on at 40 Hz), fast turns (0 -> 90 deg/s in
-  0.2 s and back): real frames lost, and the heading error they cause (each delivered rate held until the next
-  delivered frame, against every sent one);
+- real motion (no corruption), point-sampled (``--mean``: each frame the mean rate over its interval) with
+  0.02 deg/s of noise: vibrations of 10, 23, 37 and 50 Hz at 30 and 50 deg/s, ten bumps (a 10 ms half-sine of
+  80 deg/s ringing on at 40 Hz), fast turns (0 -> 90 deg/s in 0.2 s and back): real frames lost, and the heading
+  error they cause (each delivered rate held until the next delivered frame, against every sent one);
 - corrupt frames: a still and a vibrating gyro (30 Hz, 30 deg/s) whose frames get two random bit flips (binary)
   or one digit replaced (ascii) at a 5 % rate, 100,000 frames a run: corrupt frames passed (delivered with a rate
   or temperature other than the one sent), of those corrupted, and the largest rate error passed.
@@ -99,10 +99,19 @@ def run(protocol: str, rate_hz: float, raw_rates: NDArray[np.int64], raw_temps: 
 
 
 def samples(motion: Callable[[NDArray[np.float64]], NDArray[np.float64]], rate_hz: float, seconds: float,
-            rng: np.random.Generator) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Rate and temperature counts of ``motion`` point-sampled at ``rate_hz``, with noise."""
+            rng: np.random.Generator, mean: bool = False) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Rate and temperature counts of ``motion`` at ``rate_hz``, with noise.
+
+    Point-sampled, or (``mean``) each the mean rate over its interval, as a fiber gyro's angle increment over it
+    (taken at 10 kHz).
+    """
     t = np.arange(int(seconds * rate_hz)) / rate_hz
-    rate = motion(t) + rng.normal(0, NOISE_DPS, t.size)
+    if mean:
+        sub = max(1, int(10_000 / rate_hz))
+        fine = motion(np.arange(t.size * sub) / (rate_hz * sub)).reshape(t.size, sub).mean(axis=1)
+    else:
+        fine = motion(t)
+    rate = fine + rng.normal(0, NOISE_DPS, t.size)
     raw = np.clip(np.round(rate / SCALE), -32768, 32767).astype(np.int64)
     temps = TEMP_COUNTS + np.round(t / max(seconds, 1e-9) * 4).astype(np.int64)   # a slow warm-up of 0.2 degC
     return raw, temps
@@ -121,10 +130,11 @@ def corrupt(protocol: str, frame: bytes, rng: np.random.Generator) -> bytes:
     return bytes(data)
 
 
-def motion_case(protocol: str, rate_hz: float, name: str, seconds: float, seed: int) -> dict[str, object]:
+def motion_case(protocol: str, rate_hz: float, name: str, seconds: float, seed: int,
+                mean: bool = False) -> dict[str, object]:
     """Real frames lost and the heading error, for one motion."""
     rng = np.random.default_rng(seed)
-    raw, temps = samples(MOTIONS[name], rate_hz, seconds, rng)
+    raw, temps = samples(MOTIONS[name], rate_hz, seconds, rng, mean)
     encode = make_encoder(protocol)
     frames, index, driver = run(protocol, rate_hz, raw, temps, [encode(int(r), int(c)) for r, c in zip(raw, temps)],
                                 rng)
@@ -140,10 +150,11 @@ def motion_case(protocol: str, rate_hz: float, name: str, seconds: float, seed: 
             'rejected': {k: v for k, v in driver.stats.rejected_by_reason.items() if v}}
 
 
-def corrupt_case(protocol: str, rate_hz: float, moving: bool, seed: int) -> dict[str, object]:
+def corrupt_case(protocol: str, rate_hz: float, moving: bool, seed: int, mean: bool = False) -> dict[str, object]:
     """Corrupt frames passed, of those corrupted, on a still or vibrating gyro."""
     rng = np.random.default_rng(seed)
-    raw, temps = samples(vibration(30, 30) if moving else (lambda t: 0.0 * t), rate_hz, CORRUPT_FRAMES / rate_hz, rng)
+    raw, temps = samples(vibration(30, 30) if moving else (lambda t: 0.0 * t), rate_hz, CORRUPT_FRAMES / rate_hz, rng,
+                         mean)
     encode = make_encoder(protocol)
     wire = [encode(int(r), int(c)) for r, c in zip(raw, temps)]
     hit = rng.random(len(wire)) < CORRUPT_SHARE
@@ -171,6 +182,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seconds', type=float, default=10.0, help='of each run at each rate (default 10)')
     parser.add_argument('--seed', type=int, default=1)
+    parser.add_argument('--mean', action='store_true',
+                        help='each frame the mean rate over its interval (a fiber gyro\'s), not a point sample')
     args = parser.parse_args()
     start = time.perf_counter()
     totals: dict[str, dict[str, float]] = {}
@@ -181,14 +194,14 @@ def main() -> None:
             total = totals.setdefault(key, dict.fromkeys(('sent', 'lost', 'worst_heading_error_deg', 'corrupted',
                                                           'passed', 'passed_over_1dps'), 0.0))
             for name in MOTIONS:
-                row = motion_case(protocol, rate_hz, name, seconds, args.seed)
+                row = motion_case(protocol, rate_hz, name, seconds, args.seed, args.mean)
                 print(json.dumps(row))
                 total['sent'] += row['sent']   # type: ignore[operator]
                 total['lost'] += row['lost']   # type: ignore[operator]
                 total['worst_heading_error_deg'] = max(total['worst_heading_error_deg'],
                                                        abs(row['heading_error_deg']))   # type: ignore[arg-type]
             for moving in (False, True):
-                row = corrupt_case(protocol, rate_hz, moving, args.seed)
+                row = corrupt_case(protocol, rate_hz, moving, args.seed, args.mean)
                 print(json.dumps(row))
                 for k in ('corrupted', 'passed', 'passed_over_1dps'):
                     total[k] += row[k]   # type: ignore[operator]
