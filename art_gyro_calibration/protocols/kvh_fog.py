@@ -361,9 +361,9 @@ class KvhFogParser(ChunkParser):
     a message cut short and followed by a whole one loses only the cut one. Every message with a
     good CRC advances the sequence number; the numbers skipped since the message before, less the
     messages rejected for their CRC in between (each is one rejected frame, not also a lost one),
-    are added to ``stats.lost_frames`` (a gap of 128 or more cannot be told from a shorter one;
-    none is counted across :meth:`reset`, where the count is unknown). A good message is still
-    rejected, and counted by reason, when the status byte flags the yaw gyro invalid, when it
+    are added to ``stats.lost_frames`` (a gap of 128 or more: counted by Format B's clock, in A and
+    C not told from a shorter one; none is counted across :meth:`reset`, where the count is
+    unknown). A good message is still rejected, and counted by reason, when the status byte flags the yaw gyro invalid, when it
     repeats the sequence number before it (a duplicate: publishing it would count the rotation
     twice), when a value is not finite, in Format C before the first temperature of the
     connection (the temperature comes every fourth message and is held until the next), and, for
@@ -508,9 +508,11 @@ class KvhFogParser(ChunkParser):
         last = self._last_sequence
         steps = 0
         if last is not None:
-            if sequence == last:
-                return None, REPEATED_SEQUENCE
             steps = (sequence - last) % KVH_SEQUENCE_MODULO
+            if timestamp is not None:
+                steps += self._clock_wraps(timestamp, steps)
+            if not steps:
+                return None, REPEATED_SEQUENCE
             # A message rejected for its CRC was received (and counted) once: not also lost.
             self.stats.lost_frames += max(0, steps - 1 - self._bad_crc_since)
         self._bad_crc_since = 0
@@ -549,6 +551,18 @@ class KvhFogParser(ChunkParser):
         if interval is not None and abs(interval * self._configured_hz - 1.0) <= RATE_CONFIRMED:
             return 1.0 / self._configured_hz
         return interval
+
+    def _clock_wraps(self, timestamp: int, steps: int) -> int:
+        """Format B: the whole wraps of the sequence the unit's clock says passed besides ``steps`` (0 if unsure).
+
+        128 lost messages or more look like 0 to 127 by the sequence alone; the clock's elapsed time
+        over the mean interval counts them, when it is a whole number of intervals within half of one.
+        """
+        if self._last_time_us is None or not self._unit_steps:
+            return 0
+        intervals = (timestamp - self._last_time_us) % 2 ** 32 * self._unit_steps / self._unit_time_us
+        wraps = round((intervals - steps) / KVH_SEQUENCE_MODULO) * KVH_SEQUENCE_MODULO
+        return wraps if wraps > 0 and abs(intervals - steps - wraps) <= 0.5 else 0
 
     def _clock_interval(self, timestamp: int | None, steps: int) -> float | None:
         """Format B: seconds per message by the unit's clock; -1.0 if the clock went wrong; None before two messages.

@@ -1,0 +1,39 @@
+"""kvh_fog sequence and clock faults told apart by the clocks that disagree."""
+
+import random
+
+import pytest
+
+from art_gyro_calibration.protocols.kvh_fog import KvhFogConfig, KvhFogEncoder, KvhFogParser
+
+
+def stream(config, rate_hz, seconds, lost=range(0)):
+    """(message, true send time s) of a unit at rate_hz turning at 30 deg/s, the messages numbered in ``lost`` lost."""
+    encoder = KvhFogEncoder(KvhFogConfig(message_format=config.message_format, output_rate_hz=rate_hz))
+    for i in range(int(seconds * rate_hz)):
+        message = encoder(30.0, 25.0)
+        if i not in lost:
+            yield message, i / rate_hz
+
+
+def read(parser, messages, chunk_s=0.004, jitter_s=0.002, seed=0):
+    """The samples of reads every chunk_s, each returning late by up to jitter_s (a USB adapter)."""
+    rng = random.Random(seed)
+    out, chunk, due = [], b'', chunk_s
+    for message, t in messages:
+        while t > due:
+            out += parser.feed(chunk, arrival_ns=int((due + rng.uniform(0, jitter_s)) * 1e9))
+            chunk, due = b'', due + chunk_s
+        chunk += message
+    return [s for s, _ in out + parser.feed(chunk, arrival_ns=int((due + rng.uniform(0, jitter_s)) * 1e9))]
+
+
+def test_format_b_gap_of_a_whole_wrap_is_counted_by_the_units_clock():
+    """128 messages lost: the sequence says 0 or 1 steps, the unit's clock says 128 or 129 intervals."""
+    config = KvhFogConfig(message_format='B')
+    for lost in (range(2000, 2128), range(2000, 2129), range(2000, 2385)):
+        parser = KvhFogParser(config)
+        samples = read(parser, stream(config, 1000.0, 4.0, lost))
+        rates = [s.raw_rate for s in samples]
+        assert rates == pytest.approx([30.0] * len(rates), rel=1e-3), (lost, min(rates))
+        assert parser.stats.lost_frames == len(lost)
