@@ -364,8 +364,8 @@ class KvhFogParser(ChunkParser):
     are added to ``stats.lost_frames`` (a gap of 128 or more: counted by Format B's clock, in A and
     C not told from a shorter one; none is counted across :meth:`reset`, where the count is
     unknown). A good message is still rejected, and counted by reason, when the status byte flags
-    the yaw gyro invalid, when it repeats the sequence number before it (a duplicate: publishing it would count the rotation
-    twice), when a value is not finite, in Format C before the first temperature of the
+    the yaw gyro invalid, when it repeats the sequence number before it (a duplicate: publishing
+    it would count the rotation twice), when a value is not finite, in Format C before the first temperature of the
     connection (the temperature comes every fourth message and is held until the next), and, for
     delta angles, while the message interval is not known. So every message the unit numbered is
     a frame, a rejection or lost; bytes between messages are ``stats.bytes_skipped``, each run of
