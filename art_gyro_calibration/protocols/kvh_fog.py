@@ -52,6 +52,9 @@ RATE_TOLERANCE = 0.02
 # The stream's measure confirms the configured rate within this: its interval is then the unit's exactly (the unit
 # integrates over its own period), not the measure's few parts in 10,000 of host-side jitter.
 RATE_CONFIRMED = 0.01
+# A and C: arrivals this long, each a whole number of sequence wraps (within a quarter of one) later than the
+# stream's line, are a gap of that many messages, not a stall (which the next reads catch up).
+GAP_CONFIRM_S = 0.25
 # Format B's clock: a message interval longer than this (the slowest =DR is 1 Hz) is a fault of the clock.
 MAX_INTERVAL_US = 1_500_000
 _KVH_HEADER = re.compile(rb'\xfe\x81\xff[\x55-\x57]')
@@ -278,6 +281,13 @@ class StreamInterval:
         self._c_nn += dn * (n - self._mean_n)
         self._span_s = t
 
+    def lateness(self, number: int, arrival_ns: int) -> float | None:
+        """Intervals by which message ``number`` arrived after the line so far, once it spans half STREAM_BASELINE_S."""
+        if self._span_s < STREAM_BASELINE_S * 0.5 or self._k < 3 or self._c_nt <= 0.0:
+            return None
+        slope = self._c_nt / self._c_nn
+        return ((arrival_ns - self._t0) * 1e-9 - self._mean_t) / slope - (number - self._n0 - self._mean_n)
+
     @property
     def interval_s(self) -> float | None:
         """Seconds per message, once measured over STREAM_BASELINE_S; else None."""
@@ -362,7 +372,7 @@ class KvhFogParser(ChunkParser):
     good CRC advances the sequence number; the numbers skipped since the message before, less the
     messages rejected for their CRC in between (each is one rejected frame, not also a lost one),
     are added to ``stats.lost_frames`` (a gap of 128 or more: counted by Format B's clock, in A and
-    C not told from a shorter one; none is counted across :meth:`reset`, where the count is
+    C by the arrival times; none is counted across :meth:`reset`, where the count is
     unknown). A good message is still rejected, and counted by reason, when the status byte flags
     the yaw gyro invalid, when it repeats the sequence number before it (a duplicate: publishing
     it would count the rotation twice), when a value is not finite, in Format C before the first temperature of the
@@ -406,6 +416,7 @@ class KvhFogParser(ChunkParser):
         self._unit_time_us = 0                  # Format B: the clock over _unit_steps intervals (the mean interval)
         self._unit_steps = 0
         self._unwrapped_us = 0                  # Format B: the clock unwrapped since the connection opened
+        self._gap: tuple[int, int] | None = None   # A and C: (wraps, first arrival) of a gap being confirmed
 
     def reset(self) -> None:
         """Drop a partly received message; the sequence, held temperature and intervals restart; statistics kept."""
@@ -418,6 +429,7 @@ class KvhFogParser(ChunkParser):
         self._temp_c = None
         self._last_time_us = None
         self._unit_time_us = self._unit_steps = self._unwrapped_us = 0
+        self._gap = None
         self.stream.reset()
 
     def _skip(self, count: int) -> None:
@@ -482,7 +494,7 @@ class KvhFogParser(ChunkParser):
                 stats.frames += 1
         if last_end >= 0 and arrival_ns is not None:
             # The read returned as its last byte came: this message's end came the bytes after it earlier.
-            self.stream.add(self._number, arrival_ns - (len(buf) - last_end) * self.byte_ns)
+            self._arrived(arrival_ns - (len(buf) - last_end) * self.byte_ns)
         if keep < 0:
             # A header's first bytes at the very end may be the start of the next message.
             keep = len(buf)
@@ -493,6 +505,25 @@ class KvhFogParser(ChunkParser):
         self._skip(keep - pos)
         self._buffer = buf[keep:]
         return out
+
+    def _arrived(self, arrival_ns: int) -> None:
+        """The latest message arrived at ``arrival_ns``: into the stream's fit, or a gap of whole sequence wraps.
+
+        128 lost messages or more look like 0 to 127 by the sequence alone; arrivals that stay a
+        whole number of wraps late for GAP_CONFIRM_S count them (the fit waits meanwhile).
+        """
+        late = self.stream.lateness(self._number, arrival_ns)
+        wraps = 0 if late is None else round(late / KVH_SEQUENCE_MODULO) * KVH_SEQUENCE_MODULO
+        if late is None or wraps <= 0 or abs(late - wraps) > KVH_SEQUENCE_MODULO / 4:
+            self._gap = None
+            self.stream.add(self._number, arrival_ns)
+        elif self._gap is None or self._gap[0] != wraps:
+            self._gap = (wraps, arrival_ns)
+        elif arrival_ns - self._gap[1] >= GAP_CONFIRM_S * 1e9:
+            self._gap = None
+            self._number += wraps
+            self.stats.lost_frames += wraps
+            self.stream.add(self._number, arrival_ns)
 
     def _decode(self, buf: bytes, start: int) -> tuple[RawSample | None, str]:
         """The sample of a message whose CRC is good, or None and the reason it is rejected."""

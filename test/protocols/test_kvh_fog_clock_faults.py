@@ -37,3 +37,27 @@ def test_format_b_gap_of_a_whole_wrap_is_counted_by_the_units_clock():
         rates = [s.raw_rate for s in samples]
         assert rates == pytest.approx([30.0] * len(rates), rel=1e-3), (lost, min(rates))
         assert parser.stats.lost_frames == len(lost)
+
+
+@pytest.mark.parametrize('message_format', ['A', 'C'])
+@pytest.mark.parametrize('lost', [range(2500, 2630), range(2500, 2756), range(700, 830)])
+def test_stream_gap_of_a_whole_wrap_is_counted_by_arrival_time(message_format, lost):
+    """130 messages lost look like 2 by the sequence: arrival time says 130, so the interval fit stays right."""
+    config = KvhFogConfig(message_format=message_format)
+    parser = KvhFogParser(config)
+    samples = read(parser, stream(config, 1000.0, 8.0, lost))
+    off = [s.raw_rate for s in samples if abs(s.raw_rate / 30.0 - 1.0) > 3e-3]
+    assert not off, (len(off), min(off), max(off))
+    assert parser.stats.lost_frames == len(lost)
+    assert parser.measured_rate_hz == pytest.approx(1000.0, rel=1e-3)
+
+
+@pytest.mark.parametrize('stall_s', [0.128, 0.3, 1.0])
+def test_a_stalled_read_is_not_a_gap(stall_s):
+    """The host reads nothing for stall_s, then everything queued at once: no message lost, none counted."""
+    config = KvhFogConfig()
+    parser = KvhFogParser(config)
+    messages = list(stream(config, 1000.0, 6.0))
+    samples = read(parser, ((m, 3.0 + stall_s if 3.0 <= t < 3.0 + stall_s else t) for m, t in messages))
+    assert parser.stats.lost_frames == 0
+    assert [s.raw_rate for s in samples] == pytest.approx([30.0] * len(samples), rel=3e-3)
