@@ -49,9 +49,11 @@ KVH_DEFAULT_BAUD = 921600
 STREAM_BASELINE_S = 1.0
 # A configured output_rate_hz this far from the measured rate is an error (the unit is not set as the node is told).
 RATE_TOLERANCE = 0.02
-# The stream's measure confirms the configured rate within this: its interval is then the unit's exactly (the unit
-# integrates over its own period), not the measure's few parts in 10,000 of host-side jitter.
-RATE_CONFIRMED = 0.01
+# The stream's measure confirms the configured rate within this and within RATE_CONFIRMED_SE of its standard error:
+# its interval is then the unit's exactly (the unit integrates over its own period), not the measure's few parts in
+# 10,000 of host-side jitter; a unit set 0.9 % off is not confirmed.
+RATE_CONFIRMED = 0.001
+RATE_CONFIRMED_SE = 3.0
 # A and C: arrivals this long, each a whole number of sequence wraps (within a quarter of one) later than the
 # stream's line, are a gap of that many messages, not a stall (which the next reads catch up).
 GAP_CONFIRM_S = 0.25
@@ -255,7 +257,7 @@ class StreamInterval:
     too), so the fit needs no assumption about the rate, and its error falls as the span grows.
     """
 
-    __slots__ = ('_k', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_span_s')
+    __slots__ = ('_k', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_c_tt', '_span_s')
 
     def __init__(self) -> None:
         self.reset()
@@ -265,7 +267,7 @@ class StreamInterval:
         self._k = 0
         self._n0 = 0
         self._t0 = 0
-        self._mean_n = self._mean_t = self._c_nt = self._c_nn = self._span_s = 0.0
+        self._mean_n = self._mean_t = self._c_nt = self._c_nn = self._c_tt = self._span_s = 0.0
 
     def add(self, number: int, arrival_ns: int) -> None:
         """Message ``number`` (intervals since the connection opened) arrived at ``arrival_ns`` (monotonic)."""
@@ -275,9 +277,11 @@ class StreamInterval:
         t = (arrival_ns - self._t0) * 1e-9
         self._k += 1
         dn = n - self._mean_n
+        dt = t - self._mean_t
         self._mean_n += dn / self._k
-        self._mean_t += (t - self._mean_t) / self._k
+        self._mean_t += dt / self._k
         self._c_nt += dn * (t - self._mean_t)
+        self._c_tt += dt * (t - self._mean_t)
         self._c_nn += dn * (n - self._mean_n)
         self._span_s = t
 
@@ -287,6 +291,14 @@ class StreamInterval:
             return None
         slope = self._c_nt / self._c_nn
         return ((arrival_ns - self._t0) * 1e-9 - self._mean_t) / slope - (number - self._n0 - self._mean_n)
+
+    @property
+    def interval_error_s(self) -> float:
+        """The standard error of the fitted interval (the residuals' spread over the span of message numbers)."""
+        if self._k < 3 or self._c_nn <= 0.0:
+            return math.inf
+        residual = max(0.0, self._c_tt - self._c_nt ** 2 / self._c_nn) / (self._k - 2)
+        return math.sqrt(residual / self._c_nn)
 
     @property
     def interval_s(self) -> float | None:
@@ -386,8 +398,8 @@ class KvhFogParser(ChunkParser):
     connection opened); A's and C's by :class:`StreamInterval`, fitted to the arrival times
     ``feed`` is given (the driver's monotonic clock at the read, less the wire time of the bytes
     after each message: ``byte_ns`` per byte, at the port's baud), or the configured rate's where
-    that measure confirms it within RATE_CONFIRMED (the unit integrates over its own period
-    exactly; host jitter does not).
+    that measure confirms it (within RATE_CONFIRMED and RATE_CONFIRMED_SE standard errors of the
+    fit: the unit integrates over its own period exactly; host jitter does not).
     Without arrival times, A and C delta angles stay rejected as ``no_interval``.
     """
 
@@ -578,8 +590,12 @@ class KvhFogParser(ChunkParser):
 
     def _stream_interval(self) -> float | None:
         """A and C: the stream's measured interval, or the configured one where the measure confirms it."""
-        interval = self.stream.interval_s
-        if interval is not None and abs(interval * self._configured_hz - 1.0) <= RATE_CONFIRMED:
+        stream = self.stream
+        interval = stream.interval_s
+        if interval is None:
+            return None
+        off = abs(interval * self._configured_hz - 1.0)
+        if off <= RATE_CONFIRMED and off * interval <= RATE_CONFIRMED_SE * stream.interval_error_s:
             return 1.0 / self._configured_hz
         return interval
 

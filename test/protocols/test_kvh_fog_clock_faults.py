@@ -61,3 +61,16 @@ def test_a_stalled_read_is_not_a_gap(stall_s):
     samples = read(parser, ((m, 3.0 + stall_s if 3.0 <= t < 3.0 + stall_s else t) for m, t in messages))
     assert parser.stats.lost_frames == 0
     assert [s.raw_rate for s in samples] == pytest.approx([30.0] * len(samples), rel=3e-3)
+
+
+@pytest.mark.parametrize('message_format', ['A', 'C'])
+@pytest.mark.parametrize('unit_rate_hz', [1009.0, 995.0, 1000.0])
+def test_configured_rate_is_used_only_where_the_measure_cannot_tell_it_apart(message_format, unit_rate_hz):
+    """A unit at 1009 Hz told 1000 is measured, not "confirmed": its rates are right, not 0.9 % low."""
+    config = KvhFogConfig(message_format=message_format)
+    parser = KvhFogParser(config)
+    samples = read(parser, stream(config, unit_rate_hz, 4.0))
+    late = samples[len(samples) // 2:]
+    assert [s.raw_rate for s in late] == pytest.approx([30.0] * len(late), rel=5e-4)
+    if unit_rate_hz == 1000.0:   # the unit's own period, not the measure's jitter
+        assert {s.interval_s for s in late} == {1e-3}
