@@ -29,7 +29,7 @@ OTHER_FORMAT = 'other_format'   # the header of another message format than the 
 REPEATED_SEQUENCE = 'repeated_sequence'   # the sequence number of the message before (a duplicate)
 NO_TEMPERATURE_YET = 'no_temperature_yet'   # Format C: before the connection's first temperature
 NO_INTERVAL = 'no_interval'     # a delta angle whose interval is not measured yet (the first messages of a connection)
-BAD_TIMESTAMP = 'bad_timestamp'   # Format B: the unit's clock went back, stood still or jumped more than a second
+BAD_TIMESTAMP = 'bad_timestamp'   # Format B: the unit's clock disagrees with the sequence steps at its mean interval
 
 KVH_HEADER_PREFIX = b'\xfe\x81\xff'   # every format's header; the fourth byte names the format
 KVH_SEQUENCE_MODULO = 128             # the sequence number counts 0..127 and wraps
@@ -59,6 +59,10 @@ RATE_CONFIRMED_SE = 3.0
 GAP_CONFIRM_S = 0.25
 # Format B's clock: a message interval longer than this (the slowest =DR is 1 Hz) is a fault of the clock.
 MAX_INTERVAL_US = 1_500_000
+# Format B's clock agrees with the sequence steps at its mean interval within a tick either side (timestamps are
+# whole microseconds) and this share: a drift that changes with temperature is parts per million.
+CLOCK_AGREE_US = 2
+CLOCK_AGREE = 1e-3
 _KVH_HEADER = re.compile(rb'\xfe\x81\xff[\x55-\x57]')
 _KVH_AXES = re.compile(r'[+-]?[xyz]')
 
@@ -429,6 +433,8 @@ class KvhFogParser(ChunkParser):
         self._unit_steps = 0
         self._unwrapped_us = 0                  # Format B: the clock unwrapped since the connection opened
         self._gap: tuple[int, int] | None = None   # A and C: (wraps, first arrival) of a gap being confirmed
+        # Format B, after a message rejected for its clock: (clock, steps since, unwrapped) of the one before it.
+        self._good: tuple[int, int, int] | None = None
 
     def reset(self) -> None:
         """Drop a partly received message; the sequence, held temperature and intervals restart; statistics kept."""
@@ -441,7 +447,7 @@ class KvhFogParser(ChunkParser):
         self._temp_c = None
         self._last_time_us = None
         self._unit_time_us = self._unit_steps = self._unwrapped_us = 0
-        self._gap = None
+        self._gap = self._good = None
         self.stream.reset()
 
     def _skip(self, count: int) -> None:
@@ -615,19 +621,47 @@ class KvhFogParser(ChunkParser):
         """Format B: seconds per message by the unit's clock; -1.0 if the clock went wrong; None before two messages.
 
         The mean over the connection, not the last interval alone: a microsecond tick is 0.1 % of a
-        1 kHz interval. An interval 1 % off that mean (the unit was set to another rate) starts it anew.
+        1 kHz interval. Once it is known, a message whose clock disagrees with its sequence steps at
+        that mean (beyond CLOCK_AGREE) is rejected and the unwrapped time goes on by the mean; the
+        next message tells which it was: one glitched stamp (it agrees with the message before the
+        rejected one), a leap (it agrees with the rejected one: the clock is followed from there, a
+        clock fault) or another rate (neither: the mean starts anew).
         """
         assert timestamp is not None
-        last, self._last_time_us = self._last_time_us, timestamp   # a wrong interval: measured again from here
+        last, self._last_time_us = self._last_time_us, timestamp
         if last is None or not steps:
             return None
         elapsed = (timestamp - last) % 2 ** 32   # the microsecond counter wraps after 71.6 minutes
+        if self._unit_steps:
+            mean_us = self._unit_time_us / self._unit_steps
+            good, self._good = self._good, None
+            if good is not None:
+                since_us = (timestamp - good[0]) % 2 ** 32
+                if _clock_agrees(since_us, good[1] + steps, mean_us):   # one glitched stamp: from the one before
+                    self._unwrapped_us = good[2]
+                    return self._clock_accept(since_us, good[1] + steps)
+                if _clock_agrees(elapsed, steps, mean_us):
+                    self.stats.clock_faults += 1   # a leap: a mapping of the clock to the host's is made anew
+                else:
+                    self._unit_time_us = self._unit_steps = 0   # another rate: the mean starts anew
+            elif not _clock_agrees(elapsed, steps, mean_us):
+                self._good = (last, steps, self._unwrapped_us)
+                self._unwrapped_us += round(steps * mean_us)
+                return -1.0
         if not 0 < elapsed <= steps * MAX_INTERVAL_US:
             self.stats.clock_faults += 1
             return -1.0
-        self._unwrapped_us += elapsed
-        if self._unit_steps and abs(elapsed * self._unit_steps / (steps * self._unit_time_us) - 1.0) > 0.01:
-            self._unit_time_us = self._unit_steps = 0
-        self._unit_time_us += elapsed
+        return self._clock_accept(elapsed, steps)
+
+    def _clock_accept(self, elapsed_us: int, steps: int) -> float:
+        """Format B: ``elapsed_us`` over ``steps`` into the unwrapped clock and the mean; the mean interval."""
+        self._unwrapped_us += elapsed_us
+        self._unit_time_us += elapsed_us
         self._unit_steps += steps
         return self._unit_time_us * 1e-6 / self._unit_steps
+
+
+def _clock_agrees(elapsed_us: int, steps: int, mean_us: float) -> bool:
+    """Format B: ``elapsed_us`` is ``steps`` intervals of ``mean_us`` within CLOCK_AGREE_US and CLOCK_AGREE."""
+    expected = steps * mean_us
+    return abs(elapsed_us - expected) <= CLOCK_AGREE_US + CLOCK_AGREE * expected

@@ -4,7 +4,7 @@ import random
 
 import pytest
 
-from art_gyro_calibration.protocols.kvh_fog import KvhFogConfig, KvhFogEncoder, KvhFogParser
+from art_gyro_calibration.protocols.kvh_fog import BAD_TIMESTAMP, KvhFogConfig, KvhFogEncoder, KvhFogParser
 
 
 def stream(config, rate_hz, seconds, lost=range(0)):
@@ -74,3 +74,30 @@ def test_configured_rate_is_used_only_where_the_measure_cannot_tell_it_apart(mes
     assert [s.raw_rate for s in late] == pytest.approx([30.0] * len(late), rel=5e-4)
     if unit_rate_hz == 1000.0:   # the unit's own period, not the measure's jitter
         assert {s.interval_s for s in late} == {1e-3}
+
+
+def leapt_stream(leap_us, at=2000, glitch=False, seconds=4.0):
+    """Format B at 1 kHz turning at 30 deg/s whose clock leaps by leap_us at message ``at`` (for it alone: a glitch)."""
+    encoder = KvhFogEncoder(KvhFogConfig(message_format='B'))
+    for i in range(int(seconds * 1000)):
+        if i == at:
+            encoder.unit_time_us += leap_us
+        message = encoder(30.0, 25.0)
+        if i == at and glitch:
+            encoder.unit_time_us -= leap_us
+        yield message, i / 1000
+
+
+@pytest.mark.parametrize('glitch', [False, True])
+@pytest.mark.parametrize('leap_us', [300_000, 2_000, 20, -300, 1_400_000])
+def test_format_b_clock_leap_the_sequence_contradicts_is_rejected_and_the_clock_followed(leap_us, glitch):
+    """A leap under MAX_INTERVAL_US (or one glitched stamp): one message rejected, no rate off, unit time continuous."""
+    parser = KvhFogParser(KvhFogConfig(message_format='B'))
+    samples = read(parser, leapt_stream(leap_us, glitch=glitch))
+    rates = [s.raw_rate for s in samples]
+    assert rates == pytest.approx([30.0] * len(rates), rel=1e-3), (min(rates), max(rates))
+    assert parser.stats.rejected_by_reason[BAD_TIMESTAMP] == 1
+    assert parser.stats.clock_faults == (0 if glitch else 1)   # a leap: the driver maps the clock anew
+    assert len(samples) == 4000 - 2
+    steps = {round((b.unit_time_us - a.unit_time_us) * 1e-3) for a, b in zip(samples, samples[1:])}
+    assert steps == {1, 2}, steps   # the rejected message is a step of two, never the leap
