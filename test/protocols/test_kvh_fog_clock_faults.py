@@ -101,3 +101,13 @@ def test_format_b_clock_leap_the_sequence_contradicts_is_rejected_and_the_clock_
     assert len(samples) == 4000 - 2
     steps = {round((b.unit_time_us - a.unit_time_us) * 1e-3) for a, b in zip(samples, samples[1:])}
     assert steps == {1, 2}, steps   # the rejected message is a step of two, never the leap
+
+
+@pytest.mark.parametrize('rate_hz', [5000.0, 1000.0])
+def test_a_late_reading_adapter_is_not_a_gap(rate_hz):
+    """Reads every 16 ms, each up to 16 ms late (a USB adapter's latency timer): 128 messages are 25.6 ms at 5 kHz."""
+    config = KvhFogConfig(output_rate_hz=rate_hz)
+    for seed in range(3):
+        parser = KvhFogParser(config)
+        read(parser, stream(config, rate_hz, 4.0), chunk_s=0.016, jitter_s=0.016, seed=seed)
+        assert parser.stats.lost_frames == 0
