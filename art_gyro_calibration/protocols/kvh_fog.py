@@ -29,7 +29,7 @@ OTHER_FORMAT = 'other_format'   # the header of another message format than the 
 REPEATED_SEQUENCE = 'repeated_sequence'   # the sequence number of the message before (a duplicate)
 NO_TEMPERATURE_YET = 'no_temperature_yet'   # Format C: before the connection's first temperature
 NO_INTERVAL = 'no_interval'     # a delta angle whose interval is not measured yet (the first messages of a connection)
-BAD_TIMESTAMP = 'bad_timestamp'   # Format B: the unit's clock went back, stood still or jumped more than a second
+BAD_TIMESTAMP = 'bad_timestamp'   # Format B: the unit's clock disagrees with the sequence steps at its mean interval
 
 KVH_HEADER_PREFIX = b'\xfe\x81\xff'   # every format's header; the fourth byte names the format
 KVH_SEQUENCE_MODULO = 128             # the sequence number counts 0..127 and wraps
@@ -49,11 +49,20 @@ KVH_DEFAULT_BAUD = 921600
 STREAM_BASELINE_S = 1.0
 # A configured output_rate_hz this far from the measured rate is an error (the unit is not set as the node is told).
 RATE_TOLERANCE = 0.02
-# The stream's measure confirms the configured rate within this: its interval is then the unit's exactly (the unit
-# integrates over its own period), not the measure's few parts in 10,000 of host-side jitter.
-RATE_CONFIRMED = 0.01
+# The stream's measure confirms the configured rate within this and within RATE_CONFIRMED_SE of its standard error:
+# its interval is then the unit's exactly (the unit integrates over its own period), not the measure's few parts in
+# 10,000 of host-side jitter; a unit set 0.9 % off is not confirmed.
+RATE_CONFIRMED = 0.001
+RATE_CONFIRMED_SE = 3.0
+# A and C: arrivals this long, each a whole number of sequence wraps (within a quarter of one) later than the
+# stream's line, are a gap of that many messages, not a stall (which the next reads catch up).
+GAP_CONFIRM_S = 0.25
 # Format B's clock: a message interval longer than this (the slowest =DR is 1 Hz) is a fault of the clock.
 MAX_INTERVAL_US = 1_500_000
+# Format B's clock agrees with the sequence steps at its mean interval within a tick either side (timestamps are
+# whole microseconds) and this share: a drift that changes with temperature is parts per million.
+CLOCK_AGREE_US = 2
+CLOCK_AGREE = 1e-3
 _KVH_HEADER = re.compile(rb'\xfe\x81\xff[\x55-\x57]')
 _KVH_AXES = re.compile(r'[+-]?[xyz]')
 
@@ -252,7 +261,7 @@ class StreamInterval:
     too), so the fit needs no assumption about the rate, and its error falls as the span grows.
     """
 
-    __slots__ = ('_k', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_span_s')
+    __slots__ = ('_k', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_c_tt', '_span_s')
 
     def __init__(self) -> None:
         self.reset()
@@ -262,7 +271,7 @@ class StreamInterval:
         self._k = 0
         self._n0 = 0
         self._t0 = 0
-        self._mean_n = self._mean_t = self._c_nt = self._c_nn = self._span_s = 0.0
+        self._mean_n = self._mean_t = self._c_nt = self._c_nn = self._c_tt = self._span_s = 0.0
 
     def add(self, number: int, arrival_ns: int) -> None:
         """Message ``number`` (intervals since the connection opened) arrived at ``arrival_ns`` (monotonic)."""
@@ -272,11 +281,28 @@ class StreamInterval:
         t = (arrival_ns - self._t0) * 1e-9
         self._k += 1
         dn = n - self._mean_n
+        dt = t - self._mean_t
         self._mean_n += dn / self._k
-        self._mean_t += (t - self._mean_t) / self._k
+        self._mean_t += dt / self._k
         self._c_nt += dn * (t - self._mean_t)
+        self._c_tt += dt * (t - self._mean_t)
         self._c_nn += dn * (n - self._mean_n)
         self._span_s = t
+
+    def lateness(self, number: int, arrival_ns: int) -> float | None:
+        """Intervals by which message ``number`` arrived after the line so far, once it spans half STREAM_BASELINE_S."""
+        if self._span_s < STREAM_BASELINE_S * 0.5 or self._k < 3 or self._c_nt <= 0.0:
+            return None
+        slope = self._c_nt / self._c_nn
+        return ((arrival_ns - self._t0) * 1e-9 - self._mean_t) / slope - (number - self._n0 - self._mean_n)
+
+    @property
+    def interval_error_s(self) -> float:
+        """The standard error of the fitted interval (the residuals' spread over the span of message numbers)."""
+        if self._k < 3 or self._c_nn <= 0.0:
+            return math.inf
+        residual = max(0.0, self._c_tt - self._c_nt ** 2 / self._c_nn) / (self._k - 2)
+        return math.sqrt(residual / self._c_nn)
 
     @property
     def interval_s(self) -> float | None:
@@ -361,11 +387,11 @@ class KvhFogParser(ChunkParser):
     a message cut short and followed by a whole one loses only the cut one. Every message with a
     good CRC advances the sequence number; the numbers skipped since the message before, less the
     messages rejected for their CRC in between (each is one rejected frame, not also a lost one),
-    are added to ``stats.lost_frames`` (a gap of 128 or more cannot be told from a shorter one;
-    none is counted across :meth:`reset`, where the count is unknown). A good message is still
-    rejected, and counted by reason, when the status byte flags the yaw gyro invalid, when it
-    repeats the sequence number before it (a duplicate: publishing it would count the rotation
-    twice), when a value is not finite, in Format C before the first temperature of the
+    are added to ``stats.lost_frames`` (a gap of 128 or more: counted by Format B's clock, in A and
+    C by the arrival times; none is counted across :meth:`reset`, where the count is
+    unknown). A good message is still rejected, and counted by reason, when the status byte flags
+    the yaw gyro invalid, when it repeats the sequence number before it (a duplicate: publishing
+    it would count the rotation twice), when a value is not finite, in Format C before the first temperature of the
     connection (the temperature comes every fourth message and is held until the next), and, for
     delta angles, while the message interval is not known. So every message the unit numbered is
     a frame, a rejection or lost; bytes between messages are ``stats.bytes_skipped``, each run of
@@ -376,8 +402,8 @@ class KvhFogParser(ChunkParser):
     connection opened); A's and C's by :class:`StreamInterval`, fitted to the arrival times
     ``feed`` is given (the driver's monotonic clock at the read, less the wire time of the bytes
     after each message: ``byte_ns`` per byte, at the port's baud), or the configured rate's where
-    that measure confirms it within RATE_CONFIRMED (the unit integrates over its own period
-    exactly; host jitter does not).
+    that measure confirms it (within RATE_CONFIRMED and RATE_CONFIRMED_SE standard errors of the
+    fit: the unit integrates over its own period exactly; host jitter does not).
     Without arrival times, A and C delta angles stay rejected as ``no_interval``.
     """
 
@@ -406,6 +432,9 @@ class KvhFogParser(ChunkParser):
         self._unit_time_us = 0                  # Format B: the clock over _unit_steps intervals (the mean interval)
         self._unit_steps = 0
         self._unwrapped_us = 0                  # Format B: the clock unwrapped since the connection opened
+        self._gap: tuple[int, int] | None = None   # A and C: (wraps, first arrival) of a gap being confirmed
+        # Format B, after a message rejected for its clock: (clock, steps since, unwrapped) of the one before it.
+        self._good: tuple[int, int, int] | None = None
 
     def reset(self) -> None:
         """Drop a partly received message; the sequence, held temperature and intervals restart; statistics kept."""
@@ -418,6 +447,7 @@ class KvhFogParser(ChunkParser):
         self._temp_c = None
         self._last_time_us = None
         self._unit_time_us = self._unit_steps = self._unwrapped_us = 0
+        self._gap = self._good = None
         self.stream.reset()
 
     def _skip(self, count: int) -> None:
@@ -482,7 +512,7 @@ class KvhFogParser(ChunkParser):
                 stats.frames += 1
         if last_end >= 0 and arrival_ns is not None:
             # The read returned as its last byte came: this message's end came the bytes after it earlier.
-            self.stream.add(self._number, arrival_ns - (len(buf) - last_end) * self.byte_ns)
+            self._arrived(arrival_ns - (len(buf) - last_end) * self.byte_ns)
         if keep < 0:
             # A header's first bytes at the very end may be the start of the next message.
             keep = len(buf)
@@ -493,6 +523,25 @@ class KvhFogParser(ChunkParser):
         self._skip(keep - pos)
         self._buffer = buf[keep:]
         return out
+
+    def _arrived(self, arrival_ns: int) -> None:
+        """The latest message arrived at ``arrival_ns``: into the stream's fit, or a gap of whole sequence wraps.
+
+        128 lost messages or more look like 0 to 127 by the sequence alone; arrivals that stay a
+        whole number of wraps late for GAP_CONFIRM_S count them (the fit waits meanwhile).
+        """
+        late = self.stream.lateness(self._number, arrival_ns)
+        wraps = 0 if late is None else round(late / KVH_SEQUENCE_MODULO) * KVH_SEQUENCE_MODULO
+        if late is None or wraps <= 0 or abs(late - wraps) > KVH_SEQUENCE_MODULO / 4:
+            self._gap = None
+            self.stream.add(self._number, arrival_ns)
+        elif self._gap is None or self._gap[0] != wraps:
+            self._gap = (wraps, arrival_ns)
+        elif arrival_ns - self._gap[1] >= GAP_CONFIRM_S * 1e9:
+            self._gap = None
+            self._number += wraps
+            self.stats.lost_frames += wraps
+            self.stream.add(self._number, arrival_ns)
 
     def _decode(self, buf: bytes, start: int) -> tuple[RawSample | None, str]:
         """The sample of a message whose CRC is good, or None and the reason it is rejected."""
@@ -508,9 +557,11 @@ class KvhFogParser(ChunkParser):
         last = self._last_sequence
         steps = 0
         if last is not None:
-            if sequence == last:
-                return None, REPEATED_SEQUENCE
             steps = (sequence - last) % KVH_SEQUENCE_MODULO
+            if timestamp is not None:
+                steps += self._clock_wraps(timestamp, steps)
+            if not steps:
+                return None, REPEATED_SEQUENCE
             # A message rejected for its CRC was received (and counted) once: not also lost.
             self.stats.lost_frames += max(0, steps - 1 - self._bad_crc_since)
         self._bad_crc_since = 0
@@ -545,28 +596,72 @@ class KvhFogParser(ChunkParser):
 
     def _stream_interval(self) -> float | None:
         """A and C: the stream's measured interval, or the configured one where the measure confirms it."""
-        interval = self.stream.interval_s
-        if interval is not None and abs(interval * self._configured_hz - 1.0) <= RATE_CONFIRMED:
+        stream = self.stream
+        interval = stream.interval_s
+        if interval is None:
+            return None
+        off = abs(interval * self._configured_hz - 1.0)
+        if off <= RATE_CONFIRMED and off * interval <= RATE_CONFIRMED_SE * stream.interval_error_s:
             return 1.0 / self._configured_hz
         return interval
+
+    def _clock_wraps(self, timestamp: int, steps: int) -> int:
+        """Format B: the whole wraps of the sequence the unit's clock says passed besides ``steps`` (0 if unsure).
+
+        128 lost messages or more look like 0 to 127 by the sequence alone; the clock's elapsed time
+        over the mean interval counts them, when it is a whole number of intervals within half of one.
+        """
+        if self._last_time_us is None or not self._unit_steps:
+            return 0
+        intervals = (timestamp - self._last_time_us) % 2 ** 32 * self._unit_steps / self._unit_time_us
+        wraps = round((intervals - steps) / KVH_SEQUENCE_MODULO) * KVH_SEQUENCE_MODULO
+        return wraps if wraps > 0 and abs(intervals - steps - wraps) <= 0.5 else 0
 
     def _clock_interval(self, timestamp: int | None, steps: int) -> float | None:
         """Format B: seconds per message by the unit's clock; -1.0 if the clock went wrong; None before two messages.
 
         The mean over the connection, not the last interval alone: a microsecond tick is 0.1 % of a
-        1 kHz interval. An interval 1 % off that mean (the unit was set to another rate) starts it anew.
+        1 kHz interval. Once it is known, a message whose clock disagrees with its sequence steps at
+        that mean (beyond CLOCK_AGREE) is rejected and the unwrapped time goes on by the mean; the
+        next message tells which it was: one glitched stamp (it agrees with the message before the
+        rejected one), a leap (it agrees with the rejected one: the clock is followed from there, a
+        clock fault) or another rate (neither: the mean starts anew).
         """
         assert timestamp is not None
-        last, self._last_time_us = self._last_time_us, timestamp   # a wrong interval: measured again from here
+        last, self._last_time_us = self._last_time_us, timestamp
         if last is None or not steps:
             return None
         elapsed = (timestamp - last) % 2 ** 32   # the microsecond counter wraps after 71.6 minutes
+        if self._unit_steps:
+            mean_us = self._unit_time_us / self._unit_steps
+            good, self._good = self._good, None
+            if good is not None:
+                since_us = (timestamp - good[0]) % 2 ** 32
+                if _clock_agrees(since_us, good[1] + steps, mean_us):   # one glitched stamp: from the one before
+                    self._unwrapped_us = good[2]
+                    return self._clock_accept(since_us, good[1] + steps)
+                if _clock_agrees(elapsed, steps, mean_us):
+                    self.stats.clock_faults += 1   # a leap: a mapping of the clock to the host's is made anew
+                else:
+                    self._unit_time_us = self._unit_steps = 0   # another rate: the mean starts anew
+            elif not _clock_agrees(elapsed, steps, mean_us):
+                self._good = (last, steps, self._unwrapped_us)
+                self._unwrapped_us += round(steps * mean_us)
+                return -1.0
         if not 0 < elapsed <= steps * MAX_INTERVAL_US:
             self.stats.clock_faults += 1
             return -1.0
-        self._unwrapped_us += elapsed
-        if self._unit_steps and abs(elapsed * self._unit_steps / (steps * self._unit_time_us) - 1.0) > 0.01:
-            self._unit_time_us = self._unit_steps = 0
-        self._unit_time_us += elapsed
+        return self._clock_accept(elapsed, steps)
+
+    def _clock_accept(self, elapsed_us: int, steps: int) -> float:
+        """Format B: ``elapsed_us`` over ``steps`` into the unwrapped clock and the mean; the mean interval."""
+        self._unwrapped_us += elapsed_us
+        self._unit_time_us += elapsed_us
         self._unit_steps += steps
         return self._unit_time_us * 1e-6 / self._unit_steps
+
+
+def _clock_agrees(elapsed_us: int, steps: int, mean_us: float) -> bool:
+    """Format B: ``elapsed_us`` is ``steps`` intervals of ``mean_us`` within CLOCK_AGREE_US and CLOCK_AGREE."""
+    expected = steps * mean_us
+    return abs(elapsed_us - expected) <= CLOCK_AGREE_US + CLOCK_AGREE * expected

@@ -1,0 +1,113 @@
+"""kvh_fog sequence and clock faults told apart by the clocks that disagree."""
+
+import random
+
+import pytest
+
+from art_gyro_calibration.protocols.kvh_fog import BAD_TIMESTAMP, KvhFogConfig, KvhFogEncoder, KvhFogParser
+
+
+def stream(config, rate_hz, seconds, lost=range(0)):
+    """(message, true send time s) of a unit at rate_hz turning at 30 deg/s, the messages numbered in ``lost`` lost."""
+    encoder = KvhFogEncoder(KvhFogConfig(message_format=config.message_format, output_rate_hz=rate_hz))
+    for i in range(int(seconds * rate_hz)):
+        message = encoder(30.0, 25.0)
+        if i not in lost:
+            yield message, i / rate_hz
+
+
+def read(parser, messages, chunk_s=0.004, jitter_s=0.002, seed=0):
+    """The samples of reads every chunk_s, each returning late by up to jitter_s (a USB adapter)."""
+    rng = random.Random(seed)
+    out, chunk, due = [], b'', chunk_s
+    for message, t in messages:
+        while t > due:
+            out += parser.feed(chunk, arrival_ns=int((due + rng.uniform(0, jitter_s)) * 1e9))
+            chunk, due = b'', due + chunk_s
+        chunk += message
+    return [s for s, _ in out + parser.feed(chunk, arrival_ns=int((due + rng.uniform(0, jitter_s)) * 1e9))]
+
+
+def test_format_b_gap_of_a_whole_wrap_is_counted_by_the_units_clock():
+    """128 messages lost: the sequence says 0 or 1 steps, the unit's clock says 128 or 129 intervals."""
+    config = KvhFogConfig(message_format='B')
+    for lost in (range(2000, 2128), range(2000, 2129), range(2000, 2385)):
+        parser = KvhFogParser(config)
+        samples = read(parser, stream(config, 1000.0, 4.0, lost))
+        rates = [s.raw_rate for s in samples]
+        assert rates == pytest.approx([30.0] * len(rates), rel=1e-3), (lost, min(rates))
+        assert parser.stats.lost_frames == len(lost)
+
+
+@pytest.mark.parametrize('message_format', ['A', 'C'])
+@pytest.mark.parametrize('lost', [range(2500, 2630), range(2500, 2756), range(700, 830)])
+def test_stream_gap_of_a_whole_wrap_is_counted_by_arrival_time(message_format, lost):
+    """130 messages lost look like 2 by the sequence: arrival time says 130, so the interval fit stays right."""
+    config = KvhFogConfig(message_format=message_format)
+    parser = KvhFogParser(config)
+    samples = read(parser, stream(config, 1000.0, 8.0, lost))
+    off = [s.raw_rate for s in samples if abs(s.raw_rate / 30.0 - 1.0) > 3e-3]
+    assert not off, (len(off), min(off), max(off))
+    assert parser.stats.lost_frames == len(lost)
+    assert parser.measured_rate_hz == pytest.approx(1000.0, rel=1e-3)
+
+
+@pytest.mark.parametrize('stall_s', [0.128, 0.3, 1.0])
+def test_a_stalled_read_is_not_a_gap(stall_s):
+    """The host reads nothing for stall_s, then everything queued at once: no message lost, none counted."""
+    config = KvhFogConfig()
+    parser = KvhFogParser(config)
+    messages = list(stream(config, 1000.0, 6.0))
+    samples = read(parser, ((m, 3.0 + stall_s if 3.0 <= t < 3.0 + stall_s else t) for m, t in messages))
+    assert parser.stats.lost_frames == 0
+    assert [s.raw_rate for s in samples] == pytest.approx([30.0] * len(samples), rel=3e-3)
+
+
+@pytest.mark.parametrize('message_format', ['A', 'C'])
+@pytest.mark.parametrize('unit_rate_hz', [1009.0, 995.0, 1000.0])
+def test_configured_rate_is_used_only_where_the_measure_cannot_tell_it_apart(message_format, unit_rate_hz):
+    """A unit at 1009 Hz told 1000 is measured, not "confirmed": its rates are right, not 0.9 % low."""
+    config = KvhFogConfig(message_format=message_format)
+    parser = KvhFogParser(config)
+    samples = read(parser, stream(config, unit_rate_hz, 4.0))
+    late = samples[len(samples) // 2:]
+    assert [s.raw_rate for s in late] == pytest.approx([30.0] * len(late), rel=5e-4)
+    if unit_rate_hz == 1000.0:   # the unit's own period, not the measure's jitter
+        assert {s.interval_s for s in late} == {1e-3}
+
+
+def leapt_stream(leap_us, at=2000, glitch=False, seconds=4.0):
+    """Format B at 1 kHz turning at 30 deg/s whose clock leaps by leap_us at message ``at`` (for it alone: a glitch)."""
+    encoder = KvhFogEncoder(KvhFogConfig(message_format='B'))
+    for i in range(int(seconds * 1000)):
+        if i == at:
+            encoder.unit_time_us += leap_us
+        message = encoder(30.0, 25.0)
+        if i == at and glitch:
+            encoder.unit_time_us -= leap_us
+        yield message, i / 1000
+
+
+@pytest.mark.parametrize('glitch', [False, True])
+@pytest.mark.parametrize('leap_us', [300_000, 2_000, 20, -300, 1_400_000])
+def test_format_b_clock_leap_the_sequence_contradicts_is_rejected_and_the_clock_followed(leap_us, glitch):
+    """A leap under MAX_INTERVAL_US (or one glitched stamp): one message rejected, no rate off, unit time continuous."""
+    parser = KvhFogParser(KvhFogConfig(message_format='B'))
+    samples = read(parser, leapt_stream(leap_us, glitch=glitch))
+    rates = [s.raw_rate for s in samples]
+    assert rates == pytest.approx([30.0] * len(rates), rel=1e-3), (min(rates), max(rates))
+    assert parser.stats.rejected_by_reason[BAD_TIMESTAMP] == 1
+    assert parser.stats.clock_faults == (0 if glitch else 1)   # a leap: the driver maps the clock anew
+    assert len(samples) == 4000 - 2
+    steps = {round((b.unit_time_us - a.unit_time_us) * 1e-3) for a, b in zip(samples, samples[1:])}
+    assert steps == {1, 2}, steps   # the rejected message is a step of two, never the leap
+
+
+@pytest.mark.parametrize('rate_hz', [5000.0, 1000.0])
+def test_a_late_reading_adapter_is_not_a_gap(rate_hz):
+    """Reads every 16 ms, each up to 16 ms late (a USB adapter's latency timer): 128 messages are 25.6 ms at 5 kHz."""
+    config = KvhFogConfig(output_rate_hz=rate_hz)
+    for seed in range(3):
+        parser = KvhFogParser(config)
+        read(parser, stream(config, rate_hz, 4.0), chunk_s=0.016, jitter_s=0.016, seed=seed)
+        assert parser.stats.lost_frames == 0
