@@ -53,6 +53,18 @@ def start_node(domain: int, output: Path, *ros_args: str) -> subprocess.Popen[by
                                 env=node_env(domain), cwd=REPO, stdout=out, stderr=subprocess.STDOUT)
 
 
+def start_refused(output: Path, *ros_args: str) -> tuple[int, str]:
+    """Start ``gyro_node`` expecting it to exit at start-up: its exit code and output (fails if it runs on)."""
+    proc = start_node(domain_id(), output, *ros_args)
+    try:
+        code = proc.wait(TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f'the node hung or ran instead of refusing:\n{output.read_text()}') from None
+    return code, output.read_text()
+
+
 def stop_node(proc: subprocess.Popen[bytes], signum: int, output: Path) -> None:
     """Signal the node and require a clean exit 0."""
     proc.send_signal(signum)

@@ -23,7 +23,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from rosproc import (REPO, TIMEOUT_S, Listener, domain_id, node_env, node_with_listener, start_node,  # noqa: E402
+from rosproc import (REPO, Listener, domain_id, node_env, node_with_listener, start_refused,  # noqa: E402
                      stop_node, wait_until)
 from std_srvs.srv import Trigger  # noqa: E402
 
@@ -499,15 +499,7 @@ def _duplicate_key(tmp_path: Path) -> list[str]:
 ], ids=['huge_params_file', 'fifo_calibration', 'fifo_params_file', 'duplicate_key'])
 def test_bad_files_refused_at_once(tmp_path: Path, args, message: str) -> None:
     """Files that hung start-up or loaded silently wrong: refused with one line naming the file."""
-    output = tmp_path / 'node.log'
-    proc = start_node(domain_id(), output, *args(tmp_path))
-    try:
-        code = proc.wait(TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        raise AssertionError(f'the node hung or ran instead of refusing:\n{output.read_text()}') from None
-    text = output.read_text()
+    code, text = start_refused(tmp_path / 'node.log', *args(tmp_path))
     assert code == 1 and text.startswith('gyro_node: error: ') and message.format(tmp=tmp_path) in text, text
     assert 'Traceback' not in text
 

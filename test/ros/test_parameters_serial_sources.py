@@ -7,7 +7,6 @@ the files let another gyro's calibration through in one order and refused it in 
 from __future__ import annotations
 
 import signal
-import subprocess
 from collections.abc import Callable
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from rosproc import REPO, TIMEOUT_S, domain_id, start_node, stop_node, wait_until  # noqa: E402
+from rosproc import REPO, domain_id, start_node, start_refused, stop_node, wait_until  # noqa: E402
 
 from art_gyro_calibration.ros.parameters import given_values, params_file_values, params_files  # noqa: E402
 
@@ -55,15 +54,7 @@ def test_every_source_of_a_parameter_is_found_in_command_line_order(tmp_path: Pa
 
 
 def _refused(tmp_path: Path, *args: str) -> str:
-    output = tmp_path / 'node.log'
-    proc = start_node(domain_id(), output, *args)
-    try:
-        code = proc.wait(TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        raise AssertionError(f'the node ran instead of refusing:\n{output.read_text()}') from None
-    text = output.read_text()
+    code, text = start_refused(tmp_path / 'node.log', *args)
     assert code == 1 and text.startswith('gyro_node: error: ') and 'Traceback' not in text, text
     return text
 

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip('rclpy')
 
-from rosproc import TIMEOUT_S, domain_id, start_node  # noqa: E402
+from rosproc import start_refused  # noqa: E402
 
 from art_gyro_calibration.calibration import MAX_YAML_DEPTH  # noqa: E402
 
@@ -22,14 +21,6 @@ def test_node_refuses_a_deep_yaml_file_in_one_line(tmp_path: Path, option: str) 
     deep.write_text('/**:\n  ros__parameters:\n    a: ' + '[' * DEPTH + ']' * DEPTH + '\n')
     args = (['--params-file', str(deep)] if option == '--params-file' else
             ['-p', 'serial_number:=NAVC3545', '-p', f'calibration_file:={deep}'])
-    output = tmp_path / 'node.log'
-    proc = start_node(domain_id(), output, *args)
-    try:
-        code = proc.wait(TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        raise AssertionError(f'the node ran instead of refusing:\n{output.read_text()}') from None
-    text = output.read_text()
+    code, text = start_refused(tmp_path / 'node.log', *args)
     assert code == 1 and text.startswith(f'gyro_node: error: {deep}: not a ') and len(text.splitlines()) == 1, text
     assert f'nested deeper than {MAX_YAML_DEPTH} levels' in text and 'Traceback' not in text
