@@ -109,16 +109,3 @@ def test_calibrate_apply_says_how_many_rows_were_not_corrected_as_logged(tmp_pat
             'the node flags such rates uncorrected') in err, err
     out = np.loadtxt(tmp_path / 'out.csv', delimiter=',', skiprows=1)
     assert np.isfinite(out).all() and np.abs(out[:, 4]).max() < 1.0
-
-
-def test_calibrate_fit_writes_the_range_each_node_signal_was_fitted_over(tmp_path) -> None:
-    from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
-    from art_gyro_calibration.log import read_log
-    cal = load_packaged_calibration('NAVC4058')
-    log = tmp_path / 'LOG.csv'
-    write_run(log, simulate_run(cal, SimulationSettings(hours=2.0, seed=2, effects=('supply_voltage',))))
-    assert main(['fit', str(log), '--rows', '3', '--columns', '2', '--serial', 'NAVC4058', '--node-signal', 'supply_v',
-                 '--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'REPORT.json')]) == 0
-    written = load_calibration(tmp_path / 'CAL.yaml', expected_serial='NAVC4058')
-    supply = read_log(log, cal.rate_scale_factor, cal.temp_scale_factor).extras['supply_v']
-    assert written.signal_ranges == {'supply_v': (float(supply.min()), float(supply.max()))}

@@ -17,6 +17,7 @@ from art_gyro_calibration.compensation import Compensator
 from art_gyro_calibration.signals import SignalFeed
 from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
+from art_gyro_calibration.log import read_log
 
 
 def test_a_supply_voltage_effect_is_a_finding_and_the_node_loads_the_file(tmp_path, capsys):
@@ -49,6 +50,8 @@ def test_with_node_signal_the_supply_term_is_written_and_the_report_names_the_no
                  '--out', str(tmp_path / 'CAL.yaml'), '--report', str(tmp_path / 'REPORT.json')]) == 0
     written = load_calibration(tmp_path / 'CAL.yaml', expected_serial='NAVC4058')
     assert 'supply_v' in [t.signal for t in written.terms]
+    supply = read_log(log, cal.rate_scale_factor, cal.temp_scale_factor).extras['supply_v']
+    assert written.signal_ranges == {'supply_v': (float(supply.min()), float(supply.max()))}   # its fitted envelope
     report = json.loads((tmp_path / 'REPORT.json').read_text())
     assert 'supply_v' not in {f['signal'] for f in report['findings_not_written']}
     assert report['written']['terms'] == [t.signal for t in written.terms]
