@@ -1,8 +1,7 @@
 """kvh_fog sequence and clock faults told apart by the clocks that disagree."""
 
-import random
-
 import pytest
+from test_kvh_fog import read_like_a_port
 
 from art_gyro_calibration.protocols.kvh_fog import BAD_TIMESTAMP, KvhFogConfig, KvhFogEncoder, KvhFogParser
 
@@ -16,24 +15,12 @@ def stream(config, rate_hz, seconds, lost=range(0)):
             yield message, i / rate_hz
 
 
-def read(parser, messages, chunk_s=0.004, jitter_s=0.002, seed=0):
-    """The samples of reads every chunk_s, each returning late by up to jitter_s (a USB adapter)."""
-    rng = random.Random(seed)
-    out, chunk, due = [], b'', chunk_s
-    for message, t in messages:
-        while t > due:
-            out += parser.feed(chunk, arrival_ns=int((due + rng.uniform(0, jitter_s)) * 1e9))
-            chunk, due = b'', due + chunk_s
-        chunk += message
-    return [s for s, _ in out + parser.feed(chunk, arrival_ns=int((due + rng.uniform(0, jitter_s)) * 1e9))]
-
-
 def test_format_b_gap_of_a_whole_wrap_is_counted_by_the_units_clock():
     """128 messages lost: the sequence says 0 or 1 steps, the unit's clock says 128 or 129 intervals."""
     config = KvhFogConfig(message_format='B')
     for lost in (range(2000, 2128), range(2000, 2129), range(2000, 2385)):
         parser = KvhFogParser(config)
-        samples = read(parser, stream(config, 1000.0, 4.0, lost))
+        samples = read_like_a_port(parser, stream(config, 1000.0, 4.0, lost))
         rates = [s.raw_rate for s in samples]
         assert rates == pytest.approx([30.0] * len(rates), rel=1e-3), (lost, min(rates))
         assert parser.stats.lost_frames == len(lost)
@@ -45,7 +32,7 @@ def test_stream_gap_of_a_whole_wrap_is_counted_by_arrival_time(message_format, l
     """130 messages lost look like 2 by the sequence: arrival time says 130, so the interval fit stays right."""
     config = KvhFogConfig(message_format=message_format)
     parser = KvhFogParser(config)
-    samples = read(parser, stream(config, 1000.0, 8.0, lost))
+    samples = read_like_a_port(parser, stream(config, 1000.0, 8.0, lost))
     off = [s.raw_rate for s in samples if abs(s.raw_rate / 30.0 - 1.0) > 3e-3]
     assert not off, (len(off), min(off), max(off))
     assert parser.stats.lost_frames == len(lost)
@@ -58,7 +45,7 @@ def test_a_stalled_read_is_not_a_gap(stall_s):
     config = KvhFogConfig()
     parser = KvhFogParser(config)
     messages = list(stream(config, 1000.0, 6.0))
-    samples = read(parser, ((m, 3.0 + stall_s if 3.0 <= t < 3.0 + stall_s else t) for m, t in messages))
+    samples = read_like_a_port(parser, ((m, 3.0 + stall_s if 3.0 <= t < 3.0 + stall_s else t) for m, t in messages))
     assert parser.stats.lost_frames == 0
     assert [s.raw_rate for s in samples] == pytest.approx([30.0] * len(samples), rel=3e-3)
 
@@ -69,7 +56,7 @@ def test_configured_rate_is_used_only_where_the_measure_cannot_tell_it_apart(mes
     """A unit at 1009 Hz told 1000 is measured, not "confirmed": its rates are right, not 0.9 % low."""
     config = KvhFogConfig(message_format=message_format)
     parser = KvhFogParser(config)
-    samples = read(parser, stream(config, unit_rate_hz, 4.0))
+    samples = read_like_a_port(parser, stream(config, unit_rate_hz, 4.0))
     late = samples[len(samples) // 2:]
     assert [s.raw_rate for s in late] == pytest.approx([30.0] * len(late), rel=5e-4)
     if unit_rate_hz == 1000.0:   # the unit's own period, not the measure's jitter
@@ -93,7 +80,7 @@ def leapt_stream(leap_us, at=2000, glitch=False, seconds=4.0):
 def test_format_b_clock_leap_the_sequence_contradicts_is_rejected_and_the_clock_followed(leap_us, glitch):
     """A leap under MAX_INTERVAL_US (or one glitched stamp): one message rejected, no rate off, unit time continuous."""
     parser = KvhFogParser(KvhFogConfig(message_format='B'))
-    samples = read(parser, leapt_stream(leap_us, glitch=glitch))
+    samples = read_like_a_port(parser, leapt_stream(leap_us, glitch=glitch))
     rates = [s.raw_rate for s in samples]
     assert rates == pytest.approx([30.0] * len(rates), rel=1e-3), (min(rates), max(rates))
     assert parser.stats.rejected_by_reason[BAD_TIMESTAMP] == 1
@@ -109,5 +96,5 @@ def test_a_late_reading_adapter_is_not_a_gap(rate_hz):
     config = KvhFogConfig(output_rate_hz=rate_hz)
     for seed in range(3):
         parser = KvhFogParser(config)
-        read(parser, stream(config, rate_hz, 4.0), chunk_s=0.016, jitter_s=0.016, seed=seed)
+        read_like_a_port(parser, stream(config, rate_hz, 4.0), chunk_s=0.016, jitter_s=0.016, seed=seed)
         assert parser.stats.lost_frames == 0
