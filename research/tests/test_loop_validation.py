@@ -215,9 +215,20 @@ def test_the_detector_told_the_shape_finds_it_and_not_its_absence(lv: ModuleType
 
 def test_the_power_target_covers_long_fit_logs_from_a_quarter_magnitude(lv: ModuleType) -> None:
     """A cell of a 2 h fit log, or below magnitude 0.25, is reported but not judged."""
-    assert lv.targeted_cell({'magnitude': 0.25, 'hours': 6.0})
-    assert not lv.targeted_cell({'magnitude': 1.0, 'hours': 2.0})
-    assert not lv.targeted_cell({'magnitude': 0.1, 'hours': 6.0})
+    assert lv.targeted_cell({'effect': 'shupe', 'magnitude': 0.25, 'hours': 6.0})
+    assert not lv.targeted_cell({'effect': 'shupe', 'magnitude': 1.0, 'hours': 2.0})
+    assert not lv.targeted_cell({'effect': 'shupe', 'magnitude': 0.1, 'hours': 6.0})
+
+
+def test_the_drift_target_is_half_size_on_6_h_logs_and_quarter_size_on_12_h(lv: ModuleType) -> None:
+    """Issue 35 item 5: a 6 h log cannot tell a quarter-size drift from a bounded wander; a 12 h log is judged on it."""
+    assert not lv.targeted_cell({'effect': 'drift', 'magnitude': 0.25, 'hours': 6.0})
+    assert lv.targeted_cell({'effect': 'drift', 'magnitude': 0.5, 'hours': 6.0})
+    assert lv.targeted_cell({'effect': 'drift', 'magnitude': 0.25, 'hours': 12.0})
+    assert not lv.targeted_cell({'effect': 'drift', 'magnitude': 0.1, 'hours': 12.0})
+    assert ('drift', 0.25, 12.0) in lv.power_cells()
+    _, power = lv.cases_for(0, 1)
+    assert sum(c.effect == 'drift' and c.hours == 12.0 for c in power) == 1
 
 
 def test_rerunning_the_whole_fit_without_saved_results_is_refused(lv: ModuleType, monkeypatch: pytest.MonkeyPatch,
