@@ -21,7 +21,8 @@ def test_rows_corrected_beyond_the_range_are_written_uncorrected_and_counted(
     # 60 deg/s per V on the supply's departure from nominal, fitted over -1..1 V: 1.9 V (within the limits -2..2)
     # makes a correction of 114 deg/s.
     cal = dataclasses.replace(load_packaged_calibration('NAVC3545'),
-                              terms=(Term('supply_v', 'power', (60.0,), (1,)),), signal_ranges={'supply_v': (-1.0, 1.0)})
+                              terms=(Term('supply_v', 'power', (60.0,), (1,)),),
+                              signal_ranges={'supply_v': (-1.0, 1.0)})
     write_calibration(tmp_path / 'cal.yaml', cal)
     beyond = (150, 160, 270)
     rows = ['t,rate_dps,temp_c,supply_v'] + [f'{i / 10},0.01,25,{1.9 if i in beyond else 0}' for i in range(300)]
