@@ -114,7 +114,8 @@ class Compensator:
 
     A corrected rate beyond the unit's range (:attr:`~Calibration.rate_range_dps`) is no rate the gyro can have
     measured, whatever produced it (a term, the polynomial, a bias): :meth:`correct` answers the rate
-    uncorrected instead, not current, counted in ``beyond_unit_range`` (the last one in ``last_beyond_dps``).
+    uncorrected instead, not current, counted in ``beyond_unit_range`` (the last one in ``last_beyond_dps``);
+    as :func:`apply_calibration` does, a rate itself beyond the range (a frame the node drops) is left as it is.
     """
 
     __slots__ = ('calibration', '_bias', '_model', '_tracker', '_rate_scale', '_temp_scale', '_range',
@@ -227,7 +228,8 @@ class Compensator:
     def correct(self, rate_dps: float, error_dps: float) -> float:
         """``CompRate`` with the current static bias; if beyond the unit's range, ``rate_dps`` and not current."""
         corrected = self._bias.correct(rate_dps, error_dps)
-        if -self._unit_range <= corrected <= self._unit_range:
+        span = self._unit_range
+        if -span <= corrected <= span or not -span <= rate_dps <= span:   # the latter: a frame the node drops
             return corrected
         self.beyond_unit_range += 1
         self.last_beyond_dps = corrected

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.calibration import Calibration, load_packaged_calibration
-from art_gyro_calibration.compensation import FrameCorrector, apply_calibration
+from art_gyro_calibration.compensation import Compensator, FrameCorrector, apply_calibration
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import SignalFeed
 from art_gyro_calibration.static_bias import StaticBias
@@ -84,3 +84,7 @@ def test_apply_leaves_a_row_the_node_would_drop_as_beyond_the_range() -> None:
     rate = np.where(np.arange(n) < 50, 0.0, 110.0)
     applied = apply_calibration(GyroLog(np.arange(n) * 0.1, rate, np.full(n, 25.0)), cal, 20)
     assert applied.beyond_unit_range == 0 and np.abs(applied.corrected_dps[50:]).min() > cal.rate_range_dps
+    compensator = Compensator(cal)   # the same, a sample at a time (test_cli's node path against apply)
+    compensator.bias = applied.bias
+    error = float(applied.comp_dps[-1])
+    assert compensator.correct(110.0, error) == applied.corrected_dps[-1] and compensator.beyond_unit_range == 0
