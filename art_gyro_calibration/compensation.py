@@ -109,12 +109,18 @@ class Compensator:
     ``feeds``: the signals from outside the gyro the terms need (a calibration with a term on
     one not fed is refused). Each sample takes their latest values; until every one has had a
     value, the model without their terms is used. :attr:`current` says whether the last sample
-    had every feed's value no older than its limit (always True without feeds).
+    had every feed's value no older than its limit (always True without feeds) and, once corrected
+    (:meth:`correct`), a corrected rate within the unit's range.
+
+    A corrected rate beyond the unit's range (:attr:`~Calibration.rate_range_dps`) is no rate the gyro can have
+    measured, whatever produced it (a term, the polynomial, a bias): :meth:`correct` answers the rate
+    uncorrected instead, not current, counted in ``beyond_unit_range`` (the last one in ``last_beyond_dps``);
+    as :func:`apply_calibration` does, a rate itself beyond the range (a frame the node drops) is left as it is.
     """
 
     __slots__ = ('calibration', '_bias', '_model', '_tracker', '_rate_scale', '_temp_scale', '_range',
                  '_refinable', '_refinement', 'outside_range', '_feeds', '_limits', 'beyond_limits', '_unfed',
-                 'current')
+                 'current', '_unit_range', 'beyond_unit_range', 'last_beyond_dps')
 
     def __init__(self, calibration: Calibration, start: RunStart = RunStart(),
                  feeds: tuple[SignalFeed, ...] = ()) -> None:
@@ -140,6 +146,9 @@ class Compensator:
         self._refinement: Refinement | None = None
         self._bias: StaticBias = NO_BIAS
         self.outside_range = 0
+        self._unit_range = calibration.rate_range_dps
+        self.beyond_unit_range = 0
+        self.last_beyond_dps = math.nan
 
     @property
     def refinable(self) -> bool:
@@ -170,7 +179,10 @@ class Compensator:
         """Advance the signals to this sample and return comp, its modelled error."""
         tracker = self._tracker
         tracker.update(t, rate_dps, temp_c)
-        model = self._read_feeds() if self._feeds else self._model
+        if self._feeds:
+            model = self._read_feeds()
+        else:
+            model, self.current = self._model, True   # until correct() finds it beyond the unit's range
         low, high = self._range
         if not low <= temp_c <= high:
             self.outside_range += 1
@@ -214,8 +226,15 @@ class Compensator:
         return self._model.refinable_error_one(self._tracker) if self._refinable else 0.0
 
     def correct(self, rate_dps: float, error_dps: float) -> float:
-        """``CompRate`` with the current static bias."""
-        return self._bias.correct(rate_dps, error_dps)
+        """``CompRate`` with the current static bias; if beyond the unit's range, ``rate_dps`` and not current."""
+        corrected = self._bias.correct(rate_dps, error_dps)
+        span = self._unit_range
+        if -span <= corrected <= span or not -span <= rate_dps <= span:   # the latter: a frame the node drops
+            return corrected
+        self.beyond_unit_range += 1
+        self.last_beyond_dps = corrected
+        self.current = False
+        return rate_dps
 
 
 class FrameCorrector:
@@ -328,6 +347,9 @@ class Applied:
     # Per signal from outside the gyro, kept rows (this chunk and those before) that took another value than the
     # log's: (not finite: the last finite value held, beyond Calibration.signal_limits: applied at the limit).
     flagged: Mapping[str, tuple[int, int]] = field(default_factory=dict)
+    # Kept rows (this chunk and those before) whose rate is within the unit's range and corrected rate beyond it (or
+    # not a number): written uncorrected, as the node publishes them flagged (Compensator.correct).
+    beyond_unit_range: int = 0
 
 
 def _fed_values(log: GyroLog, calibration: Calibration,
@@ -375,7 +397,9 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
     not: ``calibrate fit`` excludes them before, see :func:`usable_rates`). A log read in chunks
     passes each chunk with ``after`` = the previous chunk's result (the first chunk
     holding at least ``bias_samples`` kept rows): its signals continue, and its bias is kept.
-    ``start`` says how the run began (the first chunk's; later chunks continue it).
+    ``start`` says how the run began (the first chunk's; later chunks continue it). A row whose corrected rate
+    is beyond the unit's range is written uncorrected and counted (:attr:`Applied.beyond_unit_range`), as the node
+    publishes it flagged.
     """
     kept = plausible(log.temp_c)
     if not kept.all():
@@ -418,5 +442,11 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
         if ready < len(log):
             bias, refinement = refinement.refined(), None
             corrected[ready:] = bias.correct(log.rate_dps[ready:], comp[ready:])
+    # Of the rows the node would take (a rate beyond the unit's range it drops: a simulated table's 100 deg/s).
+    span = calibration.rate_range_dps
+    beyond = ~(np.abs(corrected) <= span) & (np.abs(log.rate_dps) <= span)
+    if beyond.any():
+        corrected[beyond] = log.rate_dps[beyond]
+    beyond_unit_range = int(np.count_nonzero(beyond)) + (0 if after is None else after.beyond_unit_range)
     return Applied(comp, corrected, bias, kept, signals.end_state(), outside_range, refinement, start, last_values,
-                   flagged)
+                   flagged, beyond_unit_range)

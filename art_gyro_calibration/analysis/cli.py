@@ -66,6 +66,10 @@ def _apply(args: argparse.Namespace) -> int:
             low, high = calibration.signal_limits(name)
             _warn(f'{name}: {held} rows not finite (the last finite value held) and {beyond} beyond {low:g}..'
                   f'{high:g} (applied at the limit): the node flags such rates uncorrected')
+    if done.beyond_unit_range:
+        _warn(f'{done.beyond_unit_range} rows whose corrected rate is beyond the unit\'s range '
+              f'+-{calibration.rate_range_dps:g} deg/s: written uncorrected (the log\'s rate), as the node publishes '
+              'them flagged uncorrected')
     return 0
 
 

@@ -34,6 +34,7 @@ class Streamed:
     bias: StaticBias
     outside_range: int    # kept rows outside the calibration's expected temperature range
     flagged: Mapping[str, tuple[int, int]]   # per signal from outside the gyro: rows held, rows beyond its limits
+    beyond_unit_range: int = 0   # rows whose corrected rate was beyond the unit's range: written uncorrected
 
 
 def apply_to_csv(log_path: str | Path, calibration: Calibration, bias_samples: int, out: IO[bytes],
@@ -65,4 +66,4 @@ def apply_to_csv(log_path: str | Path, calibration: Calibration, bias_samples: i
         rows += len(chunk)
         dropped += len(chunk) - len(kept_log)
     assert applied is not None   # the loop ran: an empty log is refused by the reader
-    return Streamed(rows, dropped, applied.bias, applied.outside_range, applied.flagged)
+    return Streamed(rows, dropped, applied.bias, applied.outside_range, applied.flagged, applied.beyond_unit_range)

@@ -95,6 +95,7 @@ class Diagnostics:
         self._invalid = SinceLastReport()             # frames the gyro flagged invalid (AXIS_INVALID)
         self._outside_range = SinceLastReport()       # frames outside the expected range (Compensator.outside_range)
         self._implausible = SinceLastReport()
+        self._beyond_unit_range = SinceLastReport()   # corrected rates beyond the unit's range (published uncorrected)
         self._not_finite = [SinceLastReport() for _ in node.feeds]   # per extra signal: values refused
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
         group = MutuallyExclusiveCallbackGroup()   # type: ignore[no-untyped-call]  # rclpy: __init__ unannotated
@@ -145,6 +146,9 @@ class Diagnostics:
         if dropped[NOT_FINITE]:
             values['last_not_finite_error'] = corrector.last_drop_error or 'a non-finite compensated rate'
         # Frames the gyro numbered but that never came, and frames it flagged invalid, since the last report.
+        compensator = corrector.compensator
+        values['corrected_beyond_range'] = compensator.beyond_unit_range
+        beyond = self._beyond_unit_range.take(compensator.beyond_unit_range)
         lost = self._lost.take(stats.lost_frames)
         flagged = self._invalid.take(stats.rejected_by_reason.get(AXIS_INVALID, 0))
         if not stats.connected:
@@ -154,6 +158,12 @@ class Diagnostics:
             return self._status('link', DiagnosticStatus.ERROR, mismatch, values)
         if rate_hz == 0.0:
             return self._status('link', DiagnosticStatus.WARN, 'connected, no frames', values)
+        if beyond:
+            span = self._node.calibration.rate_range_dps
+            return self._status('link', DiagnosticStatus.ERROR, f'connected, {rate_hz:.1f} Hz; {beyond} corrected '
+                                f'rates since the last report beyond the unit\'s range +-{span:g} deg/s (the last '
+                                f'{compensator.last_beyond_dps:+.6g} deg/s): published uncorrected, flagged '
+                                '(covariance)', values)
         # An implausible temperature is the temperature status's ERROR; the others would show nowhere else.
         if any(count for reason, count in recent.items() if reason != IMPLAUSIBLE_TEMPERATURE):
             not_published = ', '.join(f'{count} {reason}' for reason, count in recent.items() if count)

@@ -11,7 +11,8 @@ Topics (relative names, so they follow the node's namespace and remappings):
   acceleration are not measured: element 0 of their covariances is -1 (REP 145). The gyro
   measures z only: x and y are reported as 0 with variance :data:`UNMEASURED_VARIANCE`, so a
   filter that fuses them gives them no weight; element 8 is ``yaw_rate_stddev`` squared while a
-  static bias is in force, :data:`UNCORRECTED_YAW_VARIANCE` before (an uncorrected rate).
+  static bias is in force, :data:`UNCORRECTED_YAW_VARIANCE` before (an uncorrected rate), and for a
+  frame whose corrected rate is beyond the unit's range, published uncorrected.
   With ``protocol:=kvh_fog`` the message is the whole IMU: x and y rates and the three
   accelerations (m/s^2) too, in REP 103 axes from ``kvh_fog.yaw_axis`` and ``forward_axis``, with
   the variances of ``kvh_fog.rate_stddev`` and ``acceleration_stddev`` (an axis its status byte
@@ -205,9 +206,10 @@ class GyroNode(Node):
         imu.angular_velocity.z = math.radians(corrector.rate_dps)
         if self._axes and sample is not None and sample.imu is not None:
             self._fill_imu(imu, sample.imu)
-        if self.feeds:   # an extra signal missing or stale: flagged as before a static bias
-            imu.angular_velocity_covariance[8] = (self._yaw_variance if self.is_calibrated and
-                                                  corrector.compensator.current else UNCORRECTED_YAW_VARIANCE)
+        # Flagged as before a static bias: an extra signal missing, stale or beyond its limits, or a corrected rate
+        # beyond the unit's range (published uncorrected).
+        imu.angular_velocity_covariance[8] = (self._yaw_variance if self.is_calibrated and
+                                              corrector.compensator.current else UNCORRECTED_YAW_VARIANCE)
         self._imu_pub.publish(imu)
         uncalibrated = self._uncalibrated
         if uncalibrated is not None:   # the rate as the compensator scales it, before any correction
@@ -229,7 +231,6 @@ class GyroNode(Node):
         """A static bias is in force (reader thread, before the frame that completed it is published)."""
         if not self.is_calibrated:   # a bias replaces a bias: the state changes once
             self.is_calibrated = True
-            self._imu.angular_velocity_covariance[8] = self._yaw_variance
             self._calibrated_pub.publish(Bool(data=True))
 
     # --- signals from outside the gyro ---------------------------------------------------------
