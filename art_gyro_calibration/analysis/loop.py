@@ -646,8 +646,8 @@ def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation
     weights = binned.sqrt_counts ** 2 / spread_of ** 2
     if not names or len(residual) < 4 * SHAPE_GROUPS:
         return ()
-    groups = [signal_groups(np.asarray(signals.get(name))[before if name in RATE_SIGNALS else rows], name == 'angle')
-              for name in names]
+    groups = [signal_groups(_finite(np.asarray(signals.get(name))[before if name in RATE_SIGNALS else rows]),
+                            name == 'angle') for name in names]
     share = weights / weights.sum()
     shares = [np.asarray(np.bincount(g, weights=share), dtype=np.float64) for g in groups]
     own = [_group_means(g, weights, residual[:, None])[:, 0] for g in groups]
@@ -683,6 +683,18 @@ def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation
         found.append(bool(scores[i, 0] > chance and shape_dph[i] > bar))
     return tuple(SignalShape(name, float(shape_dph[i]), float(scores[i, 0]), chance, found[i])
                  for i, name in enumerate(names))
+
+
+def _finite(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``x`` with an infinite value held at the largest finite one.
+
+    A warm run's time since power-on (infinite: its warm-up has decayed) joins the latest times of
+    the cold runs beside it in a several-run fit.
+    """
+    infinite = np.isposinf(x)
+    if not infinite.any() or infinite.all():
+        return x
+    return np.where(infinite, np.max(x[~infinite]), x)
 
 
 def _maybe_square(spec: TermSpec, binned: trace.Binned, specs: list[TermSpec], materiality_dph: float) -> TermSpec:
