@@ -464,6 +464,11 @@ def test_fit_of_several_runs_reports_each(three_runs, monkeypatch):
         low, high = run['temperature_c']
         assert cal.temperature_range_c[0] <= low < high <= cal.temperature_range_c[1]
     assert 'cold1.csv and cold2.csv and warm.csv' in (three_runs / 'CAL.yaml').read_text()
+    # The node's runs, replayed against the baseline and in the start-up check: each within one run, every run's start.
+    names = ['cold1.csv', 'cold2.csv', 'warm.csv']
+    assert sorted({r['run'].split(':')[0] for r in report['baseline']['runs']}) == names
+    assert [r['source'] for r in report['startup_check']['runs']][:3] == [
+        'cold1.csv: from the log\'s power-on', 'cold2.csv: from the log\'s power-on', 'warm.csv: from its start (warm)']
 
 
 def test_fit_parses_several_logs_and_warm_starts():

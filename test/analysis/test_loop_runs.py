@@ -5,6 +5,7 @@ import pytest
 
 from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.replay import COLD_START_NAME, startup_check
+from art_gyro_calibration.analysis.report import stage_error
 from art_gyro_calibration.analysis.runs import joined
 from art_gyro_calibration.analysis.simulate import (EFFECTS, SimulatedRun, SimulationSettings, same_gyro,
                                                     simulate_run, warm_restart)
@@ -61,6 +62,12 @@ def test_each_run_keeps_its_turn_on_bias_and_every_start_is_judged(
     assert result.run_offsets_dps[0] == 0.0
     assert np.array(result.run_offsets_dps) == pytest.approx(true - true[0], abs=0.0015)
     assert np.ptp(true) > 0.003   # they differ by more than that
+    # The report's errors: each run started as the node starts it, its own static bias taking its turn-on bias out
+    # (as one run, the later runs carried their turn-on bias less the first's).
+    error = stage_error(log, result, 100, 'extended')
+    steady = result.segments.rows()
+    for run in fitted:
+        assert abs(np.mean(error[steady[(steady >= run.first_row) & (steady < run.stop)]])) < 0.001
     _, check, names = startup_check(result, log)
     assert check is not None
     assert names[:2] == [f'cold1.csv: {COLD_START_NAME}', f'cold2.csv: {COLD_START_NAME}']
