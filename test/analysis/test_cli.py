@@ -447,6 +447,7 @@ def three_runs(tmp_path_factory):
     write_run(d / 'cold1.csv', simulate_run(cal, settings))
     write_run(d / 'cold2.csv', simulate_run(cal, same_gyro(settings, 2)))
     write_run(d / 'warm.csv', warm_restart(cal, same_gyro(settings, 3), 3600.0))
+    write_run(d / 'other.csv', simulate_run(cal, same_gyro(settings, 4)))
     return d
 
 
@@ -455,6 +456,8 @@ def test_fit_of_several_runs_reports_each(three_runs, monkeypatch):
     assert main(['fit', 'cold1.csv', 'cold2.csv', 'warm.csv', '--warm-start', 'warm.csv', '--rows', '3', '--columns',
                  '2', '--serial', 'NAVC4058', '--out', 'CAL.yaml', '--report', 'REPORT.json']) == 0
     report = json.loads((three_runs / 'REPORT.json').read_text())
+    # The warm-up was fitted on two power-ons: no warning that one log alone judged it.
+    assert 'time_since_power_on' in report['written']['terms'] and 'warnings' not in report
     logs = [read_log(three_runs / name, 1.0, 1.0) for name in ('cold1.csv', 'cold2.csv', 'warm.csv')]
     assert [(r['name'], r['rows'], r['powered_on_at_start']) for r in report['runs']] == [
         ('cold1.csv', len(logs[0]), True), ('cold2.csv', len(logs[1]), True), ('warm.csv', len(logs[2]), False)]
@@ -469,6 +472,16 @@ def test_fit_of_several_runs_reports_each(three_runs, monkeypatch):
     assert sorted({r['run'].split(':')[0] for r in report['baseline']['runs']}) == names
     assert [r['source'] for r in report['startup_check']['runs']][:3] == [
         'cold1.csv: from the log\'s power-on', 'cold2.csv: from the log\'s power-on', 'warm.csv: from its start (warm)']
+
+
+def test_several_runs_are_validated_on_another(three_runs, monkeypatch):
+    monkeypatch.chdir(three_runs)
+    assert main(['fit', 'cold1.csv', 'cold2.csv', 'warm.csv', '--warm-start', 'warm.csv', '--rows', '3', '--columns',
+                 '2', '--serial', 'NAVC4058', '--out', 'VALIDATED.yaml', '--report', 'VALIDATED.json',
+                 '--validate', 'other.csv', '--validate-powered-on-at-start']) == 0
+    report = json.loads((three_runs / 'VALIDATED.json').read_text())
+    assert [r['source'] for r in report['validation']['runs']] == ['other.csv']
+    assert len(report['runs']) == 3
 
 
 def test_fit_parses_several_logs_and_warm_starts():
