@@ -71,7 +71,7 @@ class LoopOptions(trace.ScreenOptions):
     what the model leaves (a real gyro's bias wanders for hours). An effect must reach
     ``materiality_dph`` over the logged envelope; None: the bias instability of what
     the ART polynomial leaves (:func:`noise_levels`). ``from_power_on``: the log
-    starts at the gyro's power-on (a warm-up is a candidate only then).
+    starts at the gyro's power-on (a warm-up is a candidate only then; several runs: each says its own).
     ``still_instability_dps``: the bias instability measured on a record at rest
     (``calibrate fit --still``), for the materiality and the noise budget instead of the residual's.
     ``node_signals``: log columns the robot will feed the node by topic (a supply voltage): an
@@ -212,6 +212,11 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
     if [r.first_row for r in runs] != [0, *(r.stop for r in runs[:-1])] or runs[-1].stop != len(log):
         raise ValueError(f'the runs ({", ".join(f"{r.name}: rows {r.first_row}..{r.stop}" for r in runs)}) '
                          f'do not cover the log\'s {len(log)} rows one after another')
+    # The held-out blocks, bins and segments follow the fit's one clock: each run after the one before.
+    behind = [r.name for r in runs[1:] if log.t[r.first_row] <= log.t[r.first_row - 1]]
+    if behind:
+        raise ValueError(f'run {behind[0]} begins before the run before it ended: lay the runs end to end '
+                         '(analysis.runs.joined)')
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters,
                               powered_on_at_start=any(r.powered_on_at_start for r in runs),
                               run_starts=run_starts(runs))

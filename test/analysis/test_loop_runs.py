@@ -73,3 +73,15 @@ def test_each_run_keeps_its_turn_on_bias_and_every_start_is_judged(
     assert names[:2] == [f'cold1.csv: {COLD_START_NAME}', f'cold2.csv: {COLD_START_NAME}']
     assert 'warm.csv: from its start (warm)' in names
     assert {name.split(':')[0] for name in names} == {'cold1.csv', 'cold2.csv', 'warm.csv'}
+
+
+def test_runs_must_lie_end_to_end(runs: list[tuple[str, GyroLog, bool]]) -> None:
+    """Runs given with their own clocks (overlapping) are refused: the folds and bins need one clock."""
+    log, fitted = joined(runs[:2])
+    first = fitted[1].first_row
+    overlapping = GyroLog(np.concatenate([log.t[:first], log.t[first:] - log.t[first] + log.t[0]]), log.rate_dps,
+                          log.temp_c, log.ref_rate, log.extras)
+    with pytest.raises(ValueError, match='run cold2.csv begins before the run before it ended'):
+        close_loop(overlapping, CAL.polynomial.rows, CAL.polynomial.columns, LoopOptions(draws=10), fitted)
+    with pytest.raises(ValueError, match='do not cover'):
+        close_loop(log, CAL.polynomial.rows, CAL.polynomial.columns, LoopOptions(draws=10), fitted[:1])
