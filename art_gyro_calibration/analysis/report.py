@@ -23,7 +23,7 @@ from art_gyro_calibration.compensation import RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.analysis.loop import ADEQUACY_RATIO, Effect, LoopResult, not_written_reason
 from art_gyro_calibration.analysis.metrics import error_metrics
-from art_gyro_calibration.analysis.replay import COLD_START_NAME, Validation
+from art_gyro_calibration.analysis.replay import Validation, judged_cold
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_DRAWS, FORMS_TRIED
 from art_gyro_calibration.static_bias import static_bias
 
@@ -194,7 +194,7 @@ def markdown_summary(report: dict[str, Any]) -> str:
     lines += [line for warning in report.get('warnings', []) for line in ('', f'**Warning:** {warning}.')]
     lines += ['', 'Forms tried: ' + '; '.join(f'{name} ({what})' for name, what in report['forms_tried'].items()) + '.']
     if 'startup_check' in report:
-        cold = [r['source'] for r in report['startup_check']['runs'][:1]] == [COLD_START_NAME]
+        cold = judged_cold([r['source'] for r in report['startup_check']['runs']])
         lines += validation_markdown(
             report['startup_check'],
             'Start-up check: the fitted log run ' + ('from its power-on and ' if cold else '') + 'restarted warm',

@@ -472,6 +472,8 @@ def test_fit_of_several_runs_reports_each(three_runs, monkeypatch):
     assert sorted({r['run'].split(':')[0] for r in report['baseline']['runs']}) == names
     assert [r['source'] for r in report['startup_check']['runs']][:3] == [
         'cold1.csv: from the log\'s power-on', 'cold2.csv: from the log\'s power-on', 'warm.csv: from its start (warm)']
+    assert 'Start-up check: the fitted log run from its power-on and restarted warm' in (
+        three_runs / 'REPORT.md').read_text()
 
 
 def test_several_runs_are_validated_on_another(three_runs, monkeypatch):
