@@ -171,20 +171,42 @@ class Signals:
     previous: SignalState | None = None
     powered_on_at_start: bool = True
     angle_correction: RateCorrection | None = field(default=None, compare=False)
+    # Several runs of one gyro, one after another (a several-run fit): (first row, began at power-on) of each,
+    # the first at row 0; () for one run (``powered_on_at_start`` says how it began). Every causal recursion,
+    # ``time`` and ``time_since_power_on`` restart at a run's first row (:meth:`runs`).
+    run_starts: tuple[tuple[int, bool], ...] = ()
     _lags: dict[float, NDArray[np.float64]] = field(default_factory=dict, compare=False, repr=False)
     _levels: dict[str, float | None] = field(default_factory=dict, compare=False, repr=False)
     # States at the ends of chunks of the log (by chunk size), lags aside: :mod:`analysis.chunks` makes
     # each once. Not an init field, so that a replace()d Signals (another angle_correction) starts afresh.
     chunk_states: dict[int, list[SignalState]] = field(default_factory=dict, init=False, compare=False, repr=False)
 
+    def runs(self) -> list[tuple[int, Signals]]:
+        """(first row, signals) of each run: each starts afresh, as at a log's first sample (one run: this one)."""
+        if not self.run_starts:
+            return [(0, self)]
+        stops = [first for first, _ in self.run_starts[1:]] + [len(self.t)]
+        return [(a, Signals(t=self.t[a:b], rate=self.rate[a:b], temperature=self.temperature[a:b],
+                            extras={k: v[a:b] for k, v in self.extras.items()}, filters=self.filters,
+                            powered_on_at_start=cold, angle_correction=self.angle_correction))
+                for (a, cold), b in zip(self.run_starts, stops)]
+
+    def _joined(self, signal: Callable[[Signals], NDArray[np.float64]]) -> NDArray[np.float64]:
+        """``signal`` of each run (:meth:`runs`), one after another."""
+        return np.concatenate([signal(run) for _, run in self.runs()])
+
     @cached_property
     def temperature_rate(self) -> NDArray[np.float64]:
         """Filtered temperature rate of change, degC/s."""
+        if self.run_starts:
+            return self._joined(lambda run: run.temperature_rate)
         return self._derivative(self.temperature, 'temperature_level', self.filters.temperature_rate_tau_s)
 
     @cached_property
     def rate_change(self) -> NDArray[np.float64]:
         """Filtered rate of change of the measured rate, deg/s^2."""
+        if self.run_starts:
+            return self._joined(lambda run: run.rate_change)
         return self._derivative(self.rate, 'rate_level', self.filters.rate_change_tau_s)
 
     def _derivative(self, x: NDArray[np.float64], level_name: str, tau_s: float) -> NDArray[np.float64]:
@@ -231,6 +253,8 @@ class Signals:
 
     def lagged_temperature(self, tau_s: float) -> NDArray[np.float64]:
         """The temperature through a first-order lag of ``tau_s`` (degC), starting at the first sample's."""
+        if tau_s not in self._lags and self.run_starts:
+            self._lags[tau_s] = self._joined(lambda run: run.lagged_temperature(tau_s))
         if tau_s not in self._lags:
             levels = dict(self.previous.lag_levels) if self.previous is not None else {}
             self._lags[tau_s] = self._smoothed(self.temperature, levels.get(tau_s), tau_s)
@@ -245,11 +269,15 @@ class Signals:
     @property
     def time_since_power_on(self) -> NDArray[np.float64]:
         """Seconds since the gyro's power-on: ``time``, or infinite if the log did not start at power-on."""
+        if self.run_starts:
+            return self._joined(lambda run: run.time_since_power_on)
         return self.time if self.powered_on_at_start else np.full(len(self.t), np.inf)
 
     @cached_property
     def angle(self) -> NDArray[np.float64]:
         """Angle turned in degrees, trapezoidal integral of the measured rate (less ``angle_correction``'s error)."""
+        if self.run_starts:
+            return self._joined(lambda run: run.angle)
         rate = self._angle_rate
         if self.previous is None:
             if not len(rate):
@@ -268,10 +296,14 @@ class Signals:
     @property
     def time(self) -> NDArray[np.float64]:
         """Seconds since the first sample (power-on, as far as the log knows)."""
+        if self.run_starts:
+            return self._joined(lambda run: run.time)
         return self.t - (self.t[0] if self.previous is None else self.previous.t0)
 
     def end_state(self) -> SignalState:
         """The state after the last sample: pass it to :func:`compute_signals` for the next chunk."""
+        if self.run_starts:
+            return self.runs()[-1][1].end_state()
         if not len(self.t):
             if self.previous is None:
                 raise ValueError('signals of no samples have no state')
@@ -376,16 +408,19 @@ def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64],
 def compute_signals(t: ArrayLike, rate_dps: ArrayLike, temp_c: ArrayLike,
                     extras: Mapping[str, ArrayLike] | None = None,
                     filters: SignalFilters = SignalFilters(), state: SignalState | None = None,
-                    powered_on_at_start: bool = True) -> Signals:
+                    powered_on_at_start: bool = True, run_starts: tuple[tuple[int, bool], ...] = ()) -> Signals:
     """Signals of a log, each computed causally (a sample sees only the past).
 
     For a log read in chunks, ``state`` is the previous chunk's :meth:`Signals.end_state`
-    (None for the first chunk); the chunks' signals then equal the whole log's.
+    (None for the first chunk); the chunks' signals then equal the whole log's. ``run_starts``:
+    the log is several runs, one after another (:attr:`Signals.run_starts`).
     """
+    if run_starts and (state is not None or run_starts[0][0] != 0):
+        raise ValueError('several runs start afresh at row 0: no state to continue from')
     return Signals(t=np.asarray(t, dtype=float), rate=np.asarray(rate_dps, dtype=float),
                    temperature=np.asarray(temp_c, dtype=float),
                    extras={k: np.asarray(v, dtype=float) for k, v in (extras or {}).items()}, filters=filters,
-                   previous=state, powered_on_at_start=powered_on_at_start)
+                   previous=state, powered_on_at_start=powered_on_at_start, run_starts=run_starts)
 
 
 class _Derivative:

@@ -3,7 +3,9 @@
 Reports wall and CPU time of the loop (the machine's load average beside them, as other
 work on a shared machine slows the wall clock), the CPU time of ``calibrate fit``'s start-up
 check and of its comparison with the packaged calibration after it, and the process's peak resident memory. Run:
-``python bench/bench_fit_trace.py [--hours 24] [--rate-hz 10]``. A benchmark, not a test.
+``python bench/bench_fit_trace.py [--hours 24] [--rate-hz 10]``; ``--runs 3 --hours 12``: a several-run fit of the
+same ``--hours`` in all, cold starts of the gyro (its own turn-on bias, noise and table order each) and, last, a
+warm restart (the lab protocol of doc/calibration.md). A benchmark, not a test.
 """
 
 from __future__ import annotations
@@ -17,7 +19,9 @@ from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.analysis.baseline import compare_with_baseline
 from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.replay import startup_check
-from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run
+from art_gyro_calibration.analysis.runs import joined
+from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, same_gyro, simulate_run, warm_restart
+from art_gyro_calibration.units import SECONDS_PER_HOUR
 
 
 def main() -> None:
@@ -27,13 +31,18 @@ def main() -> None:
     parser.add_argument('--rate-hz', type=float, default=10.0)
     parser.add_argument('--serial', default='NAVC3545')
     parser.add_argument('--no-effects', action='store_true')
+    parser.add_argument('--runs', type=int, default=1, help='runs of the gyro fitted together, the last a warm restart')
     args = parser.parse_args()
     cal = load_packaged_calibration(args.serial)
     effects = () if args.no_effects else tuple(EFFECTS)
-    run = simulate_run(cal, SimulationSettings(hours=args.hours, rate_hz=args.rate_hz, effects=effects))
-    log = run.log(cal)
+    settings = SimulationSettings(hours=args.hours / args.runs, rate_hz=args.rate_hz, effects=effects)
+    runs = [(f'cold{k + 1}', simulate_run(cal, same_gyro(settings, k)).log(cal), True) for k in range(args.runs)]
+    if args.runs > 1:   # the last a warm restart, an hour after its power-on
+        runs[-1] = ('warm', warm_restart(cal, same_gyro(settings, args.runs), SECONDS_PER_HOUR).log(cal), False)
+    log, fitted = joined(runs)
     start, cpu_start = time.perf_counter(), time.process_time()
-    result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, LoopOptions(serial_number=args.serial))
+    result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, LoopOptions(serial_number=args.serial),
+                        fitted)
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     check_cpu = time.process_time()
     checked, check, _ = startup_check(result, log)
@@ -42,7 +51,7 @@ def main() -> None:
     versus = compare_with_baseline(log, checked, checked.extended, cal, f'config/{args.serial}.yaml')
     baseline_cpu = time.process_time() - baseline_cpu
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f'rows {len(log)}, effects simulated: {", ".join(effects) or "none"}')
+    print(f'rows {len(log)} in {len(fitted)} run(s), effects simulated: {", ".join(effects) or "none"}')
     print(f'effects found: {", ".join(e.term.describe() for e in result.effects) or "nothing"}')
     print(f'fit + trace: {elapsed:.2f} s wall, {cpu:.2f} s CPU (all threads), load average {os.getloadavg()[0]:.1f}; '
           f'peak RSS {peak_mib:.0f} MiB (whole process, simulation included)')

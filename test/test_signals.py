@@ -174,3 +174,24 @@ def test_end_state_continues_the_tracker() -> None:
     assert state.rate_level == pytest.approx(tracker._rate_change.smooth, rel=1e-12)
     with pytest.raises(ValueError, match='no samples'):
         compute_signals([], [], []).end_state()
+
+
+def test_each_run_of_several_starts_its_signals_afresh() -> None:
+    """A several-run fit: time, time since power-on and every filter restart at each run's first row."""
+    t = np.concatenate([np.arange(0.0, 600.0, 1.0), np.arange(0.0, 300.0, 1.0) + 5000.0,
+                        np.arange(0.0, 300.0, 1.0) + 9000.0])
+    temp = np.concatenate([20.0 + 0.01 * np.arange(600), 35.0 + 0.02 * np.arange(300), 30.0 - 0.01 * np.arange(300)])
+    rate = np.sin(t / 50.0)
+    starts = ((0, True), (600, True), (900, False))
+    s = compute_signals(t, rate, temp, run_starts=starts)
+    for (first, cold), stop in zip(starts, (600, 900, 1200)):
+        alone = compute_signals(t[first:stop], rate[first:stop], temp[first:stop], powered_on_at_start=cold)
+        for name in ('time', 'time_since_power_on', 'temperature_rate', 'rate_change', 'angle'):
+            np.testing.assert_array_equal(s.get(name)[first:stop], alone.get(name))
+        np.testing.assert_array_equal(s.lagged_temperature(60.0)[first:stop], alone.lagged_temperature(60.0))
+    # At a run's first row: no time since its start, no rate of change yet (the jump from the run before is
+    # no rate), the lag at the run's own temperature; a warm run's time since power-on is infinite.
+    assert s.time[600] == 0.0 and s.time_since_power_on[600] == 0.0 and np.isposinf(s.time_since_power_on[900])
+    assert s.temperature_rate[600] == 0.0 and s.lagged_temperature(60.0)[600] == 35.0
+    with pytest.raises(ValueError, match='row 0'):
+        compute_signals(t, rate, temp, run_starts=((5, True),))

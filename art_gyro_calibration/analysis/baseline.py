@@ -292,7 +292,17 @@ def check_baseline(baseline: Calibration, source: str, log_rate_scale: float, lo
 
 def node_runs(log: GyroLog, result: LoopResult, bias_samples: int = DEFAULT_SAMPLES,
               fractions: Sequence[float] = RESTART_FRACTIONS) -> list[Run]:
-    """The node's runs on the fitted log: its start (if the table rests there) and warm restarts, end to end."""
+    """The node's runs on the fitted log: its start (if the table rests there) and warm restarts, end to end.
+
+    A fit of several runs (``result.runs``): each run's own, none across two.
+    """
+    if len(result.runs) > 1:
+        return [replace(run, name=f'{part.name}: {run.name}', start=part.first_row + run.start,
+                        stop=part.first_row + run.stop)
+                for part in result.runs
+                for run in node_runs(log.slice(slice(part.first_row, part.stop)),
+                                     replace(result, runs=(), start=RunStart(part.powered_on_at_start)),
+                                     bias_samples, fractions)]
     assert log.ref_rate is not None
     starts: list[tuple[str, int, RunStart]] = []
     if bias_samples <= len(log) and not np.any(log.ref_rate[:bias_samples]):

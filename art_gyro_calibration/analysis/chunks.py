@@ -35,21 +35,25 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
     """The log of ``signals`` in chunks of ``chunk_rows`` rows (default :data:`DESIGN_CHUNK_ROWS`), rows of ``index``.
 
     ``index`` must be increasing (the steady rows of a log are). Every chunk is yielded,
-    selected rows or not: the signals' recursions run through all of them.
+    selected rows or not: the signals' recursions run through all of them. No chunk crosses
+    the start of a run (:attr:`Signals.run_starts`): each run's first chunk starts afresh.
     """
     size = DESIGN_CHUNK_ROWS if chunk_rows is None else max(int(chunk_rows), 1)
     index = np.asarray(index)
-    state = signals.previous
     known = signals.chunk_states.get(size)
     ends: list[SignalState] = []
     low = 0
-    for k, start in enumerate(range(0, len(signals), size)):
-        stop = min(len(signals), start + size)
-        part = Signals(t=signals.t[start:stop], rate=signals.rate[start:stop],
-                       temperature=signals.temperature[start:stop],
-                       extras={k: v[start:stop] for k, v in signals.extras.items()}, filters=signals.filters,
-                       previous=state, powered_on_at_start=signals.powered_on_at_start,
-                       angle_correction=signals.angle_correction)
+    spans = [(first, run, start, min(len(run), start + size))
+             for first, run in signals.runs() for start in range(0, len(run), size)]
+    state: SignalState | None = None
+    for k, (first, run, start, stop) in enumerate(spans):
+        if start == 0:   # a run's first chunk
+            state = run.previous
+        part = Signals(t=run.t[start:stop], rate=run.rate[start:stop], temperature=run.temperature[start:stop],
+                       extras={k: v[start:stop] for k, v in run.extras.items()}, filters=run.filters,
+                       previous=state, powered_on_at_start=run.powered_on_at_start,
+                       angle_correction=run.angle_correction)
+        start, stop = first + start, first + stop   # rows of the log
         high = low + int(np.searchsorted(index[low:], stop, side='left'))
         if np.any(np.diff(index[low:high]) <= 0) or (low < index.size and index[low] < start):
             raise ValueError('the rows to select must be increasing')
@@ -62,5 +66,5 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
         else:
             state = replace(known[k], lag_levels=part.lag_levels())
         low = high
-    if known is None and len(ends) == -(-len(signals) // size):
+    if known is None and len(ends) == len(spans):
         signals.chunk_states[size] = [replace(end, lag_levels=()) for end in ends]

@@ -1,8 +1,8 @@
 """``calibrate``: apply a calibration to a log, fit one to a rate-table log, simulate a run, record a gyro.
 
 - ``calibrate apply LOG.csv --calibration FILE --out OUT.csv [--bias-samples N]``
-- ``calibrate fit LOG.csv --rows R --columns C [--serial SN] --out CAL.yaml --report REPORT.json [--plots DIR]
-  [--validate OTHER_LOG ...] [--node-signal COLUMN ...]``
+- ``calibrate fit LOG.csv [LOG2.csv ...] --rows R --columns C [--serial SN] --out CAL.yaml --report REPORT.json
+  [--plots DIR] [--warm-start LOG2.csv] [--validate OTHER_LOG ...] [--node-signal COLUMN ...]``
 - ``calibrate replay OTHER_LOG.csv --calibration CAL.yaml [--start-s S] [--bias-samples N]``
 - ``calibrate simulate --serial SN --hours H --out LOG.csv [--effect NAME ...] [--self-heating-c DT]
   [--self-heating-tau-s TAU]``
@@ -104,12 +104,13 @@ def _fit(args: argparse.Namespace) -> int:
     from art_gyro_calibration.analysis.pipeline import FitSettings, fit_log, scale_factors
     from art_gyro_calibration.analysis.report import write_report
     operating = None if args.operating_range is None else operating_range(*args.operating_range)
-    with Outputs([args.log, *args.validate, args.still, *([args.baseline] if args.baseline else [])],
+    with Outputs([*args.log, *args.validate, args.still, *([args.baseline] if args.baseline else [])],
                  args.force) as outputs:
         out = outputs.claim(args.out)
         report_path = outputs.claim(args.report, beside=[Path(args.report).with_suffix('.md')])
         plots = outputs.claim_directory(args.plots, f'{args.plot_prefix}*.png') if args.plots else None
-        args.serial = _recorded_serial(args.log, args.serial, '--serial')
+        for log in args.log:   # every run of one gyro: a serial recorded in one holds for the others
+            args.serial = _recorded_serial(log, args.serial, '--serial')
         scale = scale_factors(args.serial, args.rate_scale_factor)
         if scale.assumed:   # said whether the log is raw or not: the node scales by the factor written
             print(f'calibrate fit: no --rate-scale-factor and no packaged calibration of {args.serial or "the gyro"}: '
@@ -121,8 +122,9 @@ def _fit(args: argparse.Namespace) -> int:
                            from_power_on=not args.not_from_power_on, node_signals=tuple(args.node_signal))
         settings = FitSettings(args.rows, args.columns, loop, args.bias_samples, tuple(args.validate),
                                args.validate_powered_on_at_start, topics=_topics(args), still=args.still,
-                               baseline=args.baseline, operating_range_c=operating)
-        with Ticker(f'calibrate fit: {Path(args.log).name}'):
+                               baseline=args.baseline, operating_range_c=operating,
+                               warm_start=tuple(args.warm_start))
+        with Ticker(f'calibrate fit: {", ".join(Path(log).name for log in args.log)}'):
             fitted = fit_log(args.log, settings, str(args.out),
                              lambda warning: _stderr(f'calibrate fit: warning: {warning}'))
             write_calibration(out, fitted.calibration, fitted.comment)
@@ -408,8 +410,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_apply)
 
     p = sub.add_parser('fit', help='fit the ART polynomial to a rate-table log and trace what it leaves')
-    p.add_argument('log', help='CSV log with ref_rate (the table\'s true rate, deg/s), or rosbag2 (directory, .mcap '
-                               'or .db3) with --reference-topic')
+    p.add_argument('log', nargs='+', help='CSV log with ref_rate (the table\'s true rate, deg/s), or rosbag2 '
+                                          '(directory, .mcap or .db3) with --reference-topic; several: runs of the '
+                                          'same gyro, one calibration for all, each run with its own turn-on bias')
     p.add_argument('--rows', type=_positive_int, required=True, help='powers of temperature (the report\'s ROWS)')
     p.add_argument('--columns', type=_positive_int, required=True, help='powers of rate (the report\'s COLUMNS)')
     p.add_argument('--serial', help=f'KVH serial number written into the calibration (default {DEFAULT_SERIAL}); '
@@ -455,7 +458,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help='a record of the gyro at rest (as calibrate allan reads it): its bias instability, not the '
                         'residual\'s, sets the materiality and the noise budget (default: the residual\'s)')
     p.add_argument('--not-from-power-on', action='store_true',
-                   help='the log does not start at the gyro\'s power-on: no warm-up is sought')
+                   help='the log (every log given) does not start at the gyro\'s power-on: no warm-up is sought')
+    p.add_argument('--warm-start', action='append', default=[], metavar='LOG',
+                   help='one of the logs fitted began with the gyro already warm (a restart): no warm-up there, '
+                        'its start judges the terms as a warm restart; the others began at power-on; repeat')
     p.add_argument('--validate-powered-on-at-start', action='store_true',
                    help='the --validate runs began at the gyro\'s power-on (default: unknown, a warm-up term '
                         'is not applied, as the node does by default)')

@@ -10,7 +10,9 @@ mapped back exactly (binomial expansion of ``(Tc + Ts u)**a``) into the report's
 Note on the constant: the log's error holds the run's turn-on bias and the Earth's
 rate, so the fitted constant (``T**0 r**0``) absorbs them; the static bias collection
 before every mission removes that constant again (``CalcStaticBiasDrift``), so only the
-shape of the surface matters, not its offset.
+shape of the surface matters, not its offset. A fit of several runs (:attr:`Signals.run_starts`)
+gives every run after the first a constant of its own, its turn-on bias beside the first's:
+fitted with the rest, never written.
 """
 
 from __future__ import annotations
@@ -173,8 +175,9 @@ def _spans(index: NDArray[np.int64], *columns: NDArray[np.float64]) -> list[NDAr
 class Design:
     """Scaled design of the polynomial and the terms ``specs`` over the rows ``index``, built chunk by chunk.
 
-    Polynomial columns are scaled monomials; term columns are centred and scaled
-    (:func:`centring` over the rows ``index``). ``ranges`` caches the terms' centring
+    Polynomial columns are scaled monomials, then one column per run after the first of
+    several (1 on its rows: its turn-on bias beside the first run's); term columns are
+    centred and scaled (:func:`centring` over the rows ``index``). ``ranges`` caches the terms' centring
     across designs of the same rows (it is filled with what is missing).
     """
 
@@ -186,18 +189,21 @@ class Design:
         self.signals, self.chunk_rows = signals, chunk_rows
         self.index = np.arange(len(signals)) if index is None else np.asarray(index)
         self.rows, self.columns, self.specs = rows, columns, tuple(specs)
+        self.run_firsts = np.array([first for first, _ in signals.run_starts], dtype=np.int64)
+        self.offsets = max(len(self.run_firsts) - 1, 0)   # the runs' own constants
         self.scaling = Scaling.of(*_spans(self.index, signals.temperature, signals.rate))
         ranges = {} if ranges is None else ranges
         missing = [spec for spec in dict.fromkeys(self.specs) if spec not in ranges]
         if missing:
             ranges.update(term_ranges(signals, missing, self.index, chunk_rows))
-        self.column_offset = np.concatenate([np.zeros(rows * columns)] + [ranges[s][0] for s in self.specs])
-        self.column_scale = np.concatenate([np.ones(rows * columns)] + [ranges[s][1] for s in self.specs])
+        base = rows * columns + self.offsets
+        self.column_offset = np.concatenate([np.zeros(base)] + [ranges[s][0] for s in self.specs])
+        self.column_scale = np.concatenate([np.ones(base)] + [ranges[s][1] for s in self.specs])
 
     @property
     def width(self) -> int:
         """Number of columns."""
-        return self.rows * self.columns + sum(spec.width for spec in self.specs)
+        return self.rows * self.columns + self.offsets + sum(spec.width for spec in self.specs)
 
     def matrix(self, chunk: Chunk) -> NDArray[np.float64]:
         """The scaled columns over the chunk's selected rows."""
@@ -206,6 +212,12 @@ class Design:
         p = self.rows * self.columns
         out[:, :p] = polynomial_basis(signals.rate[rows], signals.temperature[rows], self.rows, self.columns,
                                       self.scaling)
+        if self.offsets:   # a chunk lies within one run
+            out[:, p:p + self.offsets] = 0.0
+            run = int(np.searchsorted(self.run_firsts, chunk.start, side='right')) - 1
+            if run:
+                out[:, p + run - 1] = 1.0
+            p += self.offsets
         for spec in self.specs:   # every chunk: a lag's recursion runs through all
             out[:, p:p + spec.width] = (spec.basis(signals)[rows] - self.column_offset[p:p + spec.width]) \
                 / self.column_scale[p:p + spec.width]
@@ -224,11 +236,19 @@ class Design:
         coef[0] -= coef @ self.column_offset
         p = self.rows * self.columns
         polynomial = polynomial_from_scaled(coef[:p], self.rows, self.columns, self.scaling)
+        p += self.offsets
         terms = []
         for spec in self.specs:
             terms.append(spec.term(coef[p:p + spec.width]))
             p += spec.width
         return ErrorModel(polynomial, tuple(terms))
+
+    def run_offsets(self, beta: ArrayLike) -> tuple[float, ...]:
+        """Each run's turn-on bias less the first's (deg/s; the first's 0.0): one per run of several, else ()."""
+        if not len(self.run_firsts):
+            return ()
+        p = self.rows * self.columns
+        return (0.0, *(float(c) for c in np.asarray(beta, dtype=float)[p:p + self.offsets]))
 
 
 def solve_normal(gram: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -243,6 +263,7 @@ class Fit:
     model: ErrorModel
     index: NDArray[np.int64]
     residual: NDArray[np.float64]
+    run_offsets_dps: tuple[float, ...] = ()   # Design.run_offsets: each run's turn-on bias less the first's
 
 
 def fit_model(signals: Signals, error: ArrayLike, rows: int, columns: int,
@@ -257,7 +278,7 @@ def fit_model(signals: Signals, error: ArrayLike, rows: int, columns: int,
     """
     e = np.asarray(error, dtype=float)
     idx = np.arange(len(e)) if index is None else np.asarray(index)
-    if idx.size < rows * columns + sum(s.width for s in specs):
+    if idx.size < rows * columns + max(len(signals.run_starts) - 1, 0) + sum(s.width for s in specs):
         raise ValueError(f'{idx.size} samples cannot determine a {rows} x {columns} polynomial '
                          f'and {len(specs)} extended terms')
     design = Design(signals, rows, columns, specs, idx, ranges, chunk_rows)
@@ -270,4 +291,4 @@ def fit_model(signals: Signals, error: ArrayLike, rows: int, columns: int,
     residual = np.empty(idx.size)
     for chunk, x in design.chunks():
         residual[chunk.positions] = e[chunk.start + chunk.rows] - x @ beta
-    return Fit(design.model(beta), idx, residual)
+    return Fit(design.model(beta), idx, residual, design.run_offsets(beta))

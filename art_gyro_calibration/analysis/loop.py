@@ -29,6 +29,7 @@ from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.allan import allan_deviation
 from art_gyro_calibration.analysis.noise import allan_floor_dps
 from art_gyro_calibration.analysis.detection import DetectionLimit, detection_limits
+from art_gyro_calibration.analysis.runs import Run, run_starts
 from art_gyro_calibration.analysis import trace
 
 DEFAULT_MAX_EFFECTS = 4
@@ -70,7 +71,7 @@ class LoopOptions(trace.ScreenOptions):
     what the model leaves (a real gyro's bias wanders for hours). An effect must reach
     ``materiality_dph`` over the logged envelope; None: the bias instability of what
     the ART polynomial leaves (:func:`noise_levels`). ``from_power_on``: the log
-    starts at the gyro's power-on (a warm-up is a candidate only then).
+    starts at the gyro's power-on (a warm-up is a candidate only then; several runs: each says its own).
     ``still_instability_dps``: the bias instability measured on a record at rest
     (``calibrate fit --still``), for the materiality and the noise budget instead of the residual's.
     ``node_signals``: log columns the robot will feed the node by topic (a supply voltage): an
@@ -166,6 +167,10 @@ class LoopResult:
     # effects included): the chance against which the start-up check weighs term sets (replay.startup_check).
     residual_materiality_dph: float = 0.0
     detection: tuple[DetectionLimit, ...] = ()   # per candidate of the last screen: what the log could not see
+    # The runs whose rows ``signals`` and ``error`` hold, one after another (one run covering the log: a
+    # single-log fit), and each one's fitted turn-on bias less the first's (deg/s; () for one run).
+    runs: tuple[Run, ...] = ()
+    run_offsets_dps: tuple[float, ...] = ()
 
 
 def _one_blas_thread(function: Callable[..., LoopResult]) -> Callable[..., LoopResult]:
@@ -185,12 +190,15 @@ def _one_blas_thread(function: Callable[..., LoopResult]) -> Callable[..., LoopR
 
 
 @_one_blas_thread
-def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = LoopOptions()) -> LoopResult:
+def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = LoopOptions(),
+               runs: Sequence[Run] = ()) -> LoopResult:
     """Fit -> trace -> extend -> repeat on a rate-table ``log`` (it needs ``ref_rate``), as ``options`` say.
 
     ``rows`` x ``columns``: the ART polynomial's powers of temperature and rate. A heading
     effect is fitted against the angle of the rate the ART polynomial corrects, and reported in
-    ``findings``, never written: the node has no absolute heading.
+    ``findings``, never written: the node has no absolute heading. ``runs``: the log is several
+    runs of the gyro one after another (:func:`.runs.joined`), each with its own turn-on bias and
+    start; none: one run, from power-on as ``options.from_power_on`` says.
     """
     filters, settle_s, bin_s, block_s = options.filters, options.settle_s, options.bin_s, options.block_s
     if log.ref_rate is None:
@@ -200,10 +208,20 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
         if bad.size:
             raise LogError(f'column {name} is not a finite number at row {bad[0] + 1}')
     runnable = NODE_SIGNALS + node_signals(options, tuple(log.extras))
+    runs = tuple(runs) or (Run('log', 0, len(log), options.from_power_on),)
+    if [r.first_row for r in runs] != [0, *(r.stop for r in runs[:-1])] or runs[-1].stop != len(log):
+        raise ValueError(f'the runs ({", ".join(f"{r.name}: rows {r.first_row}..{r.stop}" for r in runs)}) '
+                         f'do not cover the log\'s {len(log)} rows one after another')
+    # The held-out blocks, bins and segments follow the fit's one clock: each run after the one before.
+    behind = [r.name for r in runs[1:] if log.t[r.first_row] <= log.t[r.first_row - 1]]
+    if behind:
+        raise ValueError(f'run {behind[0]} begins before the run before it ended: lay the runs end to end '
+                         '(analysis.runs.joined)')
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters,
-                              powered_on_at_start=options.from_power_on)
+                              powered_on_at_start=any(r.powered_on_at_start for r in runs),
+                              run_starts=run_starts(runs))
     error = log.rate_dps - log.ref_rate
-    segments = steady_segments(log.t, log.ref_rate, settle_s)
+    segments = steady_segments(log.t, log.ref_rate, settle_s, breaks=[r.first_row for r in runs])
     index = segments.rows()
     if index.size == 0:
         raise LogError('the log has no steady segments of constant ref_rate to fit')
@@ -295,8 +313,9 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
         held_out_rms_art_dps=held_out_art, held_out_rms_extended_dps=held_out_all,
         held_out_block_s=every_row.block_s, signals=signals, error=error, segments=segments,
         materiality_dph=materiality, bias_instability_dph=instability_dph, adequacy=alarm, findings=tuple(heading),
-        start=RunStart(powered_on_at_start=options.from_power_on), residual_materiality_dph=residual_materiality,
-        detection=detection)
+        start=RunStart(powered_on_at_start=runs[0].powered_on_at_start),
+        residual_materiality_dph=residual_materiality, detection=detection, runs=runs,
+        run_offsets_dps=final.run_offsets_dps)
 
 
 def node_signals(options: LoopOptions, columns: tuple[str, ...]) -> tuple[str, ...]:
@@ -374,7 +393,12 @@ def thermally_still_runs(binned: trace.Binned) -> NDArray[np.int64] | None:
     labels = np.full(len(still), -1)
     t = binned.bin_times()
     total = 0.0
-    for k, (a, b) in enumerate(zip(edges[::2], edges[1::2])):
+    # A stretch ends where a run of several does: the next begins at another time and temperature.
+    new_run = np.flatnonzero(np.diff(binned.bin_runs)) + 1
+    stretches = [(int(a), int(b)) for a0, b0 in zip(edges[::2], edges[1::2])
+                 for a, b in zip([a0, *new_run[(new_run > a0) & (new_run < b0)]],
+                                 [*new_run[(new_run > a0) & (new_run < b0)], b0])]
+    for k, (a, b) in enumerate(stretches):
         if t[b - 1] - t[a] >= THERMAL_STILL_S:
             labels[a:b] = k
             total += t[b - 1] - t[a]
@@ -617,7 +641,7 @@ def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation
     # A signal computed from the measured rate holds that row's noise, which is in the bin's residual too:
     # it is read one row before the bin (the rate change's filter forgets in half a second, a bin is longer).
     before = np.maximum(rows - 1, 0)
-    names = [n for n in SHAPE_SIGNALS if n != 'time_since_power_on' or options.from_power_on]
+    names = [n for n in SHAPE_SIGNALS if n != 'time_since_power_on' or signals.powered_on_at_start]
     names += list(signals.extras)
     # A held-out bin's residual carries the error of the fit made without it, as wide as its leverage
     # (``inflation``): a rate step met once in a short log, held out, leaves a large residual in a log with no
@@ -627,8 +651,8 @@ def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation
     weights = binned.sqrt_counts ** 2 / spread_of ** 2
     if not names or len(residual) < 4 * SHAPE_GROUPS:
         return ()
-    groups = [signal_groups(np.asarray(signals.get(name))[before if name in RATE_SIGNALS else rows], name == 'angle')
-              for name in names]
+    groups = [signal_groups(_finite(np.asarray(signals.get(name))[before if name in RATE_SIGNALS else rows]),
+                            name == 'angle') for name in names]
     share = weights / weights.sum()
     shares = [np.asarray(np.bincount(g, weights=share), dtype=np.float64) for g in groups]
     own = [_group_means(g, weights, residual[:, None])[:, 0] for g in groups]
@@ -664,6 +688,18 @@ def signal_shapes(binned: trace.Binned, residual: NDArray[np.float64], inflation
         found.append(bool(scores[i, 0] > chance and shape_dph[i] > bar))
     return tuple(SignalShape(name, float(shape_dph[i]), float(scores[i, 0]), chance, found[i])
                  for i, name in enumerate(names))
+
+
+def _finite(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``x`` with an infinite value held at the largest finite one.
+
+    A warm run's time since power-on (infinite: its warm-up has decayed) joins the latest times of
+    the cold runs beside it in a several-run fit.
+    """
+    infinite = np.isposinf(x)
+    if not infinite.any() or infinite.all():
+        return x
+    return np.where(infinite, np.max(x[~infinite]), x)
 
 
 def _maybe_square(spec: TermSpec, binned: trace.Binned, specs: list[TermSpec], materiality_dph: float) -> TermSpec:

@@ -104,14 +104,21 @@ def correlation_time_s(t: ArrayLike, residual: ArrayLike, segments: Segments, bi
 
 
 def steady_segments(t: ArrayLike, ref_rate: ArrayLike, settle_s: float = DEFAULT_SETTLE_S,
-                    min_rows: int = 3) -> Segments:
-    """Runs of constant ``ref_rate`` without their first ``settle_s`` seconds, of at least ``min_rows`` rows."""
+                    min_rows: int = 3, breaks: ArrayLike = ()) -> Segments:
+    """Runs of constant ``ref_rate`` without their first ``settle_s`` seconds, of at least ``min_rows`` rows.
+
+    ``breaks``: rows where a new run of the table begins whatever its rate (the first rows of the
+    runs of a several-run fit: the table rested at the end of one log and the start of the next).
+    """
     tt = np.asarray(t, dtype=float)
     ref = np.asarray(ref_rate, dtype=float)
     last = max(len(ref) - 1, 0)   # the rows that have a next one, a piece at a time
     change = np.concatenate([np.zeros(0, dtype=np.int64)] + [
         np.flatnonzero(~np.isclose(ref[i + 1:j + 1], ref[i:j], rtol=1e-9, atol=1e-9)) + i + 1
         for i, j in ((i, min(i + PIECE_ROWS, last)) for i in range(0, last, PIECE_ROWS))])
+    extra = np.asarray(breaks, dtype=np.int64)
+    if extra.size:
+        change = np.union1d(change, extra[(extra > 0) & (extra < len(ref))])
     run_starts = np.concatenate([[0], change])
     run_stops = np.concatenate([change, [len(ref)]])
     starts = np.searchsorted(tt, tt[run_starts] + settle_s, side='left')

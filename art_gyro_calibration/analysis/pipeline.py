@@ -1,7 +1,8 @@
 """``calibrate fit`` as one pipeline: the loop, the start-up check, the validation runs, the report.
 
-:func:`fit_log` reads a rate-table log, closes the loop on it (:func:`loop.close_loop`),
-judges the terms found on warm restarts of the log itself (:func:`replay.startup_check`)
+:func:`fit_log` reads a rate-table log (or several runs of the gyro, :mod:`.runs`), closes the
+loop on it (:func:`loop.close_loop`), judges the terms found on every run's start and on warm
+restarts of the runs themselves (:func:`replay.startup_check`)
 and, when asked, on other runs of the gyro (:func:`replay.validate`), and returns all of it
 in one :class:`FitResult`: the report, the calibration to write and the comment it is
 written with. The command (:mod:`.cli`) parses its arguments into :class:`FitSettings`,
@@ -10,7 +11,7 @@ calls it, and writes and prints what it returns.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -29,9 +30,10 @@ from art_gyro_calibration.analysis.fit import check_coverage
 from art_gyro_calibration.analysis.loop import (DEFAULT_SERIAL, HEADING_SIGNALS, LoopOptions, LoopResult, close_loop,
                                                 not_written_reason)
 from art_gyro_calibration.analysis.metrics import steady_segments
-from art_gyro_calibration.analysis.replay import (COLD_START_NAME, OWN_RUNS_NAME, RESTARTS_NAME, Validation,
+from art_gyro_calibration.analysis.replay import (OWN_RUNS_NAME, RESTARTS_NAME, Validation, judged_cold,
                                                   startup_check, unjudged_warm_up, validate)
 from art_gyro_calibration.analysis.report import build_report, misfit_reason, validation_section
+from art_gyro_calibration.analysis.runs import Run, joined
 
 
 @dataclass(frozen=True)
@@ -70,7 +72,9 @@ class FitSettings:
 
     The log is read with the scale factors of ``loop``. ``bias_samples``: rows at rest at the
     start of a run for the node's static bias. ``validate``: other runs of the gyro to judge
-    the terms on; ``validate_powered_on_at_start``: they began at its power-on.
+    the terms on; ``validate_powered_on_at_start``: they began at its power-on. ``warm_start``:
+    the logs fitted (of several) that began with the gyro already warm (the others began at its
+    power-on, unless ``loop.from_power_on`` is False).
     """
 
     rows: int
@@ -83,6 +87,7 @@ class FitSettings:
     still: str | None = None          # a record at rest: its bias instability for the materiality and budget
     baseline: str | None = None       # the gyro's current calibration (default: the packaged file of the serial)
     operating_range_c: tuple[float, float] | None = None   # where the robot will run (default: the log's envelope)
+    warm_start: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -105,9 +110,11 @@ class FitResult:
     baseline: BaselineCheck | None = None
 
 
-def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
+def fit_log(log_path: str | Sequence[str], settings: FitSettings, calibration_path: str,
             warn: Callable[[str], None] = lambda message: None) -> FitResult:
-    """``calibrate fit`` on the log at ``log_path``; the calibration is to be written to ``calibration_path``.
+    """``calibrate fit`` on the log at ``log_path`` (or several runs of the gyro, one calibration for all of them).
+
+    The calibration is to be written to ``calibration_path``.
 
     In steps: the log as the loop takes it, the loop, the start-up check, the ``--validate``
     runs, the baseline; then the calibration to write, chosen once (:func:`_choose`), and
@@ -117,10 +124,11 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     still = None if settings.still is None else still_noise(settings.still, settings.loop, settings.topics)
     loop_options = settings.loop if still is None else replace(
         settings.loop, still_instability_dps=still['bias_instability_dps'])
-    log, rows = _log_to_fit(log_path, settings, loop_options, warn)
-    loop = close_loop(log, settings.rows, settings.columns, loop_options)
+    paths = (log_path,) if isinstance(log_path, str) else tuple(log_path)
+    log, runs, rows = _logs_to_fit(paths, settings, loop_options, warn)
+    loop = close_loop(log, settings.rows, settings.columns, loop_options, runs)
     # The report and figures are the loop's; what the checks drop is in their sections.
-    loop_report = build_report(log, loop, settings.bias_samples, source=str(log_path))
+    loop_report = build_report(log, loop, settings.bias_samples, source=', '.join(paths))
     result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
     _warn_loop(loop, warn)
     validation, validation_dropped = _validate(result, settings, warn) if settings.validate else (None, {})
@@ -133,12 +141,15 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
         warn(baseline.unknown.describe())
     choice = _choose(result, startup, restarts, validation, refit, kept, settings)
     calibration = _with_fitted_ranges(choice.calibration, log)
-    judged = settings.validate and settings.validate_powered_on_at_start
+    # A warm-up fitted on two power-ons or more, or judged on another cold run, is not this log's alone.
+    judged = (settings.validate and settings.validate_powered_on_at_start) or \
+        sum(run.powered_on_at_start for run in loop.runs) > 1
     warning = '' if judged else unjudged_warm_up(calibration, result.bias_instability_dph)
     if warning:
         warn(warning)
     needed = node_parameters_needed(calibration)   # a term on a --node-signal column: the node must be fed it
-    comment = f'Fitted by calibrate fit from {log_path}: {choice.polynomial}, effects beyond it: {choice.found}.'
+    comment = (f'Fitted by calibrate fit from {" and ".join(paths)}: {choice.polynomial}, '
+               f'effects beyond it: {choice.found}.')
     if needed:
         warn(f'{calibration_path} has terms on signals the gyro does not measure: gyro_node refuses it unless '
              + '; '.join(f'{name} is set ({what})' for name, what in needed.items()))
@@ -146,6 +157,7 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     report = {
         **loop_report,
         **rows,   # rows_read and rows_dropped per reason; 'rows' (the loop's) are those fitted
+        'runs': runs_section(log, loop),
         # Per candidate of the last screen, the smallest effect this log would have found (DetectionLimit.to_dict).
         'detection_limit_dph': {d.signal: d.to_dict() for d in loop.detection},
         **({} if still is None else {'still': still}),
@@ -163,6 +175,54 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
                      baseline if isinstance(baseline, BaselineCheck) else None)
 
 
+def runs_section(log: GyroLog, loop: LoopResult) -> list[dict[str, Any]]:
+    """REPORT.json's ``runs``: per run fitted, its rows, how it began, its turn-on bias and temperatures.
+
+    ``turn_on_offset_dph``: its fitted turn-on bias less the first run's (0 for the first; the
+    static bias removes each run's own, none is written).
+    """
+    offsets = loop.run_offsets_dps or (0.0,) * len(loop.runs)
+    return [{'name': run.name, 'rows': run.rows, 'powered_on_at_start': run.powered_on_at_start,
+             'turn_on_offset_dph': offset * DEG_PER_H_PER_DPS,
+             'temperature_c': [float(np.min(log.temp_c[run.first_row:run.stop])),
+                               float(np.max(log.temp_c[run.first_row:run.stop]))]}
+            for run, offset in zip(loop.runs, offsets)]
+
+
+def _logs_to_fit(paths: Sequence[str], settings: FitSettings, options: LoopOptions,
+                 warn: Callable[[str], None]) -> tuple[GyroLog, tuple[Run, ...], dict[str, int | dict[str, int]]]:
+    """The logs as :func:`_log_to_fit` reads each, one after another (:func:`.runs.joined`), and their runs.
+
+    Each run began at power-on (``options.from_power_on``) unless ``settings.warm_start`` names
+    it; a name there that is not one of ``paths``, or a log given twice, is refused. Rows read and
+    dropped are summed over the logs; the coverage of the polynomial is checked on all of them
+    together (a run alone may span too few degrees: the others complete it).
+    """
+    unknown = [name for name in settings.warm_start if name not in paths]
+    if unknown:
+        raise ValueError(f'--warm-start {unknown[0]}: not one of the logs fitted ({", ".join(paths)})')
+    twice = [name for i, name in enumerate(paths) if name in paths[:i]]
+    if twice:
+        raise ValueError(f'{twice[0]}: given twice; each run of the gyro is one log')
+    if len(paths) == 1:
+        log, rows = _log_to_fit(paths[0], settings, options, warn)
+        return log, (Run(paths[0], 0, len(log), options.from_power_on and not settings.warm_start),), rows
+    logs = []
+    read = 0
+    dropped: dict[str, int] = {}
+    for path in paths:
+        log, rows = _log_to_fit(path, settings, options, warn, coverage=False)
+        logs.append((path, log, options.from_power_on and path not in settings.warm_start))
+        count, lost = rows['rows_read'], rows['rows_dropped']
+        assert isinstance(count, int) and isinstance(lost, dict)   # as _log_to_fit makes them
+        read += count
+        for reason, n in lost.items():
+            dropped[reason] = dropped.get(reason, 0) + n
+    log, runs = joined(logs)
+    _check_coverage(log, ', '.join(paths), settings, options)
+    return log, runs, {'rows_read': read, 'rows_dropped': dropped}
+
+
 # Rows repeating the previous stamp beyond this share of a log: its clock is coarser than its rows (1 s stamps on a
 # 10 Hz log), which no dropping mends; fewer are dropped and counted (a logger that wrote a row twice).
 MAX_REPEATED_STAMPS = 0.01
@@ -170,8 +230,8 @@ MAX_REPEATED_STAMPS = 0.01
 MAX_NOT_FINITE_ROWS = 0.5
 
 
-def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions,
-                warn: Callable[[str], None]) -> tuple[GyroLog, dict[str, int | dict[str, int]]]:
+def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions, warn: Callable[[str], None],
+                coverage: bool = True) -> tuple[GyroLog, dict[str, int | dict[str, int]]]:
     """The log read with ``options``' scale factors, less the rows nothing can fit; refused if it is too narrow.
 
     Dropped, each counted (REPORT.json's ``rows_dropped``) and told to ``warn``: the rows :func:`_defined_rows`
@@ -188,13 +248,19 @@ def _log_to_fit(log_path: str, settings: FitSettings, options: LoopOptions,
              f'+-{unit_range_dps(options.rate_scale_factor):g} deg/s) or beyond any unit\'s range (the node '
              'drops such frames)')
         log = log.slice(usable)
+    if coverage:
+        _check_coverage(log, log_path, settings, options)
+    return log, {'rows_read': len(read), 'rows_dropped': dropped}
+
+
+def _check_coverage(log: GyroLog, source: str, settings: FitSettings, options: LoopOptions) -> None:
+    """:func:`.fit.check_coverage` of ``log`` (from ``source``), refused naming it; one without ``ref_rate`` passes."""
     if log.ref_rate is not None:
         try:
             check_coverage(log.temp_c, steady_segments(log.t, log.ref_rate, options.settle_s).rate,
                            settings.rows, settings.columns)
         except ValueError as e:
-            raise LogError(f'{log_path}: {e}') from None
-    return log, {'rows_read': len(read), 'rows_dropped': dropped}
+            raise LogError(f'{source}: {e}') from None
 
 
 def _defined_rows(log: GyroLog, log_path: str, warn: Callable[[str], None]) -> tuple[GyroLog, dict[str, int]]:
@@ -285,7 +351,7 @@ def _choose(result: LoopResult, startup: Validation | None, restarts: list[str],
     """
     found = ', '.join(e.signal for e in result.effects) or 'nothing'
     if startup is not None:
-        found += _dropped(startup, OWN_RUNS_NAME if restarts[:1] == [COLD_START_NAME] else RESTARTS_NAME)
+        found += _dropped(startup, OWN_RUNS_NAME if judged_cold(restarts) else RESTARTS_NAME)
     if validation is not None and validation.dropped:
         found = (', '.join(t.signal for t in refit.terms) or 'nothing') + _dropped(validation, 'the validation runs')
     if kept is None:

@@ -324,7 +324,9 @@ def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_
     """Judge ``result``'s terms on the log it was fitted on, as the node would run on it.
 
     The runs: the log from its own start as a cold start, when it began at the gyro's power-on
-    (``result.start``) at rest, and its warm restarts (:func:`own_restarts`). Returns the result
+    (``result.start``) at rest, and its warm restarts (:func:`own_restarts`). A fit of several
+    runs (``result.runs``): every run's start, cold (from its power-on) or warm (a restart, as
+    the node started on a warm gyro sees it), and every run's own restarts. Returns the result
     with the terms dropped that the runs are better without by more than the loop's
     materiality (the rest refitted, its effects those kept), the check (None when there was
     nothing to check: no term, or no run the node could start) and a name per run. Without a
@@ -334,13 +336,8 @@ def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_
     """
     if not result.extended.terms:
         return result, None, []
-    runs = [(f'restarted at {start_s / 60.0:.0f} min', run, RunStart())
-            for start_s, run in own_restarts(log, bias_samples)]
-    assert log.ref_rate is not None   # own_restarts refuses a log without it
-    cold = (result.start.powered_on_at_start and len(log) > 2 * bias_samples
-            and not np.any(log.ref_rate[:bias_samples]))
-    if cold:
-        runs.insert(0, (COLD_START_NAME, log, result.start))
+    runs = _node_starts(result, log, bias_samples)
+    cold = any(how.powered_on_at_start for _, _, how in runs)
     if not runs:
         return result, None, []
     names = [name for name, _, _ in runs]
@@ -359,6 +356,41 @@ def startup_check(result: LoopResult, log: GyroLog, bias_samples: int = DEFAULT_
     kept = {term.signal: term for term in check.calibration.terms}
     effects = tuple(replace(e, term=kept[e.signal]) for e in result.effects if e.signal in kept)
     return replace(result, extended=check.calibration, effects=effects), check, names
+
+
+def _node_starts(result: LoopResult, log: GyroLog, bias_samples: int) -> list[tuple[str, GyroLog, RunStart]]:
+    """The runs :func:`startup_check` replays, (name, run, how it began) each: cold starts first.
+
+    Per run of the fit: its start, if the table rests over its first ``bias_samples`` rows (a
+    cold start if it began at power-on; a warm one only among several runs: one log's
+    restarts are its warm starts), then its own restarts (:func:`own_restarts`).
+    """
+    several = len(result.runs) > 1
+    cold: list[tuple[str, GyroLog, RunStart]] = []
+    warm: list[tuple[str, GyroLog, RunStart]] = []
+    for run in result.runs if several else ():
+        part = log.slice(slice(run.first_row, run.stop))
+        assert part.ref_rate is not None   # the loop fitted it
+        if len(part) > 2 * bias_samples and not np.any(part.ref_rate[:bias_samples]):
+            if run.powered_on_at_start:
+                cold.append((f'{run.name}: {COLD_START_NAME}', part, RunStart(powered_on_at_start=True)))
+            else:
+                warm.append((f'{run.name}: from its start (warm)', part, RunStart()))
+        warm += [(f'{run.name}: restarted at {start_s / 60.0:.0f} min', later, RunStart())
+                 for start_s, later in own_restarts(part, bias_samples)]
+    if several:
+        return cold + warm
+    warm = [(f'restarted at {start_s / 60.0:.0f} min', run, RunStart())
+            for start_s, run in own_restarts(log, bias_samples)]
+    assert log.ref_rate is not None   # own_restarts refuses a log without it
+    if result.start.powered_on_at_start and len(log) > 2 * bias_samples and not np.any(log.ref_rate[:bias_samples]):
+        cold = [(COLD_START_NAME, log, result.start)]
+    return cold + warm
+
+
+def judged_cold(names: Sequence[str]) -> bool:
+    """Whether the runs :func:`startup_check` named ``names`` hold a cold start (a run from its power-on)."""
+    return any(name.endswith(COLD_START_NAME) for name in names)
 
 
 def _refit(result: LoopResult, terms: Sequence[Term]) -> Calibration:

@@ -12,18 +12,18 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.compensation import apply_calibration
+from art_gyro_calibration.compensation import RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.analysis.loop import ADEQUACY_RATIO, Effect, LoopResult, not_written_reason
 from art_gyro_calibration.analysis.metrics import error_metrics
-from art_gyro_calibration.analysis.replay import COLD_START_NAME, Validation
+from art_gyro_calibration.analysis.replay import Validation, judged_cold
 from art_gyro_calibration.analysis.trace import DEFAULT_ALPHA, DEFAULT_DRAWS, FORMS_TRIED
 from art_gyro_calibration.static_bias import static_bias
 
@@ -48,7 +48,13 @@ def misfit_reason(residual_rms_dph: float, budget_dph: float, excess_dph: float,
 
 
 def stage_error(log: GyroLog, result: LoopResult, bias_samples: int, stage: str) -> NDArray[np.float64]:
-    """Corrected rate minus table rate, per row, for one of :data:`STAGES`, the log started as the loop took it."""
+    """Corrected rate minus table rate, per row, for one of :data:`STAGES`, the log started as the loop took it.
+
+    Several runs (``result.runs``): each started as the node starts it, with its own static bias.
+    """
+    if len(result.runs) > 1:
+        return np.concatenate([stage_error(log.slice(slice(run.first_row, run.stop)), replace(
+            result, runs=(), start=RunStart(run.powered_on_at_start)), bias_samples, stage) for run in result.runs])
     reference = log.ref_rate
     if reference is None:
         raise LogError('the log has no ref_rate column: errors need the rate table\'s true rate')
@@ -188,7 +194,7 @@ def markdown_summary(report: dict[str, Any]) -> str:
     lines += [line for warning in report.get('warnings', []) for line in ('', f'**Warning:** {warning}.')]
     lines += ['', 'Forms tried: ' + '; '.join(f'{name} ({what})' for name, what in report['forms_tried'].items()) + '.']
     if 'startup_check' in report:
-        cold = [r['source'] for r in report['startup_check']['runs'][:1]] == [COLD_START_NAME]
+        cold = judged_cold([r['source'] for r in report['startup_check']['runs']])
         lines += validation_markdown(
             report['startup_check'],
             'Start-up check: the fitted log run ' + ('from its power-on and ' if cold else '') + 'restarted warm',

@@ -108,8 +108,8 @@ MAX_LAG_SHARE = 0.25
 
 
 def duration_s(signals: Signals) -> float:
-    """The log's length of time, s."""
-    return float(signals.t[-1] - signals.t[0]) if len(signals) else 0.0
+    """The log's length of time, s; of the longest run of several (a time constant is seen within one)."""
+    return max(float(run.t[-1] - run.t[0]) if len(run) else 0.0 for _, run in signals.runs())
 
 
 def time_constant_bounds(spec: TermSpec, duration: float) -> tuple[float, float]:
@@ -209,7 +209,8 @@ class Binned:
 
     Folds: the bins are grouped into blocks of ``block_s`` of time, dealt to the folds in
     turn, so every fold holds whole blocks of time from the whole run (a warm-up in the
-    first hour or a temperature extreme is then in several folds). A short log gets fewer
+    first hour or a temperature extreme is then in several folds). Several runs
+    (:attr:`Signals.run_starts`): each run's blocks count from its own first bin, none spans two. A short log gets fewer
     folds (down to :data:`MIN_FOLDS`) rather than blocks shorter than asked for. Every
     per-row quantity is summed into the bins chunk by chunk (``chunk_rows`` rows,
     :mod:`art_gyro_calibration.analysis.chunks`): memory holds the bins, not a matrix per row.
@@ -229,12 +230,19 @@ class Binned:
         self.error = np.asarray(error, dtype=float)
         self.ranges: Ranges = {}   # the centring of every term's columns over the steady rows
         self._polynomial = Design(signals, rows, columns, (), self.index, self.ranges, chunk_rows)
-        self.base = np.zeros((len(self.starts), rows * columns + 1))
+        self.base = np.zeros((len(self.starts), self._polynomial.width + 1))
         for chunk in self._chunks():
             values = np.column_stack([self._polynomial.matrix(chunk), self.error[chunk.start + chunk.rows]])
             self._add_to_bins(self.base, chunk, values)
         self.base /= self.sqrt_counts[:, None]
         self._t_bin = signals.t[self.index[self.starts]]
+        # Per run: the time its rows begin (runs lie end to end on the fit's clock) and of its first bin.
+        firsts = [first for first, _ in signals.runs()]
+        self.bin_runs = np.searchsorted(firsts, self.index[self.starts], side='right') - 1
+        self._run_t = signals.t[firsts]
+        self._run_t0 = np.array([self._t_bin[self.bin_runs == k][0] if np.any(self.bin_runs == k) else self._run_t[k]
+                                 for k in range(len(firsts))])
+        self._blocks_before = np.zeros(len(firsts), dtype=np.int64)
         self.max_folds = folds
         self.n_folds = folds
         self.block_s = 0.0
@@ -245,11 +253,15 @@ class Binned:
     def refold(self, block_s: float, n_folds: int | None = None) -> None:
         """Deal blocks of ``block_s`` to the folds in turn, at least two blocks per fold."""
         t_bin = self._t_bin
-        duration = max(float(t_bin[-1] - t_bin[0]), 1e-9)
+        last = np.array([t_bin[self.bin_runs == k][-1] if np.any(self.bin_runs == k) else self._run_t0[k]
+                         for k in range(len(self._run_t0))])
+        duration = max(float(np.sum(last - self._run_t0)), 1e-9)
         if n_folds is None:
             n_folds = int(np.clip(duration // (2 * block_s), MIN_FOLDS, self.max_folds))
         self.n_folds = n_folds
         self.block_s = min(block_s, duration / (2 * n_folds))
+        blocks = np.floor((last - self._run_t0) / self.block_s).astype(np.int64) + 1
+        self._blocks_before = np.concatenate([[0], np.cumsum(blocks)[:-1]])
         fold = self._fold_of(t_bin)
         self.folds = [np.flatnonzero(fold == k) for k in range(n_folds)]
         # The bins in fold order, and where each fold ends: per-fold sums then run on slices, not copies.
@@ -257,8 +269,10 @@ class Binned:
         self.bounds = np.cumsum([0] + [len(k) for k in self.folds])
 
     def _fold_of(self, t: NDArray[np.float64]) -> NDArray[np.int64]:
-        """The fold of the block of time each of ``t`` falls in."""
-        return np.asarray(np.floor((t - self._t_bin[0]) / self.block_s).astype(np.int64) % self.n_folds, dtype=np.int64)
+        """The fold of the block of time each of ``t`` (times of steady rows) falls in, blocks counted run by run."""
+        run = np.searchsorted(self._run_t, t, side='right') - 1
+        block = np.floor((t - self._run_t0[run]) / self.block_s).astype(np.int64) + self._blocks_before[run]
+        return np.asarray(block % self.n_folds, dtype=np.int64)
 
     def _add_to_bins(self, sums: NDArray[np.float64], chunk: Chunk, values: NDArray[np.float64]) -> None:
         """Add ``values`` of the chunk's steady rows into the bin ``sums`` (a bin the chunk's edge cuts adds twice)."""

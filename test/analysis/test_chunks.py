@@ -143,3 +143,20 @@ def test_no_matrix_with_a_row_per_log_row(monkeypatch):
     finally:
         tracemalloc.stop()
     assert peak < 20 * column, f'peak {peak / column:.1f} columns of the log'
+
+
+def test_no_chunk_crosses_a_run_and_each_run_starts_afresh():
+    """Several runs: the chunks split at each run's first row, and their signals equal the whole's."""
+    log = simulated(0.3, 2.0)
+    starts = ((0, True), (500, False), (1400, True))
+    whole = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, run_starts=starts)
+    index = np.arange(1, len(log), 2)
+    got = {name: [] for name in ('time_since_power_on', 'temperature_rate', 'angle')}
+    for chunk in chunks.chunks(whole, index, 700):
+        first = max(f for f, _ in starts if f <= chunk.start)
+        assert chunk.start + len(chunk.signals) <= min([f for f, _ in starts if f > chunk.start] + [len(log)])
+        assert (chunk.signals.previous is None) == (chunk.start == first)
+        for name, values in got.items():
+            values.append(chunk.signals.get(name)[chunk.rows])
+    for name, values in got.items():
+        np.testing.assert_allclose(np.concatenate(values), whole.get(name)[index], rtol=1e-12, atol=1e-12)

@@ -434,3 +434,73 @@ def test_fit_excludes_clipped_rows_and_says_how_many(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f'warning: {clipped} of {len(data)} rows excluded: the rate clipped (at +-99.9424 deg/s)' in err, err
     assert load_calibration(tmp_path / 'CAL.yaml').terms == ()
+
+
+@pytest.fixture(scope='module')
+def three_runs(tmp_path_factory):
+    """Two cold starts of one gyro and a warm restart, as CSV logs (short: the CLI is what is tested)."""
+    from art_gyro_calibration.analysis.simulate import (SimulationSettings, same_gyro, simulate_run, warm_restart,
+                                                        write_run)
+    d = tmp_path_factory.mktemp('runs')
+    cal = load_packaged_calibration('NAVC4058')
+    settings = SimulationSettings(hours=0.5, rate_hz=2.0, effects=('warmup',), seed=1)
+    write_run(d / 'cold1.csv', simulate_run(cal, settings))
+    write_run(d / 'cold2.csv', simulate_run(cal, same_gyro(settings, 2)))
+    write_run(d / 'warm.csv', warm_restart(cal, same_gyro(settings, 3), 3600.0))
+    write_run(d / 'other.csv', simulate_run(cal, same_gyro(settings, 4)))
+    return d
+
+
+def test_fit_of_several_runs_reports_each(three_runs, monkeypatch):
+    monkeypatch.chdir(three_runs)
+    assert main(['fit', 'cold1.csv', 'cold2.csv', 'warm.csv', '--warm-start', 'warm.csv', '--rows', '3', '--columns',
+                 '2', '--serial', 'NAVC4058', '--out', 'CAL.yaml', '--report', 'REPORT.json']) == 0
+    report = json.loads((three_runs / 'REPORT.json').read_text())
+    # The warm-up was fitted on two power-ons: no warning that one log alone judged it.
+    assert 'time_since_power_on' in report['written']['terms'] and 'warnings' not in report
+    logs = [read_log(three_runs / name, 1.0, 1.0) for name in ('cold1.csv', 'cold2.csv', 'warm.csv')]
+    assert [(r['name'], r['rows'], r['powered_on_at_start']) for r in report['runs']] == [
+        ('cold1.csv', len(logs[0]), True), ('cold2.csv', len(logs[1]), True), ('warm.csv', len(logs[2]), False)]
+    assert report['runs'][0]['turn_on_offset_dph'] == 0.0 and report['rows_read'] == sum(len(x) for x in logs)
+    cal = load_calibration(three_runs / 'CAL.yaml')
+    for run in report['runs']:
+        low, high = run['temperature_c']
+        assert cal.temperature_range_c[0] <= low < high <= cal.temperature_range_c[1]
+    assert 'cold1.csv and cold2.csv and warm.csv' in (three_runs / 'CAL.yaml').read_text()
+    # The node's runs, replayed against the baseline and in the start-up check: each within one run, every run's start.
+    names = ['cold1.csv', 'cold2.csv', 'warm.csv']
+    assert sorted({r['run'].split(':')[0] for r in report['baseline']['runs']}) == names
+    assert [r['source'] for r in report['startup_check']['runs']][:3] == [
+        'cold1.csv: from the log\'s power-on', 'cold2.csv: from the log\'s power-on', 'warm.csv: from its start (warm)']
+    assert 'Start-up check: the fitted log run from its power-on and restarted warm' in (
+        three_runs / 'REPORT.md').read_text()
+
+
+def test_several_runs_are_validated_on_another(three_runs, monkeypatch):
+    monkeypatch.chdir(three_runs)
+    assert main(['fit', 'cold1.csv', 'cold2.csv', 'warm.csv', '--warm-start', 'warm.csv', '--rows', '3', '--columns',
+                 '2', '--serial', 'NAVC4058', '--out', 'VALIDATED.yaml', '--report', 'VALIDATED.json',
+                 '--validate', 'other.csv', '--validate-powered-on-at-start']) == 0
+    report = json.loads((three_runs / 'VALIDATED.json').read_text())
+    assert [r['source'] for r in report['validation']['runs']] == ['other.csv']
+    assert len(report['runs']) == 3
+
+
+def test_fit_parses_several_logs_and_warm_starts():
+    from art_gyro_calibration.analysis.cli import build_parser
+    args = build_parser().parse_args(['fit', 'a.csv', 'b.csv', 'c', '--warm-start', 'b.csv', '--warm-start', 'c',
+                                      '--rows', '3', '--columns', '2', '--out', 'o.yaml', '--report', 'r.json'])
+    assert args.log == ['a.csv', 'b.csv', 'c'] and args.warm_start == ['b.csv', 'c']
+
+
+@pytest.mark.parametrize('logs, warm, message', [
+    (['cold1.csv', 'cold2.csv'], 'warm.csv',
+     '--warm-start warm.csv: not one of the logs fitted (cold1.csv, cold2.csv)'),
+    (['cold1.csv', 'cold1.csv'], None, 'cold1.csv: given twice'),
+])
+def test_fit_refuses_a_warm_start_not_fitted(three_runs, monkeypatch, capsys, logs, warm, message):
+    monkeypatch.chdir(three_runs)
+    assert main(['fit', *logs, *(['--warm-start', warm] if warm else []), '--rows', '3', '--columns', '2',
+                 '--out', 'refused.yaml', '--report', 'refused.json']) == 1
+    assert message in capsys.readouterr().err
+    assert not (three_runs / 'refused.yaml').exists()

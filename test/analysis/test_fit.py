@@ -81,3 +81,22 @@ def test_a_term_on_a_signal_far_from_zero_is_recovered():
         np.testing.assert_allclose(fit.model.error(signals)[fit.index] + fit.residual, error[fit.index], atol=1e-9)
     assert found[1] == pytest.approx(found[0], rel=1e-6)
     assert found[1] == pytest.approx(2e-5, rel=0.1)
+
+
+def test_each_run_has_its_own_turn_on_bias_and_the_polynomial_is_shared():
+    """Two runs, each with its own constant: the shared polynomial and each run's offset, none written."""
+    rng = np.random.default_rng(3)
+    t = np.arange(4000.0)
+    temp = np.concatenate([15.0 + 0.005 * t[:2000], 25.0 + 0.005 * t[:2000]])   # the runs overlap in 20..25 degC
+    rate = rng.choice([-50.0, -10.0, 0.0, 10.0, 50.0], 4000)
+    polynomial = ArtPolynomial(np.array([[1e-5, 2e-4], [-3e-4, 0.002]]))   # [[T r, T], [r, 1]]
+    turn_on = np.where(np.arange(4000) < 2000, 0.0, 0.004)
+    error = polynomial.error(rate, temp) + turn_on
+    runs = compute_signals(t, rate, temp, run_starts=((0, True), (2000, True)))
+    fit = fit_model(runs, error, 2, 2)
+    np.testing.assert_allclose(fit.model.polynomial.coefficients, polynomial.coefficients, rtol=1e-6, atol=1e-12)
+    assert fit.run_offsets_dps == pytest.approx((0.0, 0.004), abs=1e-9)
+    # As one run, the second run's bias is read as a temperature slope.
+    one = fit_model(compute_signals(t, rate, temp), error, 2, 2)
+    assert one.run_offsets_dps == ()
+    assert abs(one.model.polynomial.coefficients[0, 1] - 2e-4) > 1e-4

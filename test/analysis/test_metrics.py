@@ -63,3 +63,11 @@ def test_correlation_time_of_bins_too_sparse_to_pair_up():
     t = np.array([0, 1, 4, 13, 28, 33, 47, 54, 64, 70, 72]) * 60.0 + 30.0
     residual = np.array([5.0, 5.0, -1, 1, -1, 1, -1, 1, -1, 1, -1])
     assert correlation_time_s(t, residual, steady_segments(t, np.zeros(len(t)), settle_s=0.0)) == 60.0
+
+
+def test_a_segment_ends_where_a_run_of_several_begins():
+    """The table rests at the end of one run and the start of the next: two segments, each settled apart."""
+    t = np.arange(20.0)
+    seg = steady_segments(t, np.zeros(20), settle_s=2.0, breaks=[0, 12])
+    assert seg.starts.tolist() == [2, 14] and seg.stops.tolist() == [12, 20]
+    assert steady_segments(t, np.zeros(20), settle_s=2.0).starts.tolist() == [2]

@@ -13,7 +13,9 @@ import pytest
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.analysis.loop import NODE_SIGNALS, LoopOptions, close_loop
 from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, simulate_run
-from art_gyro_calibration.analysis.trace import mirrored_spectrum, phase_surrogates
+from art_gyro_calibration.analysis.metrics import steady_segments
+from art_gyro_calibration.analysis.trace import Binned, mirrored_spectrum, phase_surrogates
+from art_gyro_calibration.signals import compute_signals
 
 HOURS, RATE_HZ = 6.0, 2.0
 
@@ -332,3 +334,20 @@ def test_a_scale_factor_in_t_cubed_far_beyond_chance_survives_the_final_held_out
                         LoopOptions(seed=seed))
     assert [(e.term.signal, e.term.powers, 1 in e.term.rate_powers) for e in result.effects] == \
         [('temperature', (3,), True)], [e.term.describe() for e in result.effects]
+
+
+def test_no_held_out_block_spans_two_runs():
+    """Several runs: each run's blocks of time count from its own first bin, so none holds rows of two runs."""
+    t = np.arange(3000.0)   # two runs back to back: a block of the log's clock would straddle row 1500
+    starts = ((0, True), (1500, True))
+    signals = compute_signals(t, np.zeros(3000), 20.0 + 0.001 * t, run_starts=starts)
+    segments = steady_segments(t, np.zeros(3000), 0.0, breaks=[0, 1500])
+    binned = Binned(signals, np.zeros(3000), segments, 1, 1, folds=3, bin_s=10.0, block_s=400.0)
+    fold = np.empty(len(binned.starts), dtype=np.int64)
+    for k, bins in enumerate(binned.folds):
+        fold[bins] = k
+    bin_t = binned.bin_times()
+    # Run 1's last block (1200..1500 s) and run 2's first (1500..1900 s) are dealt to different folds.
+    assert not set(fold[(bin_t >= 1200.0) & (bin_t < 1500.0)]) & set(fold[(bin_t >= 1500.0) & (bin_t < 1900.0)])
+    # A fit of the runs has a column per run beyond the first (its turn-on bias) beside the polynomial.
+    assert binned.base.shape[1] == 1 + 1 + 1
