@@ -53,6 +53,18 @@ def test_cold_summary_judges_none_against_the_baseline_run_by_run(lv: ModuleType
     assert not bad['met']
 
 
+def test_a_warm_up_cell_is_judged_on_the_lab_protocols_fit(lv: ModuleType) -> None:
+    """Issue 35 item 5: with a several-run fit (two cold starts, a warm restart) in every run, its ratio decides."""
+    runs = [_cold('warmup', 5.0, 2.0, 9.0), _cold('warmup', 6.0, 2.0, 9.0)]
+    for r, lab in zip(runs, (2.4, 3.0)):
+        r['field']['written_runs'] = {'systematic_rms_dph': lab}
+    s = lv.cold_summary(runs)
+    (cell,) = s['cells']
+    assert cell['ratio_median'] == pytest.approx(2.75) and cell['ratio_runs_median'] == pytest.approx(1.35)
+    assert cell['written_runs_dph'] == pytest.approx(2.7) and cell['met']
+    assert lv.cold_summary([_cold('warmup', 5.0, 2.0, 9.0)])['cells'][0]['ratio_runs_median'] is None
+
+
 def _null(hours: float, written: dict[str, float], baseline: dict[str, float], adequate: bool = True,
           seed: int = 0) -> dict[str, Any]:
     return {'kind': 'null', 'hours': hours, 'seed': seed, 'verdict': 'baseline', 'written_terms': [],
