@@ -32,6 +32,8 @@ from art_gyro_calibration.analysis.metrics import steady_segments
 from art_gyro_calibration.analysis.replay import (COLD_START_NAME, OWN_RUNS_NAME, RESTARTS_NAME, Validation,
                                                   startup_check, unjudged_warm_up, validate)
 from art_gyro_calibration.analysis.report import build_report, misfit_reason, validation_section
+from art_gyro_calibration.analysis.runs import Run
+from art_gyro_calibration.analysis.window_cost import window_cost
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,10 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     # The report and figures are the loop's; what the checks drop is in their sections.
     loop_report = build_report(log, loop, settings.bias_samples, source=str(log_path))
     result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
+    # The window terms' cost: a term whose implied mission bias exceeds what it removes is not written.
+    window = window_cost(result, [Run(str(log_path), 0, len(log), result.start.powered_on_at_start)],
+                         settings.bias_samples)
+    result = window.result
     _warn_loop(loop, warn)
     validation, validation_dropped = _validate(result, settings, warn) if settings.validate else (None, {})
     refit = result.extended if validation is None else validation.calibration
@@ -150,6 +156,7 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
         'detection_limit_dph': {d.signal: d.to_dict() for d in loop.detection},
         **({} if still is None else {'still': still}),
         **({} if startup is None else {'startup_check': validation_section(startup, restarts)}),
+        **({'window_terms': window.section()} if window.costs else {}),
         **({} if validation is None else {'validation': validation_section(validation, list(settings.validate)),
                                           'validation_rows_dropped': validation_dropped}),
         'baseline': baseline.to_dict() if isinstance(baseline, BaselineCheck) else

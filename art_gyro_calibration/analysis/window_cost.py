@@ -1,0 +1,328 @@
+"""What a term active in the node's static-bias window will cost a mission, and whether it is written.
+
+The node takes its static bias over a run's first ``bias_samples`` rows with the terms applied
+(:func:`compensation.apply_calibration`): a term's value there, as the node takes it, goes into
+``CalcStaticBiasDrift`` and is carried for the whole mission, while the term's own value decays
+(a warm-up) or swings about zero (a temperature rate). A coefficient error ``d`` of such a term
+leaves ``w . d`` in every row after the window: ``w`` the mean of the term's columns over the window
+as the node takes them (a temperature rate: the refinement's, :class:`static_bias.Refinement`), less
+what the polynomial takes with the term when its coefficient moves (the columns' projection on the
+polynomial over the fitted rows: a lagged temperature is mostly the temperature, and its coefficient
+trades with the polynomial's; a constant cancels in the node).
+
+The spread of ``w . beta`` is measured by refitting without a part of the rows (a jackknife): each
+run in turn when the fit had several (leave-one-run-out: a warm-up's amplitude against each run's
+turn-on bias), else blocks of the log as long as what the model leaves stays correlated (the loop's
+held-out block). Not the coefficients' covariance: with a bias that wanders for hours the rows are
+not independent, and a covariance summed over blocks shrinks the block that holds the warm-up (its
+leverage: the fit follows it there); the jackknife refits without that block and errs large, not small.
+
+A term whose implied bias exceeds what it removes (the rms over the rows after the window of what
+it corrects beyond the polynomial, net of its window value) is not written. Correlated stand-ins:
+when several window terms are written and one of them alone, refitted with the polynomial, corrects
+what the set corrects within the set's own implied bias, that one is written instead.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from art_gyro_calibration.analysis.chunks import chunks
+from art_gyro_calibration.analysis.fit import Design, TermSpec, polynomial_basis, solve_normal
+from art_gyro_calibration.analysis.loop import LoopResult
+from art_gyro_calibration.analysis.runs import Run, run_of_rows
+from art_gyro_calibration.compensation import RunStart, apply_calibration
+from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.model import ArtPolynomial
+from art_gyro_calibration.signals import LAGGED_SIGNAL, POWER_ON_SIGNAL
+from art_gyro_calibration.static_bias import REFINE_SPAN_TAUS
+from art_gyro_calibration.terms import Term
+from art_gyro_calibration.units import DEG_PER_H_PER_DPS
+
+# The signals whose terms act in the static-bias window: the warm-up, and the filtered signals (their
+# filter, or the refinement, gives them a value there that the coefficient carries into the bias).
+WINDOW_SIGNALS = (POWER_ON_SIGNAL, 'temperature_rate', LAGGED_SIGNAL, 'rate_change')
+# One run: at least this many blocks for its jackknife (fewer leave nothing to spread over).
+MIN_BLOCKS = 4
+
+
+@dataclass(frozen=True)
+class TermCost:
+    """One window term: what it puts in the window, its uncertainty there as a mission bias, what it removes (deg/h).
+
+    ``written``: its implied bias is within what it removes. ``settle``: the run that would settle it.
+    """
+
+    signal: str
+    description: str
+    window_dph: float
+    implied_bias_dph: float
+    removes_dph: float
+    written: bool
+    settle: str = ''
+
+    def to_dict(self) -> dict[str, Any]:
+        """REPORT.json's entry."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class WindowCost:
+    """The loop's result with the window terms it should not write dropped (the rest refitted), and why.
+
+    ``method``: how the uncertainty was measured; ``stand_ins``: why one term replaced several ('' if none did).
+    """
+
+    result: LoopResult
+    costs: tuple[TermCost, ...]
+    method: str
+    stand_ins: str = ''
+
+    def section(self) -> dict[str, Any]:
+        """REPORT.json's ``window_terms``."""
+        return {'method': self.method, 'terms': [c.to_dict() for c in self.costs], 'stand_ins': self.stand_ins or None}
+
+
+def _spec(term: Term) -> TermSpec:
+    """A term's shape: its fields less the coefficients."""
+    return TermSpec(**{f.name: getattr(term, f.name) for f in fields(TermSpec)})
+
+
+def _groups(result: LoopResult, runs: Sequence[Run], index: NDArray[np.int64]) -> tuple[NDArray[np.int64], str]:
+    """Per fitted row, the part of the rows refitted without it; how the jackknife is described."""
+    if len(runs) > 1:
+        return run_of_rows(runs, index), f'leave-one-run-out over {len(runs)} runs'
+    t = result.signals.t
+    duration = float(t[index[-1]] - t[index[0]])
+    block_s = min(result.held_out_block_s, duration / MIN_BLOCKS)
+    groups = np.floor((t[index] - t[index[0]]) / block_s).astype(np.int64)
+    return groups, (f'block jackknife over {int(groups.max()) + 1} blocks of {block_s / 60.0:.0f} min of the one run '
+                    '(the loop\'s held-out block, the correlation time of what the model leaves)')
+
+
+class _Fit:
+    """The polynomial, a constant per run beyond the first and ``specs`` on the loop's steady rows; jackknifed.
+
+    ``beta`` (scaled, :class:`Design`) of all rows and ``replicates``, one per group left out.
+    ``projection``: the term columns' least-squares projection on the polynomial's (and the runs' constants).
+    """
+
+    def __init__(self, result: LoopResult, specs: Sequence[TermSpec], runs: Sequence[Run]) -> None:
+        polynomial = result.art.polynomial
+        index = result.segments.rows()
+        self.runs, self.specs = runs, tuple(specs)
+        self.design = Design(result.signals, polynomial.rows, polynomial.columns, specs, index)
+        groups, self.method = _groups(result, runs, index)
+        width = self.design.width + len(runs) - 1
+        gram = np.zeros((int(groups.max()) + 1, width, width))
+        cross = np.zeros((len(gram), width))
+        for chunk, x in self.design.chunks():
+            rows = chunk.start + chunk.rows
+            x = self.with_runs(x, rows)
+            e = result.error[rows]
+            g = groups[chunk.positions]
+            for group in np.unique(g):
+                mine = g == group
+                gram[group] += x[mine].T @ x[mine]
+                cross[group] += x[mine].T @ e[mine]
+        total, rhs = gram.sum(axis=0), cross.sum(axis=0)
+        self.beta = solve_normal(total, rhs)
+        present = [g for g in range(len(gram)) if gram[g, 0, 0] > 0.0]
+        self.replicates = np.array([solve_normal(total - gram[g], rhs - cross[g]) for g in present])
+        p = polynomial.rows * polynomial.columns
+        self.poly_columns = np.r_[0:p, self.design.width:width]
+        self.term_columns = np.arange(p, self.design.width)
+        self.projection = solve_normal(total[np.ix_(self.poly_columns, self.poly_columns)],
+                                       total[np.ix_(self.poly_columns, self.term_columns)])
+        # Per spec, its columns among the term columns.
+        edges = np.cumsum([0, *(s.width for s in self.specs)])
+        self.columns = [np.arange(a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+    def with_runs(self, x: NDArray[np.float64], rows: NDArray[np.int64]) -> NDArray[np.float64]:
+        """The design's columns over ``rows`` and each later run's constant."""
+        if len(self.runs) < 2:
+            return x
+        run = run_of_rows(self.runs, rows)
+        return np.column_stack([x, (run[:, None] == np.arange(1, len(self.runs))).astype(float)])
+
+    def beyond_polynomial(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The term columns of ``x`` less their projection on the polynomial's."""
+        return np.asarray(x[:, self.term_columns] - x[:, self.poly_columns] @ self.projection, dtype=np.float64)
+
+    def term_beta(self, beta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The term columns' coefficients of ``beta`` (scaled)."""
+        return np.asarray(beta[..., self.term_columns], dtype=np.float64)
+
+    def calibration_of(self, result: LoopResult) -> LoopResult:
+        """``result`` with this fit's polynomial and terms as the extended calibration, its effects those kept."""
+        model = self.design.model(self.beta[:self.design.width])
+        kept = {term.signal: term for term in model.terms}
+        effects = tuple(replace(e, term=kept[e.signal]) for e in result.effects if e.signal in kept)
+        return replace(result, extended=replace(result.extended, polynomial=model.polynomial, terms=model.terms),
+                       effects=effects)
+
+
+def node_window(result: LoopResult, spec: TermSpec, run: Run, bias_samples: int) -> NDArray[np.float64]:
+    """Per column of ``spec``, its mean over ``run``'s static-bias window as the node takes it (refined if it is).
+
+    The node's own path (:func:`compensation.apply_calibration`) with the term alone of a unit
+    coefficient on that column: its ``CalcStaticBiasDrift`` once the refinement (a temperature
+    rate's) has run.
+    """
+    signals = result.signals
+    t, a = signals.t, run.first_row
+    span_s = REFINE_SPAN_TAUS * result.extended.filters.temperature_rate_tau_s
+    stop = min(run.stop, max(a + bias_samples, int(np.searchsorted(t, t[a] + span_s)) + 2))
+    part = slice(a, stop)
+    log = GyroLog(t[part], signals.rate[part], signals.temperature[part], None,
+                  {k: v[part] for k, v in signals.extras.items()})
+    zero = replace(result.extended, polynomial=ArtPolynomial(np.zeros((1, 1))))
+    out = np.empty(spec.width)
+    for j, unit in enumerate(np.eye(spec.width)):
+        applied = apply_calibration(log, replace(zero, terms=(spec.term(unit),)), bias_samples, math.inf, math.inf,
+                                    start=RunStart(powered_on_at_start=run.powered_on_at_start))
+        out[j] = applied.bias.calc_static_bias_drift_dps
+    return out
+
+
+def _windows(result: LoopResult, fit: _Fit, bias_samples: int) -> NDArray[np.float64]:
+    """Per run (rows), each term column's mean over its window as the node takes it, scaled, beyond the polynomial."""
+    design, signals = fit.design, result.signals
+    out = np.empty((len(fit.runs), len(fit.term_columns)))
+    for r, run in enumerate(fit.runs):
+        rows = slice(run.first_row, run.first_row + bias_samples)
+        poly = np.zeros(len(fit.poly_columns))
+        p = design.rows * design.columns
+        poly[:p] = polynomial_basis(signals.rate[rows], signals.temperature[rows], design.rows, design.columns,
+                                    design.scaling).mean(axis=0)
+        if r:
+            poly[p + r - 1] = 1.0
+        raw = np.concatenate([node_window(result, spec, run, bias_samples) for spec in fit.specs])
+        terms = fit.term_columns
+        out[r] = (raw - design.column_offset[terms]) / design.column_scale[terms] - poly @ fit.projection
+    return out
+
+
+def _after_window(result: LoopResult, fits: Sequence[_Fit], windows: Sequence[NDArray[np.float64]],
+                  bias_samples: int) -> Iterator[tuple[NDArray[np.int64], list[NDArray[np.float64]]]]:
+    """Chunk by chunk over the rows after each run's window: the run of each row and, per fit, per spec of it,
+    what the term corrects there beyond the polynomial, net of its window value (deg/s, rows x specs)."""
+    runs = fits[0].runs
+    rows = np.concatenate([np.arange(run.first_row + bias_samples, run.stop) for run in runs])
+    for chunk in chunks(result.signals, rows):
+        if not len(chunk.rows):
+            continue
+        where = chunk.start + chunk.rows
+        run = run_of_rows(runs, where)
+        out = []
+        for fit, window in zip(fits, windows):
+            beyond = fit.beyond_polynomial(fit.with_runs(fit.design.matrix(chunk), where)) - window[run]
+            beta = fit.term_beta(fit.beta)
+            out.append(np.stack([beyond[:, c] @ beta[c] for c in fit.columns], axis=1))
+        yield run, out
+
+
+def _spread(values: NDArray[np.float64]) -> float:
+    """The jackknife's standard deviation of a statistic from its replicates (one per group left out)."""
+    g = len(values)
+    return float(np.sqrt((g - 1) / g * np.sum((values - values.mean()) ** 2))) if g > 1 else math.inf
+
+
+def _implied(fit: _Fit, window: NDArray[np.float64], columns: NDArray[np.int64]) -> float:
+    """The uncertainty of the window value of ``columns`` (term columns), rms over the runs, deg/s."""
+    replicates = fit.term_beta(fit.replicates)[:, columns]
+    return float(np.sqrt(np.mean([_spread(replicates @ w[columns]) ** 2 for w in window])))
+
+
+def settle(signal: str, signals: Sequence[str], runs: Sequence[Run]) -> str:
+    """Which run would settle a window term on ``signal`` (``signals``: the window terms beside it)."""
+    cold = sum(run.powered_on_at_start for run in runs)
+    warm = len(runs) - cold
+    if signal == POWER_ON_SIGNAL:
+        if 'temperature_rate' in signals and not warm:
+            return 'a warm restart would tell the warm-up from the Shupe (temperature-rate) term'
+        return ('a second power-on' if cold < 2 else 'another power-on') + ' (a cold start at another chamber ' \
+            'temperature) would fix the warm-up\'s amplitude apart from a turn-on bias'
+    if signal == 'temperature_rate':
+        return ('a second power-on (its self-heating is the temperature rate the window sees) or a warm restart '
+                'during a chamber ramp would fix the temperature rate\'s coefficient where the window takes it')
+    if signal == LAGGED_SIGNAL:
+        return 'a warm restart during a chamber ramp would tell the lagged temperature from the temperature'
+    return 'more table steps of both signs would fix the rate change\'s coefficient'
+
+
+def window_cost(result: LoopResult, runs: Sequence[Run], bias_samples: int) -> WindowCost:
+    """Each window term of ``result.extended``: its implied mission bias, what it removes; the terms to write.
+
+    ``runs``: the runs among the loop's rows (one over the whole log for a single log). First, when
+    several window terms are written, one alone replaces them if it corrects what they do within their
+    implied bias (fewest coefficients first); then a term whose implied bias exceeds what it removes
+    is dropped and the rest refitted.
+    """
+    specs = [_spec(t) for t in result.extended.terms]
+    window = [s for s in specs if s.signal in WINDOW_SIGNALS]
+    if not window:
+        return WindowCost(result, (), '')
+    fit = _Fit(result, specs, runs)
+    windows = _windows(result, fit, bias_samples)
+    stand_ins = ''
+    if len(window) > 1:
+        others = [s for s in specs if s not in window]
+        singles = [_Fit(result, [*others, s], runs) for s in window]
+        single_windows = [_windows(result, f, bias_samples) for f in singles]
+        in_set = np.array([specs.index(s) for s in window])
+        squares = np.zeros(len(singles))
+        count = 0
+        for _, corrections in _after_window(result, [fit, *singles], [windows, *single_windows], bias_samples):
+            corrected = corrections[0][:, in_set].sum(axis=1)
+            squares += [np.sum((corrected - c[:, -1]) ** 2) for c in corrections[1:]]
+            count += len(corrected)
+        differ = np.sqrt(squares / max(count, 1))
+        columns = np.concatenate([fit.columns[i] for i in in_set])
+        uncertainty = _implied(fit, windows, columns)
+        within = [k for k in range(len(window)) if differ[k] <= uncertainty]
+        if within:
+            k = min(within, key=lambda k: (window[k].width, differ[k]))
+            stand_ins = (f'{window[k].signal} alone corrects what {", ".join(s.signal for s in window)} correct '
+                         f'together within {differ[k] * DEG_PER_H_PER_DPS:.2f} deg/h (rms after the window), '
+                         f'inside their implied bias of {uncertainty * DEG_PER_H_PER_DPS:.2f} deg/h: it is written '
+                         'alone')
+            fit, windows, specs = singles[k], single_windows[k], [*others, window[k]]
+            window = [window[k]]
+            result = fit.calibration_of(result)
+    costs = _costs(result, fit, windows, specs, window, bias_samples)
+    dropped = {c.signal for c in costs if not c.written}
+    if dropped:
+        result = _Fit(result, [s for s in specs if s.signal not in dropped], runs).calibration_of(result)
+    return WindowCost(result, costs, fit.method, stand_ins)
+
+
+def _costs(result: LoopResult, fit: _Fit, windows: NDArray[np.float64], specs: Sequence[TermSpec],
+           window: Sequence[TermSpec], bias_samples: int) -> tuple[TermCost, ...]:
+    """Each window term's :class:`TermCost` under ``fit``."""
+    runs = fit.runs
+    squares = np.zeros((len(runs), len(specs)))
+    counts = np.zeros(len(runs))
+    for run, corrections in _after_window(result, [fit], [windows], bias_samples):
+        np.add.at(squares, run, corrections[0] ** 2)
+        counts += np.bincount(run, minlength=len(runs))
+    removes = np.sqrt(squares.sum(axis=0) / max(counts.sum(), 1.0))
+    beta = fit.term_beta(fit.beta)
+    terms = {t.signal: t for t in result.extended.terms}
+    out = []
+    for spec in window:
+        i = specs.index(spec)
+        columns = fit.columns[i]
+        implied = _implied(fit, windows, columns) * DEG_PER_H_PER_DPS
+        value = float(np.sqrt(np.mean((windows[:, columns] @ beta[columns]) ** 2))) * DEG_PER_H_PER_DPS
+        written = bool(implied <= removes[i] * DEG_PER_H_PER_DPS)
+        out.append(TermCost(spec.signal, terms[spec.signal].describe(), value, implied,
+                            float(removes[i]) * DEG_PER_H_PER_DPS, written,
+                            '' if written else settle(spec.signal, [s.signal for s in window], runs)))
+    return tuple(out)
