@@ -211,8 +211,11 @@ def _windows(result: LoopResult, fit: _Fit, bias_samples: int) -> NDArray[np.flo
 
 def _after_window(result: LoopResult, fits: Sequence[_Fit], windows: Sequence[NDArray[np.float64]],
                   bias_samples: int) -> Iterator[tuple[NDArray[np.int64], list[NDArray[np.float64]]]]:
-    """Chunk by chunk over the rows after each run's window: the run of each row and, per fit, per spec of it,
-    what the term corrects there beyond the polynomial, net of its window value (deg/s, rows x specs)."""
+    """Chunk by chunk over the rows after each run's window: the run of each row, and per fit its corrections.
+
+    Per fit, per spec of it: what the term corrects there beyond the polynomial, net of its window value
+    (deg/s, rows x specs).
+    """
     runs = fits[0].runs
     rows = np.concatenate([np.arange(run.first_row + bias_samples, run.stop) for run in runs])
     for chunk in chunks(result.signals, rows):
@@ -314,7 +317,7 @@ def _costs(result: LoopResult, fit: _Fit, windows: NDArray[np.float64], specs: S
         counts += np.bincount(run, minlength=len(runs))
     removes = np.sqrt(squares.sum(axis=0) / max(counts.sum(), 1.0))
     beta = fit.term_beta(fit.beta)
-    terms = {t.signal: t for t in result.extended.terms}
+    terms = {t.signal: t for t in fit.design.model(fit.beta[:fit.design.width]).terms}
     out = []
     for spec in window:
         i = specs.index(spec)

@@ -1,0 +1,82 @@
+"""What a term active in the static-bias window will cost a mission: written only when it removes more."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from art_gyro_calibration.analysis.loop import LoopOptions, LoopResult, close_loop
+from art_gyro_calibration.analysis.pipeline import FitSettings, fit_log
+from art_gyro_calibration.analysis.report import window_markdown
+from art_gyro_calibration.analysis.runs import Run
+from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
+from art_gyro_calibration.analysis.window_cost import window_cost
+from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration.terms import Term
+
+BASE = load_packaged_calibration('NAVC4058')
+
+
+def _loop(settings: SimulationSettings, options: LoopOptions = LoopOptions()) -> LoopResult:
+    log = simulate_run(BASE, settings).log(BASE)
+    return close_loop(log, 3, 2, options)
+
+
+def _one_run(result: LoopResult) -> list[Run]:
+    return [Run('log', 0, len(result.error), True)]
+
+
+def test_a_well_determined_warm_up_is_written_and_its_implied_bias_is_small(tmp_path: Path) -> None:
+    write_run(tmp_path / 'cold.csv', simulate_run(BASE, SimulationSettings(hours=1.5, effects=('warmup',), seed=1)))
+    fitted = fit_log(str(tmp_path / 'cold.csv'), FitSettings(3, 2, LoopOptions()), str(tmp_path / 'cal.yaml'))
+    [cost] = fitted.report['window_terms']['terms']
+    assert cost['signal'] == 'time_since_power_on' and cost['written']
+    # The 0.02 deg/s (72 deg/h) warm-up removes tens of deg/h; the jackknife leaves it a deg/h or two.
+    assert cost['removes_dph'] > 20.0
+    assert 0.0 < cost['implied_bias_dph'] < 0.1 * cost['removes_dph']
+    assert fitted.report['written']['terms'] == ['time_since_power_on']
+    assert 'block jackknife' in fitted.report['window_terms']['method']
+
+
+def test_a_warm_up_one_run_cannot_tell_from_its_wander_is_not_written() -> None:
+    # A small warm-up (0.003 deg/s, 20 min) under a bias that wanders by 0.01 deg/s over tens of minutes: the one run
+    # cannot fix its amplitude, and a wrong one is carried for the whole mission.
+    result = _loop(SimulationSettings(hours=1.5, effects=('warmup',), seed=1))
+    assert [t.signal for t in result.extended.terms] == ['time_since_power_on']
+    t = result.signals.t
+    rng = np.random.default_rng(3)
+    wander = sum(0.004 * np.sin(2 * np.pi * t / period + rng.uniform(0, 2 * np.pi)) for period in (1500, 2700, 4100))
+    truth = replace(result, error=result.error - 0.017 * np.exp(-t / 1200.0) + wander)
+    cost = window_cost(truth, _one_run(truth), 100)
+    [term] = cost.costs
+    assert term.implied_bias_dph > term.removes_dph and not term.written
+    assert cost.result.extended.terms == ()
+    assert cost.section()['terms'][0]['implied_bias_dph'] == term.implied_bias_dph
+    lines = '\n'.join(window_markdown(cost.section(), 100))
+    assert '| time_since_power_on |' in lines and '**no**' in lines
+    assert 'a second power-on (a cold start at another chamber temperature) would fix the warm-up\'s amplitude' in lines
+
+
+def test_a_stand_in_beside_the_term_that_does_the_work_gives_way_to_it() -> None:
+    # A Shupe gyro self-heating at power-on; a warm-up written beside the temperature rate corrects nothing the
+    # temperature rate alone does not: the single term is written.
+    result = _loop(SimulationSettings(hours=1.5, effects=('shupe',), seed=2, self_heating_c=4.0,
+                                      self_heating_tau_s=600.0))
+    assert [t.signal for t in result.extended.terms] == ['temperature_rate']
+    warm_up = Term('time_since_power_on', 'exp_decay', (0.001,), (), 40.0)
+    both = replace(result, extended=replace(result.extended, terms=(*result.extended.terms, warm_up)))
+    cost = window_cost(both, _one_run(both), 100)
+    assert cost.stand_ins.startswith('temperature_rate alone corrects what temperature_rate, time_since_power_on')
+    assert [t.signal for t in cost.result.extended.terms] == ['temperature_rate']
+    assert [c.signal for c in cost.costs] == ['temperature_rate'] and cost.costs[0].written
+    assert cost.result.extended.terms[0].coefficients == pytest.approx(result.extended.terms[0].coefficients,
+                                                                       rel=1e-6)
+
+
+def test_terms_outside_the_window_cost_nothing() -> None:
+    result = _loop(SimulationSettings(hours=1.0, effects=('supply_voltage',), seed=1),
+                   LoopOptions(node_signals=('supply_v',)))
+    assert [t.signal for t in result.extended.terms] == ['supply_v']
+    cost = window_cost(result, _one_run(result), 100)
+    assert cost.costs == () and cost.result is result
