@@ -128,6 +128,9 @@ def fit_log(log_path: str, settings: FitSettings, calibration_path: str,
     window = window_cost(result, [Run(str(log_path), 0, len(log), result.start.powered_on_at_start)],
                          settings.bias_samples)
     result = window.result
+    for cost in window.costs:
+        if not cost.written:
+            warn(cost.not_written())
     _warn_loop(loop, warn)
     validation, validation_dropped = _validate(result, settings, warn) if settings.validate else (None, {})
     refit = result.extended if validation is None else validation.calibration

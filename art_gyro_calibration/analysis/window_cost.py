@@ -71,6 +71,14 @@ class TermCost:
         """REPORT.json's entry."""
         return asdict(self)
 
+    def not_written(self) -> str:
+        """Why the term is not written, and what would settle it ('' when it is written)."""
+        if self.written:
+            return ''
+        return (f'the {self.signal} term is not written: its value in the static-bias window is uncertain by '
+                f'{self.implied_bias_dph:.2f} deg/h, a bias for the whole mission, more than the '
+                f'{self.removes_dph:.2f} deg/h it removes after the window; {self.settle}')
+
 
 @dataclass(frozen=True)
 class WindowCost:

@@ -53,6 +53,8 @@ def test_a_warm_up_one_run_cannot_tell_from_its_wander_is_not_written() -> None:
     assert term.implied_bias_dph > term.removes_dph and not term.written
     assert cost.result.extended.terms == ()
     assert cost.section()['terms'][0]['implied_bias_dph'] == term.implied_bias_dph
+    assert term.not_written().startswith('the time_since_power_on term is not written: its value in the static-bias '
+                                         f'window is uncertain by {term.implied_bias_dph:.2f} deg/h')
     lines = '\n'.join(window_markdown(cost.section(), 100))
     assert '| time_since_power_on |' in lines and '**no**' in lines
     assert 'a second power-on (a cold start at another chamber temperature) would fix the warm-up\'s amplitude' in lines
@@ -80,3 +82,15 @@ def test_terms_outside_the_window_cost_nothing() -> None:
     assert [t.signal for t in result.extended.terms] == ['supply_v']
     cost = window_cost(result, _one_run(result), 100)
     assert cost.costs == () and cost.result is result
+
+
+def test_with_several_runs_the_spread_is_over_runs_left_out() -> None:
+    # The several-run contract: the loop's rows are the runs' one after another (here a cold run and a later part of
+    # the same log taken as a warm restart, power-on unknown, so its warm-up is not applied there).
+    result = _loop(SimulationSettings(hours=1.5, effects=('warmup',), seed=1))
+    half = len(result.error) // 2
+    runs = [Run('cold', 0, half, True), Run('restart', half, len(result.error) - half, False)]
+    cost = window_cost(result, runs, 100)
+    assert cost.method == 'leave-one-run-out over 2 runs'
+    [term] = cost.costs
+    assert np.isfinite(term.implied_bias_dph) and term.removes_dph > 0.0
