@@ -12,10 +12,11 @@ trades with the polynomial's; a constant cancels in the node).
 
 The spread of ``w . beta`` is measured by refitting without a part of the rows (a jackknife): each
 run in turn when the fit had several (leave-one-run-out: a warm-up's amplitude against each run's
-turn-on bias), else blocks of the log as long as what the model leaves stays correlated (the loop's
-held-out block). Not the coefficients' covariance: with a bias that wanders for hours the rows are
-not independent, and a covariance summed over blocks shrinks the block that holds the warm-up (its
+turn-on bias), else blocks of the run as long as what the fit leaves stays correlated (at least the
+loop's held-out block). Not the coefficients' covariance: with a bias that wanders for hours the rows
+are not independent, and a covariance summed over blocks shrinks the block that holds the warm-up (its
 leverage: the fit follows it there); the jackknife refits without that block and errs large, not small.
+A term with a time constant is spread both with it held and free (:func:`_uncertainty`): the larger.
 
 A term whose implied bias exceeds what it removes (the rms over the rows after the window of what
 it corrects beyond the polynomial, net of its window value) is not written. Correlated stand-ins:
@@ -36,6 +37,7 @@ from numpy.typing import NDArray
 from art_gyro_calibration.analysis.chunks import chunks
 from art_gyro_calibration.analysis.fit import Design, TermSpec, polynomial_basis, solve_normal
 from art_gyro_calibration.analysis.loop import LoopResult
+from art_gyro_calibration.analysis.metrics import Segments, correlation_time_s
 from art_gyro_calibration.analysis.runs import Run, run_of_rows
 from art_gyro_calibration.compensation import RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog
@@ -50,6 +52,12 @@ from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 WINDOW_SIGNALS = (POWER_ON_SIGNAL, 'temperature_rate', LAGGED_SIGNAL, 'rate_change')
 # One run: at least this many blocks for its jackknife (fewer leave nothing to spread over).
 MIN_BLOCKS = 4
+# The fit's sums are kept per bin of this many seconds of a run, and grouped into blocks or runs from there.
+BIN_S = 60.0
+# A term with a time constant (a warm-up, a lag) is spread with a twin of its time constant times exp of this beside
+# it: the pair spans the term and its derivative in log(tau), so each refit moves the time constant too (the amplitude
+# at power-on trades with it) where the written term's is held.
+TWIN_LOG_STEP = 0.1
 
 
 @dataclass(frozen=True)
@@ -102,16 +110,23 @@ def _spec(term: Term) -> TermSpec:
     return TermSpec(**{f.name: getattr(term, f.name) for f in fields(TermSpec)})
 
 
-def _groups(result: LoopResult, runs: Sequence[Run], index: NDArray[np.int64]) -> tuple[NDArray[np.int64], str]:
-    """Per fitted row, the part of the rows refitted without it; how the jackknife is described."""
+def _groups(result: LoopResult, runs: Sequence[Run], bin_run: NDArray[np.int64], bin_k: NDArray[np.int64],
+            residual: NDArray[np.float64]) -> tuple[NDArray[np.int64], str]:
+    """Per bin of :data:`BIN_S` (its run, its number in it, the fit's mean residual there): the part refitted without.
+
+    Several runs: its run. One: blocks as long as what the fit leaves stays correlated (and at least the loop's
+    held-out block), at most a :data:`MIN_BLOCKS`-th of the run: shorter, a wander outlasting a block would be left
+    in every refit alike, and its spread not seen.
+    """
     if len(runs) > 1:
-        return run_of_rows(runs, index), f'leave-one-run-out over {len(runs)} runs'
-    t = result.signals.t
-    duration = float(t[index[-1]] - t[index[0]])
-    block_s = min(result.held_out_block_s, duration / MIN_BLOCKS)
-    groups = np.floor((t[index] - t[index[0]]) / block_s).astype(np.int64)
+        return bin_run, f'leave-one-run-out over {len(runs)} runs'
+    times = (bin_k + 0.5) * BIN_S
+    correlated_s = correlation_time_s(times, residual, Segments(np.array([0]), np.array([len(times)]), np.zeros(1)),
+                                      BIN_S)
+    block_s = max(min(max(result.held_out_block_s, correlated_s), float(times[-1] - times[0]) / MIN_BLOCKS), BIN_S)
+    groups = np.floor(bin_k * BIN_S / block_s).astype(np.int64)
     return groups, (f'block jackknife over {int(groups.max()) + 1} blocks of {block_s / 60.0:.0f} min of the one run '
-                    '(the loop\'s held-out block, the correlation time of what the model leaves)')
+                    f'(what the fit leaves stays correlated for {correlated_s / 60.0:.0f} min)')
 
 
 class _Fit:
@@ -119,38 +134,57 @@ class _Fit:
 
     ``beta`` (scaled, :class:`Design`) of all rows and ``replicates``, one per group left out.
     ``projection``: the term columns' least-squares projection on the polynomial's (and the runs' constants).
+    ``free_time_constants``: each spec with a time constant has its twin (:data:`TWIN_LOG_STEP`) beside it, its
+    columns among the spec's (``columns``).
     """
 
-    def __init__(self, result: LoopResult, specs: Sequence[TermSpec], runs: Sequence[Run]) -> None:
+    def __init__(self, result: LoopResult, specs: Sequence[TermSpec], runs: Sequence[Run],
+                 free_time_constants: bool = False) -> None:
         polynomial = result.art.polynomial
         index = result.segments.rows()
         self.runs, self.specs = runs, tuple(specs)
-        self.design = Design(result.signals, polynomial.rows, polynomial.columns, specs, index)
-        groups, self.method = _groups(result, runs, index)
+        twins = [replace(s, time_constant_s=s.time_constant_s * math.exp(TWIN_LOG_STEP)) for s in specs
+                 if free_time_constants and s.time_constant_s > 0.0]
+        self.design = Design(result.signals, polynomial.rows, polynomial.columns, [*specs, *twins], index)
+        # Sums per bin of BIN_S of a run (consecutive rows), then per group of bins.
+        t = result.signals.t
+        run = run_of_rows(runs, index)
+        k = np.floor((t[index] - t[[r.first_row for r in runs]][run]) / BIN_S).astype(np.int64)
+        keys, first, bins = np.unique(run * (int(k.max()) + 1) + k, return_index=True, return_inverse=True)
         width = self.design.width + len(runs) - 1
-        gram = np.zeros((int(groups.max()) + 1, width, width))
-        cross = np.zeros((len(gram), width))
+        gram = np.zeros((len(keys), width, width))
+        cross = np.zeros((len(keys), width))
         for chunk, x in self.design.chunks():
             rows = chunk.start + chunk.rows
             x = self.with_runs(x, rows)
             e = result.error[rows]
-            g = groups[chunk.positions]
-            for group in np.unique(g):
-                mine = g == group
-                gram[group] += x[mine].T @ x[mine]
-                cross[group] += x[mine].T @ e[mine]
+            b = bins[chunk.positions]
+            cuts = np.flatnonzero(np.diff(b)) + 1
+            for low, high in zip(np.r_[0, cuts], np.r_[cuts, len(b)]) if len(b) else ():
+                gram[b[low]] += x[low:high].T @ x[low:high]
+                cross[b[low]] += x[low:high].T @ e[low:high]
         total, rhs = gram.sum(axis=0), cross.sum(axis=0)
         self.beta = solve_normal(total, rhs)
-        present = [g for g in range(len(gram)) if gram[g, 0, 0] > 0.0]
-        self.replicates = np.array([solve_normal(total - gram[g], rhs - cross[g]) for g in present])
+        # The constant column is 1 on every row: a bin's residual sum is its error's less its columns' sums times beta.
+        residual = (cross[:, 0] - gram[:, 0, :] @ self.beta) / gram[:, 0, 0]
+        groups, self.method = _groups(result, runs, run[first], k[first], residual)
+        group_gram = np.zeros((int(groups.max()) + 1, width, width))
+        group_cross = np.zeros((len(group_gram), width))
+        np.add.at(group_gram, groups, gram)
+        np.add.at(group_cross, groups, cross)
+        present = [g for g in range(len(group_gram)) if group_gram[g, 0, 0] > 0.0]
+        self.replicates = np.array([solve_normal(total - group_gram[g], rhs - group_cross[g]) for g in present])
         p = polynomial.rows * polynomial.columns
         self.poly_columns = np.r_[0:p, self.design.width:width]
         self.term_columns = np.arange(p, self.design.width)
         self.projection = solve_normal(total[np.ix_(self.poly_columns, self.poly_columns)],
                                        total[np.ix_(self.poly_columns, self.term_columns)])
-        # Per spec, its columns among the term columns.
-        edges = np.cumsum([0, *(s.width for s in self.specs)])
-        self.columns = [np.arange(a, b) for a, b in zip(edges[:-1], edges[1:])]
+        # Per spec, its columns among the term columns (and its twin's).
+        edges = np.cumsum([0, *(s.width for s in self.design.specs)])
+        own = [np.arange(a, b) for a, b in zip(edges[:-1], edges[1:])]
+        twin_of = iter(own[len(specs):])
+        self.columns = [np.concatenate([c, next(twin_of)]) if free_time_constants and s.time_constant_s > 0.0 else c
+                        for s, c in zip(specs, own)]
 
     def with_runs(self, x: NDArray[np.float64], rows: NDArray[np.int64]) -> NDArray[np.float64]:
         """The design's columns over ``rows`` and each later run's constant."""
@@ -211,7 +245,7 @@ def _windows(result: LoopResult, fit: _Fit, bias_samples: int) -> NDArray[np.flo
                                     design.scaling).mean(axis=0)
         if r:
             poly[p + r - 1] = 1.0
-        raw = np.concatenate([node_window(result, spec, run, bias_samples) for spec in fit.specs])
+        raw = np.concatenate([node_window(result, spec, run, bias_samples) for spec in design.specs])
         terms = fit.term_columns
         out[r] = (raw - design.column_offset[terms]) / design.column_scale[terms] - poly @ fit.projection
     return out
@@ -239,16 +273,28 @@ def _after_window(result: LoopResult, fits: Sequence[_Fit], windows: Sequence[ND
         yield run, out
 
 
-def _spread(values: NDArray[np.float64]) -> float:
+def _jackknife_std(values: NDArray[np.float64]) -> float:
     """The jackknife's standard deviation of a statistic from its replicates (one per group left out)."""
     g = len(values)
     return float(np.sqrt((g - 1) / g * np.sum((values - values.mean()) ** 2))) if g > 1 else math.inf
 
 
-def _implied(fit: _Fit, window: NDArray[np.float64], columns: NDArray[np.int64]) -> float:
-    """The uncertainty of the window value of ``columns`` (term columns), rms over the runs, deg/s."""
+def _implied(fit: _Fit, window: NDArray[np.float64], specs: Sequence[int]) -> float:
+    """The uncertainty of the window value of the specs numbered ``specs`` together, rms over the runs, deg/s."""
+    columns = np.concatenate([fit.columns[i] for i in specs])
     replicates = fit.term_beta(fit.replicates)[:, columns]
-    return float(np.sqrt(np.mean([_spread(replicates @ w[columns]) ** 2 for w in window])))
+    return float(np.sqrt(np.mean([_jackknife_std(replicates @ w[columns]) ** 2 for w in window])))
+
+
+def _uncertainty(fit: _Fit, windows: NDArray[np.float64], spread: tuple[_Fit, NDArray[np.float64]],
+                 specs: Sequence[int]) -> float:
+    """The larger of :func:`_implied` with the time constants held and free (:func:`_spread`), deg/s.
+
+    Free, a refit trades the amplitude at power-on with the time constant; held, a refit without the
+    first block must carry the written shape back to the window from the rest, which a wander at the
+    start of the run upsets: each sees a doubt the other does not.
+    """
+    return max(_implied(fit, windows, specs), _implied(*spread, specs))
 
 
 def settle(signal: str, signals: Sequence[str], runs: Sequence[Run]) -> str:
@@ -295,8 +341,7 @@ def window_cost(result: LoopResult, runs: Sequence[Run], bias_samples: int) -> W
             squares += [np.sum((corrected - c[:, -1]) ** 2) for c in corrections[1:]]
             count += len(corrected)
         differ = np.sqrt(squares / max(count, 1))
-        columns = np.concatenate([fit.columns[i] for i in in_set])
-        uncertainty = _implied(fit, windows, columns)
+        uncertainty = _uncertainty(fit, windows, _spread(result, fit, windows, bias_samples), list(in_set))
         within = [k for k in range(len(window)) if differ[k] <= uncertainty]
         if within:
             k = min(within, key=lambda k: (window[k].width, differ[k]))
@@ -307,16 +352,27 @@ def window_cost(result: LoopResult, runs: Sequence[Run], bias_samples: int) -> W
             fit, windows, specs = singles[k], single_windows[k], [*others, window[k]]
             window = [window[k]]
             result = fit.calibration_of(result)
-    costs = _costs(result, fit, windows, specs, window, bias_samples)
+    costs = _costs(result, fit, windows, _spread(result, fit, windows, bias_samples), specs, window, bias_samples)
     dropped = {c.signal for c in costs if not c.written}
     if dropped:
         result = _Fit(result, [s for s in specs if s.signal not in dropped], runs).calibration_of(result)
-    return WindowCost(result, costs, fit.method, stand_ins)
+    free = any(s.time_constant_s > 0.0 for s in window)
+    method = fit.method + ('; the larger spread of the time constants held and free' if free else '')
+    return WindowCost(result, costs, method, stand_ins)
 
 
-def _costs(result: LoopResult, fit: _Fit, windows: NDArray[np.float64], specs: Sequence[TermSpec],
-           window: Sequence[TermSpec], bias_samples: int) -> tuple[TermCost, ...]:
-    """Each window term's :class:`TermCost` under ``fit``."""
+def _spread(result: LoopResult, fit: _Fit, windows: NDArray[np.float64],
+            bias_samples: int) -> tuple[_Fit, NDArray[np.float64]]:
+    """``fit`` with its time constants free (:data:`TWIN_LOG_STEP`) and its windows: what the spread is taken of."""
+    if not any(s.time_constant_s > 0.0 for s in fit.specs):
+        return fit, windows
+    spread = _Fit(result, fit.specs, fit.runs, free_time_constants=True)
+    return spread, _windows(result, spread, bias_samples)
+
+
+def _costs(result: LoopResult, fit: _Fit, windows: NDArray[np.float64], spread: tuple[_Fit, NDArray[np.float64]],
+           specs: Sequence[TermSpec], window: Sequence[TermSpec], bias_samples: int) -> tuple[TermCost, ...]:
+    """Each window term's :class:`TermCost` under ``fit``, its implied bias from ``spread`` (:func:`_spread`)."""
     runs = fit.runs
     squares = np.zeros((len(runs), len(specs)))
     counts = np.zeros(len(runs))
@@ -330,7 +386,7 @@ def _costs(result: LoopResult, fit: _Fit, windows: NDArray[np.float64], specs: S
     for spec in window:
         i = specs.index(spec)
         columns = fit.columns[i]
-        implied = _implied(fit, windows, columns) * DEG_PER_H_PER_DPS
+        implied = _uncertainty(fit, windows, spread, [i]) * DEG_PER_H_PER_DPS
         value = float(np.sqrt(np.mean((windows[:, columns] @ beta[columns]) ** 2))) * DEG_PER_H_PER_DPS
         written = bool(implied <= removes[i] * DEG_PER_H_PER_DPS)
         out.append(TermCost(spec.signal, terms[spec.signal].describe(), value, implied,
