@@ -114,9 +114,9 @@ def _groups(result: LoopResult, runs: Sequence[Run], bin_run: NDArray[np.int64],
             residual: NDArray[np.float64]) -> tuple[NDArray[np.int64], str]:
     """Per bin of :data:`BIN_S` (its run, its number in it, the fit's mean residual there): the part refitted without.
 
-    Several runs: its run. One: blocks as long as what the fit leaves stays correlated (and at least the loop's
-    held-out block), at most a :data:`MIN_BLOCKS`-th of the run: shorter, a wander outlasting a block would be left
-    in every refit alike, and its spread not seen.
+    Several runs: its run. One: blocks as long as what the fit leaves stays correlated, and at least the loop's
+    held-out block (a wander that outlasts shorter blocks is left in every refit alike, its spread unseen); at
+    most a :data:`MIN_BLOCKS`-th of the run, so that there are blocks to spread over.
     """
     if len(runs) > 1:
         return bin_run, f'leave-one-run-out over {len(runs)} runs'
