@@ -10,13 +10,14 @@ what the polynomial takes with the term when its coefficient moves (the columns'
 polynomial over the fitted rows: a lagged temperature is mostly the temperature, and its coefficient
 trades with the polynomial's; a constant cancels in the node).
 
-The spread of ``w . beta`` is measured by refitting without a part of the rows (a jackknife): each
-run in turn when the fit had several (leave-one-run-out: a warm-up's amplitude against each run's
-turn-on bias), else blocks of the run as long as what the fit leaves stays correlated (at least the
-loop's held-out block). Not the coefficients' covariance: with a bias that wanders for hours the rows
-are not independent, and a covariance summed over blocks shrinks the block that holds the warm-up (its
-leverage: the fit follows it there); the jackknife refits without that block and errs large, not small.
-A term with a time constant is spread both with it held and free (:func:`_uncertainty`): the larger.
+The spread of ``w . beta``: over the runs when the fit had several (leave-one-run-out refits: a
+warm-up's amplitude against each run's turn-on bias and start). On one run, the coefficients'
+covariance with the noise's autocovariance as what the fit leaves shows it (1-minute means, over as
+long as it stays correlated and at least the loop's held-out block): a bias that wanders for an hour
+counts as such, not as white noise. Not a jackknife over blocks of the one run: a warm-up's amplitude
+rests on the first block, and a refit without it carries the written shape back from hours later (it
+read several times the error the written warm-up then made on a second cold run, and dropped warm-ups
+that helped). A term with a time constant is spread with it held and free (:func:`_uncertainty`).
 
 A term whose implied bias exceeds what it removes (the rms over the rows after the window of what
 it corrects beyond the polynomial, net of its window value) is not written. Correlated stand-ins:
@@ -50,8 +51,8 @@ from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 # The signals whose terms act in the static-bias window: the warm-up, and the filtered signals (their
 # filter, or the refinement, gives them a value there that the coefficient carries into the bias).
 WINDOW_SIGNALS = (POWER_ON_SIGNAL, 'temperature_rate', LAGGED_SIGNAL, 'rate_change')
-# One run: at least this many blocks for its jackknife (fewer leave nothing to spread over).
-MIN_BLOCKS = 4
+# One run: its noise's autocovariance is followed over at most this fraction of it (longer lags pair too few bins).
+MAX_LAG_SHARE = 0.25
 # The fit's sums are kept per bin of this many seconds of a run, and grouped into blocks or runs from there.
 BIN_S = 60.0
 # A term with a time constant (a warm-up, a lag) is spread with a twin of its time constant times exp of this beside
@@ -110,29 +111,35 @@ def _spec(term: Term) -> TermSpec:
     return TermSpec(**{f.name: getattr(term, f.name) for f in fields(TermSpec)})
 
 
-def _groups(result: LoopResult, runs: Sequence[Run], bin_run: NDArray[np.int64], bin_k: NDArray[np.int64],
-            residual: NDArray[np.float64]) -> tuple[NDArray[np.int64], str]:
-    """Per bin of :data:`BIN_S` (its run, its number in it, the fit's mean residual there): the part refitted without.
+def _kernel(result: LoopResult, bin_k: NDArray[np.int64],
+            residual: NDArray[np.float64]) -> tuple[NDArray[np.float64], str]:
+    """The autocovariance of what the fit leaves (its means over bins of :data:`BIN_S`, numbered ``bin_k``), per lag.
 
-    Several runs: its run. One: blocks as long as what the fit leaves stays correlated, and at least the loop's
-    held-out block (a wander that outlasts shorter blocks is left in every refit alike, its spread unseen); at
-    most a :data:`MIN_BLOCKS`-th of the run, so that there are blocks to spread over.
+    Tapered (Bartlett) to zero over as long as it stays correlated, and at least the loop's held-out block
+    (a wander seen over a shorter span is cut off, and its variance with it); at most
+    :data:`MAX_LAG_SHARE` of the run (longer lags pair too few bins). How it was made, for people.
     """
-    if len(runs) > 1:
-        return bin_run, f'leave-one-run-out over {len(runs)} runs'
     times = (bin_k + 0.5) * BIN_S
-    correlated_s = correlation_time_s(times, residual, Segments(np.array([0]), np.array([len(times)]), np.zeros(1)),
-                                      BIN_S)
-    block_s = max(min(max(result.held_out_block_s, correlated_s), float(times[-1] - times[0]) / MIN_BLOCKS), BIN_S)
-    groups = np.floor(bin_k * BIN_S / block_s).astype(np.int64)
-    return groups, (f'block jackknife over {int(groups.max()) + 1} blocks of {block_s / 60.0:.0f} min of the one run '
-                    f'(what the fit leaves stays correlated for {correlated_s / 60.0:.0f} min)')
+    whole = Segments(np.array([0]), np.array([len(times)]), np.zeros(1))
+    correlated_s = correlation_time_s(times, residual, whole, BIN_S)
+    span_s = max(min(max(result.held_out_block_s, correlated_s), float(times[-1] - times[0]) * MAX_LAG_SHARE), BIN_S)
+    lags = int(span_s // BIN_S)
+    n = int(bin_k[-1]) + 1
+    grid, present = np.zeros(n), np.zeros(n)
+    grid[bin_k], present[bin_k] = residual - residual.mean(), 1.0
+    pairs = np.correlate(present, present, 'full')[n - 1:n + lags]
+    covariance = np.correlate(grid, grid, 'full')[n - 1:n + lags] / np.maximum(pairs, 1.0)
+    taper = 1.0 - np.arange(len(covariance)) / (lags + 1.0)
+    return covariance * taper, (f'the coefficients\' covariance on the one run with the autocovariance of what the '
+                                f'fit leaves (1 min means, over {span_s / 60.0:.0f} min: it stays correlated for '
+                                f'{correlated_s / 60.0:.0f} min)')
 
 
 class _Fit:
-    """The polynomial, a constant per run beyond the first and ``specs`` on the loop's steady rows; jackknifed.
+    """The polynomial, a constant per run beyond the first and ``specs`` on the loop's steady rows, and its spread.
 
-    ``beta`` (scaled, :class:`Design`) of all rows and ``replicates``, one per group left out.
+    ``beta`` (scaled, :class:`Design`) of all rows; several runs: ``replicates``, one per run left out; one:
+    ``influence`` (how beta moves with each bin's error) and ``kernel`` (the noise's autocovariance per lag).
     ``projection``: the term columns' least-squares projection on the polynomial's (and the runs' constants).
     ``free_time_constants``: each spec with a time constant has its twin (:data:`TWIN_LOG_STEP`) beside it, its
     columns among the spec's (``columns``).
@@ -167,13 +174,20 @@ class _Fit:
         self.beta = solve_normal(total, rhs)
         # The constant column is 1 on every row: a bin's residual sum is its error's less its columns' sums times beta.
         residual = (cross[:, 0] - gram[:, 0, :] @ self.beta) / gram[:, 0, 0]
-        groups, self.method = _groups(result, runs, run[first], k[first], residual)
-        group_gram = np.zeros((int(groups.max()) + 1, width, width))
-        group_cross = np.zeros((len(group_gram), width))
-        np.add.at(group_gram, groups, gram)
-        np.add.at(group_cross, groups, cross)
-        present = [g for g in range(len(group_gram)) if group_gram[g, 0, 0] > 0.0]
-        self.replicates = np.array([solve_normal(total - group_gram[g], rhs - group_cross[g]) for g in present])
+        self.width = width
+        if len(runs) > 1:
+            run_gram, run_cross = np.zeros((len(runs), width, width)), np.zeros((len(runs), width))
+            np.add.at(run_gram, run[first], gram)
+            np.add.at(run_cross, run[first], cross)
+            self.replicates: NDArray[np.float64] | None = np.array(
+                [solve_normal(total - run_gram[r], rhs - run_cross[r]) for r in range(len(runs)) if run_gram[r, 0, 0]])
+            self.method = f'leave-one-run-out over {len(runs)} runs'
+        else:
+            self.replicates = None
+            self.bin_k = k[first]
+            self.kernel, self.method = _kernel(result, self.bin_k, residual)
+            # Per bin, how beta moves with its rows' error: a bin's columns' sums are the constant column's row.
+            self.influence = solve_normal(total, gram[:, 0, :].T)
         p = polynomial.rows * polynomial.columns
         self.poly_columns = np.r_[0:p, self.design.width:width]
         self.term_columns = np.arange(p, self.design.width)
@@ -185,6 +199,16 @@ class _Fit:
         twin_of = iter(own[len(specs):])
         self.columns = [np.concatenate([c, next(twin_of)]) if free_time_constants and s.time_constant_s > 0.0 else c
                         for s, c in zip(specs, own)]
+
+    def spread(self, statistic: NDArray[np.float64]) -> float:
+        """The standard deviation of ``statistic @ beta`` (deg/s): over the runs left out, or from one run's noise."""
+        if self.replicates is not None:
+            return _jackknife_std(self.replicates @ statistic)
+        h = np.zeros(int(self.bin_k[-1]) + 1)
+        h[self.bin_k] = statistic @ self.influence
+        n, lags = len(h), len(self.kernel)
+        products = np.correlate(h, h, 'full')[n - 1:n - 1 + lags]
+        return math.sqrt(max(float(products[0] * self.kernel[0] + 2.0 * products[1:] @ self.kernel[1:]), 0.0))
 
     def with_runs(self, x: NDArray[np.float64], rows: NDArray[np.int64]) -> NDArray[np.float64]:
         """The design's columns over ``rows`` and each later run's constant."""
@@ -274,7 +298,7 @@ def _after_window(result: LoopResult, fits: Sequence[_Fit], windows: Sequence[ND
 
 
 def _jackknife_std(values: NDArray[np.float64]) -> float:
-    """The jackknife's standard deviation of a statistic from its replicates (one per group left out)."""
+    """The jackknife's standard deviation of a statistic from its replicates (one per run left out)."""
     g = len(values)
     return float(np.sqrt((g - 1) / g * np.sum((values - values.mean()) ** 2))) if g > 1 else math.inf
 
@@ -282,17 +306,20 @@ def _jackknife_std(values: NDArray[np.float64]) -> float:
 def _implied(fit: _Fit, window: NDArray[np.float64], specs: Sequence[int]) -> float:
     """The uncertainty of the window value of the specs numbered ``specs`` together, rms over the runs, deg/s."""
     columns = np.concatenate([fit.columns[i] for i in specs])
-    replicates = fit.term_beta(fit.replicates)[:, columns]
-    return float(np.sqrt(np.mean([_jackknife_std(replicates @ w[columns]) ** 2 for w in window])))
+    spreads = []
+    for w in window:
+        statistic = np.zeros(fit.width)
+        statistic[fit.term_columns[columns]] = w[columns]
+        spreads.append(fit.spread(statistic))
+    return float(np.sqrt(np.mean(np.square(spreads))))
 
 
 def _uncertainty(fit: _Fit, windows: NDArray[np.float64], spread: tuple[_Fit, NDArray[np.float64]],
                  specs: Sequence[int]) -> float:
     """The larger of :func:`_implied` with the time constants held and free (:func:`_spread`), deg/s.
 
-    Free, a refit trades the amplitude at power-on with the time constant; held, a refit without the
-    first block must carry the written shape back to the window from the rest, which a wander at the
-    start of the run upsets: each sees a doubt the other does not.
+    Free, the amplitude at power-on trades with the time constant (a warm-up fitted at 976 s for 1200 s
+    is 16 % high at power-on); held, the written shape alone.
     """
     return max(_implied(fit, windows, specs), _implied(*spread, specs))
 
