@@ -247,8 +247,8 @@ def window_markdown(window: dict[str, Any], bias_samples: int) -> list[str]:
     lines = ['', '## Terms in the static-bias window', '',
              f'The node takes its static bias over a run\'s first {bias_samples} rows with these terms applied: the '
              'error of a term\'s value there is a bias for the whole mission, while its own error decays. Implied '
-             f'bias: the uncertainty of that value beyond the polynomial ({window["method"]}); removes: the rms after '
-             'the window of what the term corrects beyond the polynomial, net of its window value. A term whose '
+             f'bias: the uncertainty of that value beyond the polynomial, from {window["method"]}. Removes: the rms '
+             'after the window of what the term corrects beyond the polynomial, net of its window value. A term whose '
              'implied bias exceeds what it removes is not written.', '',
              '| term | in the window (deg/h) | implied mission bias (deg/h) | removes (deg/h) | written |',
              '|---|---:|---:|---:|---|']
@@ -258,6 +258,10 @@ def window_markdown(window: dict[str, Any], bias_samples: int) -> list[str]:
     if unsettled:
         lines += ['', 'Not written, and the run that would settle each:', '']
         lines += [f'- **{c["signal"]}** ({c["description"]}): {c["settle"]}' for c in unsettled]
+    written = [c for c in window['terms'] if c['written']]
+    if written and not window['method'].startswith('leave-one-run-out'):
+        lines += ['', 'Written from one run, whose own noise is all that says how well: '
+                  + '; '.join(f'{c["signal"]}: {c["settle"]}' for c in written) + '.']
     if window['stand_ins']:
         lines += ['', f'Stand-ins: {window["stand_ins"]}.']
     return lines

@@ -65,7 +65,7 @@ TWIN_LOG_STEP = 0.1
 class TermCost:
     """One window term: what it puts in the window, its uncertainty there as a mission bias, what it removes (deg/h).
 
-    ``written``: its implied bias is within what it removes. ``settle``: the run that would settle it.
+    ``written``: its implied bias is within what it removes. ``settle``: the run that would settle its doubt.
     """
 
     signal: str
@@ -418,5 +418,5 @@ def _costs(result: LoopResult, fit: _Fit, windows: NDArray[np.float64], spread: 
         written = bool(implied <= removes[i] * DEG_PER_H_PER_DPS)
         out.append(TermCost(spec.signal, terms[spec.signal].describe(), value, implied,
                             float(removes[i]) * DEG_PER_H_PER_DPS, written,
-                            '' if written else settle(spec.signal, [s.signal for s in window], runs)))
+                            settle(spec.signal, [s.signal for s in window], runs)))
     return tuple(out)

@@ -9,7 +9,7 @@ from scipy.signal import lfilter  # type: ignore[import-untyped]  # scipy ships 
 
 from art_gyro_calibration.analysis.loop import LoopOptions, LoopResult, close_loop
 from art_gyro_calibration.analysis.pipeline import FitSettings, fit_log
-from art_gyro_calibration.analysis.report import window_markdown
+from art_gyro_calibration.analysis.report import markdown_summary, window_markdown
 from art_gyro_calibration.analysis.runs import Run
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run, write_run
 from art_gyro_calibration.analysis.window_cost import window_cost
@@ -39,6 +39,10 @@ def test_a_well_determined_warm_up_is_written_and_its_implied_bias_is_small(tmp_
     assert 0.0 < cost['implied_bias_dph'] < 0.1 * cost['removes_dph']
     assert fitted.report['written']['terms'] == ['time_since_power_on']
     assert fitted.report['window_terms']['method'].startswith('the coefficients\' covariance on the one run')
+    summary = markdown_summary(fitted.report)
+    assert '## Terms in the static-bias window' in summary
+    assert ('Written from one run, whose own noise is all that says how well: time_since_power_on: a second power-on '
+            '(a cold start at another chamber temperature) would fix the warm-up\'s amplitude') in summary
 
 
 def test_a_warm_up_one_run_cannot_tell_from_its_wander_is_not_written() -> None:
