@@ -346,8 +346,9 @@ def window_cost(result: LoopResult, runs: Sequence[Run], bias_samples: int) -> W
 
     ``runs``: the runs among the loop's rows (one over the whole log for a single log). First, when
     several window terms are written, one alone replaces them if it corrects what they do within their
-    implied bias (fewest coefficients first); then a term whose implied bias exceeds what it removes
-    is dropped and the rest refitted.
+    implied bias (of several such, one that would be written first, then the fewest coefficients, then
+    the smallest implied bias: a stand-in as good as the set may be as uncertain too); then a term whose
+    implied bias exceeds what it removes is dropped and the rest refitted.
     """
     specs = [_spec(t) for t in result.extended.terms]
     window = [s for s in specs if s.signal in WINDOW_SIGNALS]
@@ -369,17 +370,22 @@ def window_cost(result: LoopResult, runs: Sequence[Run], bias_samples: int) -> W
             count += len(corrected)
         differ = np.sqrt(squares / max(count, 1))
         uncertainty = _uncertainty(fit, windows, _spread(result, fit, windows, bias_samples), list(in_set))
-        within = [k for k in range(len(window)) if differ[k] <= uncertainty]
-        if within:
-            k = min(within, key=lambda k: (window[k].width, differ[k]))
+        single_costs = {k: _costs(result, singles[k], single_windows[k],
+                                  _spread(result, singles[k], single_windows[k], bias_samples),
+                                  [*others, window[k]], [window[k]], bias_samples)
+                        for k in range(len(window)) if differ[k] <= uncertainty}
+        if single_costs:
+            k = min(single_costs, key=lambda k: (not single_costs[k][0].written, window[k].width,
+                                                 single_costs[k][0].implied_bias_dph))
             stand_ins = (f'{window[k].signal} alone corrects what {", ".join(s.signal for s in window)} correct '
                          f'together within {differ[k] * DEG_PER_H_PER_DPS:.2f} deg/h (rms after the window), '
                          f'inside their implied bias of {uncertainty * DEG_PER_H_PER_DPS:.2f} deg/h: it is written '
                          'alone')
-            fit, windows, specs = singles[k], single_windows[k], [*others, window[k]]
-            window = [window[k]]
+            fit, specs, window = singles[k], [*others, window[k]], [window[k]]
             result = fit.calibration_of(result)
-    costs = _costs(result, fit, windows, _spread(result, fit, windows, bias_samples), specs, window, bias_samples)
+            costs = single_costs[k]
+    if not stand_ins:
+        costs = _costs(result, fit, windows, _spread(result, fit, windows, bias_samples), specs, window, bias_samples)
     dropped = {c.signal for c in costs if not c.written}
     if dropped:
         result = _Fit(result, [s for s in specs if s.signal not in dropped], runs).calibration_of(result)
