@@ -102,3 +102,19 @@ def test_with_several_runs_the_spread_is_over_runs_left_out() -> None:
     assert cost.method.startswith('leave-one-run-out over 2 runs')
     [term] = cost.costs
     assert np.isfinite(term.implied_bias_dph) and term.removes_dph > 0.0
+
+
+def test_of_the_single_terms_as_good_as_the_set_one_that_will_be_written_replaces_it() -> None:
+    # Three runs of a Shupe gyro, a lagged temperature written beside the temperature rate: each alone corrects what
+    # the pair does within the pair's implied bias, but the lag alone is more uncertain in the window than all it
+    # removes. The temperature rate is written (the lag was chosen, then dropped, leaving no term at all).
+    result = _loop(SimulationSettings(hours=1.0, effects=('shupe',), seed=2, self_heating_c=4.0,
+                                      self_heating_tau_s=600.0))
+    lag = Term('temperature_lag', 'power', (0.0, 0.0), (1, 2), 300.0)
+    both = replace(result, extended=replace(result.extended, terms=(*result.extended.terms, lag)))
+    n = len(both.error) // 3
+    runs = [Run('a', 0, n, True), Run('b', n, n, True), Run('c', 2 * n, len(both.error) - 2 * n, False)]
+    cost = window_cost(both, runs, 100)
+    assert cost.stand_ins.startswith('temperature_rate alone corrects what temperature_rate, temperature_lag')
+    assert [t.signal for t in cost.result.extended.terms] == ['temperature_rate']
+    assert [(c.signal, c.written) for c in cost.costs] == [('temperature_rate', True)]
