@@ -34,6 +34,7 @@ from art_gyro_calibration.analysis.replay import (OWN_RUNS_NAME, RESTARTS_NAME, 
                                                   startup_check, unjudged_warm_up, validate)
 from art_gyro_calibration.analysis.report import build_report, misfit_reason, validation_section
 from art_gyro_calibration.analysis.runs import Run, joined
+from art_gyro_calibration.analysis.window_cost import window_cost
 
 
 @dataclass(frozen=True)
@@ -130,6 +131,12 @@ def fit_log(log_path: str | Sequence[str], settings: FitSettings, calibration_pa
     # The report and figures are the loop's; what the checks drop is in their sections.
     loop_report = build_report(log, loop, settings.bias_samples, source=', '.join(paths))
     result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
+    # The window terms' cost: a term whose implied mission bias exceeds what it removes is not written.
+    window = window_cost(result, loop.runs, settings.bias_samples)
+    result = window.result
+    for cost in window.costs:
+        if not cost.written:
+            warn(cost.not_written())
     _warn_loop(loop, warn)
     validation, validation_dropped = _validate(result, settings, warn) if settings.validate else (None, {})
     refit = result.extended if validation is None else validation.calibration
@@ -162,6 +169,7 @@ def fit_log(log_path: str | Sequence[str], settings: FitSettings, calibration_pa
         'detection_limit_dph': {d.signal: d.to_dict() for d in loop.detection},
         **({} if still is None else {'still': still}),
         **({} if startup is None else {'startup_check': validation_section(startup, restarts)}),
+        **({'window_terms': window.section()} if window.costs else {}),
         **({} if validation is None else {'validation': validation_section(validation, list(settings.validate)),
                                           'validation_rows_dropped': validation_dropped}),
         'baseline': baseline.to_dict() if isinstance(baseline, BaselineCheck) else

@@ -201,6 +201,8 @@ def markdown_summary(report: dict[str, Any]) -> str:
             ('The fitted log from its power-on (the node told so) and ' if cold else 'The fitted log ')
             + 'restarted later, power-on unknown (a warm-up counts as decayed'
             + ('' if cold else ' and is kept') + '), each calibration applied as the node applies it')
+    if 'window_terms' in report:
+        lines += window_markdown(report['window_terms'], report['bias_samples'])
     if 'validation' in report:
         lines += validation_markdown(report['validation'])
     if 'baseline' in report:
@@ -243,6 +245,31 @@ def detection_markdown(report: dict[str, Any]) -> list[str]:
             needed = ''
         note = f' ({d["note"]})' if d['note'] else ''
         lines.append(f'- **{name}**{shape}: {limit}{scaling}{needed}{note}')
+    return lines
+
+
+def window_markdown(window: dict[str, Any], bias_samples: int) -> list[str]:
+    """REPORT.md's lines on the terms active in the static-bias window: what each will cost a mission."""
+    lines = ['', '## Terms in the static-bias window', '',
+             f'The node takes its static bias over a run\'s first {bias_samples} rows with these terms applied: the '
+             'error of a term\'s value there is a bias for the whole mission, while its own error decays. Implied '
+             f'bias: the uncertainty of that value beyond the polynomial, from {window["method"]}. Removes: the rms '
+             'after the window of what the term corrects beyond the polynomial, net of its window value. A term whose '
+             'implied bias exceeds what it removes is not written.', '',
+             '| term | in the window (deg/h) | implied mission bias (deg/h) | removes (deg/h) | written |',
+             '|---|---:|---:|---:|---|']
+    lines += [f'| {c["signal"]} | {c["window_dph"]:.2f} | {c["implied_bias_dph"]:.2f} | {c["removes_dph"]:.2f} | '
+              f'{"yes" if c["written"] else "**no**"} |' for c in window['terms']]
+    unsettled = [c for c in window['terms'] if not c['written']]
+    if unsettled:
+        lines += ['', 'Not written, and the run that would settle each:', '']
+        lines += [f'- **{c["signal"]}** ({c["description"]}): {c["settle"]}' for c in unsettled]
+    written = [c for c in window['terms'] if c['written']]
+    if written and not window['method'].startswith('leave-one-run-out'):
+        lines += ['', 'Written from one run, whose own noise is all that says how well: '
+                  + '; '.join(f'{c["signal"]}: {c["settle"]}' for c in written) + '.']
+    if window['stand_ins']:
+        lines += ['', f'Stand-ins: {window["stand_ins"]}.']
     return lines
 
 
