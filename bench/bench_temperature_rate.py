@@ -7,7 +7,10 @@ compared with the true dT/dt: rms after the node's static bias refinement (the f
 provisional fit's, :mod:`art_gyro_calibration.static_bias`), the mean over the static-bias window
 (first 10 s), and the mean magnitude of the error in the 10 min after each change of a chamber's slope
 (a slope that changes at once: every causal estimate starts that change behind); in degC/s
-and as deg/h of a Shupe coefficient of 2.4 deg/s per degC/s. Run:
+and as deg/h of a Shupe coefficient of 2.4 deg/s per degC/s. Then, as the node applies it (``calibrate apply``:
+static bias over the first 100 rows, refined, from power-on), a gyro whose error is the packaged NAVC3545
+polynomial plus that Shupe effect, corrected by a calibration holding both with the true coefficient (the
+true form through the node) and by the same correction on the true rate (the true form on the true signals). Run:
 ``python bench/bench_temperature_rate.py [--hours 4] [--kvh-hours 1]``. A benchmark, not a test.
 """
 
@@ -15,13 +18,19 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from art_gyro_calibration.signals import SignalFilters, compute_signals, first_order_smooth
+from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration.compensation import RunStart, apply_calibration
+from art_gyro_calibration.gyro_physics import measured_from_true
+from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.signals import DEFAULT_TEMPERATURE_RATE_TAU_S, FIRST_ORDER_TAU_S, SignalFilters, \
+    compute_signals, first_order_smooth
 from art_gyro_calibration.temperature_rate import FIRST_ORDER, LOCAL_QUADRATIC
+from art_gyro_calibration.terms import Term
 
 SHUPE_DPS_PER_DEGC_PER_S = 2.4
 DPH_PER_DEGC_PER_S = SHUPE_DPS_PER_DEGC_PER_S * 3600.0
@@ -167,6 +176,28 @@ def measure(profile: Profile, hours: float, rate_hz: float, counts: bool,
     return out
 
 
+def through_the_node(profile: Profile, hours: float, seed: int) -> dict[str, tuple[float, float]]:
+    """Per correction: (rms, mean) of the corrected rate after the bias window, deg/s (10 Hz counts)."""
+    t = np.arange(0.0, 3600.0 * hours, 0.1)
+    true, true_rate = profile.temperature(t)
+    rng = np.random.default_rng(seed)
+    counts = np.round((true + rng.normal(0.0, NOISE_C, len(t))) / COUNT_C) * COUNT_C
+    packaged = load_packaged_calibration('NAVC3545')
+    log = GyroLog(t, measured_from_true(packaged.polynomial, SHUPE_DPS_PER_DEGC_PER_S * true_rate, true), counts)
+    shupe = (Term('temperature_rate', 'power', (SHUPE_DPS_PER_DEGC_PER_S,), (1,)),)
+    out = {}
+    for name, filters in (('first order 120 s (old files)', SignalFilters(FIRST_ORDER_TAU_S, 0.5, FIRST_ORDER)),
+                          (f'local quadratic {DEFAULT_TEMPERATURE_RATE_TAU_S:g} s (new)', SignalFilters())):
+        calibration = replace(packaged, terms=shupe, filters=filters)
+        corrected = apply_calibration(log, calibration, 100, start=RunStart(powered_on_at_start=True)).corrected_dps
+        out[name] = corrected[100:]
+    # The same correction on the true rate (and the counts the node's polynomial sees), its static bias likewise.
+    ideal = log.rate_dps - packaged.model.error(compute_signals(t, log.rate_dps, counts)) \
+        - SHUPE_DPS_PER_DEGC_PER_S * true_rate
+    out['on the true rate'] = (ideal - ideal[:100].mean())[100:]
+    return {name: (float(np.sqrt(np.mean(c ** 2))), float(np.mean(c))) for name, c in out.items()}
+
+
 def main() -> None:
     """Print one table per sampling: each profile's numbers, then each candidate's median."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -195,6 +226,11 @@ def main() -> None:
             print(f'  {name:<22} rms {np.median(values[:, 0]):7.2f} ({np.median(rest[:, 0]):6.2f})'
                   f'  change {np.nanmedian(values[:, 2]):7.2f} ({np.nanmedian(rest[:, 2]):6.2f})'
                   f'  rms max {np.max(values[:, 0]):7.2f}')
+    print(f'\n## Through the node (calibrate apply, cold start), 10 Hz counts, {args.hours:g} h: corrected rate, deg/h')
+    for k, profile in enumerate(profiles()):
+        node = through_the_node(profile, args.hours, seed=k)
+        print(f'{profile.name:<44}' + '  '.join(f'{name}: rms {rms * 3600:5.2f} mean {mean * 3600:+6.2f}'
+                                                 for name, (rms, mean) in node.items()))
 
 
 if __name__ == '__main__':
