@@ -229,8 +229,8 @@ def main() -> None:
     print(f'\n## Through the node (calibrate apply, cold start), 10 Hz counts, {args.hours:g} h: corrected rate, deg/h')
     for k, profile in enumerate(profiles()):
         node = through_the_node(profile, args.hours, seed=k)
-        print(f'{profile.name:<44}' + '  '.join(f'{name}: rms {rms * 3600:5.2f} mean {mean * 3600:+6.2f}'
-                                                 for name, (rms, mean) in node.items()))
+        cells = (f'{name}: rms {rms * 3600:5.2f} mean {mean * 3600:+6.2f}' for name, (rms, mean) in node.items())
+        print(f'{profile.name:<44}' + '  '.join(cells))
 
 
 if __name__ == '__main__':
