@@ -348,7 +348,6 @@ class Signals:
         """The local quadratic fit's s2, s3 after the last sample (None for the first-order filter)."""
         if self.filters.temperature_rate_form == FIRST_ORDER:
             return None
-        self._level_at_end('temperature_rate', 'temperature_level')
         return self._level_at_end('temperature_rate', 'temperature_level2'), \
             self._level_at_end('temperature_rate', 'temperature_level3')
 
