@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
-from art_gyro_calibration.signals import (DERIVED_SIGNALS, FIRST_ORDER_TAU_S, LAGGED_SIGNAL, SIGNALS, SignalFilters,
-                                          Signals, SignalTracker, compute_signals)
+from art_gyro_calibration.signals import (DERIVED_SIGNALS, FIRST_ORDER_TAU_S, LAGGED_SIGNAL, SIGNALS, Envelope,
+                                          SignalFilters, Signals, SignalTracker, compute_signals)
 from art_gyro_calibration.temperature_rate import FIRST_ORDER, FORMS, LocalQuadraticRate
 from art_gyro_calibration.terms import Term
 
@@ -188,3 +188,20 @@ def test_end_state_continues_the_tracker() -> None:
     assert state.rate_level == pytest.approx(tracker._rate_change.smooth, rel=1e-12)
     with pytest.raises(ValueError, match='no samples'):
         compute_signals([], [], []).end_state()
+
+
+def test_the_temperature_rate_filters_time_scales_and_bounds() -> None:
+    """A static bias refinement keeps an old file's scale (its tau) and at least 2 min with the local quadratic fit.
+
+    The envelope bounds each form's estimate: the span over tau, five times that for the local quadratic fit.
+    """
+    old = SignalFilters(60.0, 0.5, FIRST_ORDER)
+    assert old.refinement_scale_s == 60.0
+    assert SignalFilters().refinement_scale_s == FIRST_ORDER_TAU_S
+    assert SignalFilters(50.0).refinement_scale_s == 150.0
+    envelope = Envelope((10.0, 50.0), 100.0, old, 3600.0)
+    assert SIGNALS['temperature_rate'].range(envelope) == (-40.0 / 60.0, 40.0 / 60.0)
+    assert SIGNALS['temperature_rate'].range(dataclasses.replace(envelope, filters=SignalFilters(60.0))) == \
+        (-200.0 / 60.0, 200.0 / 60.0)
+    with pytest.raises(ValueError, match="filters.temperature_rate_form must be one of first_order, local_quadratic"):
+        SignalFilters(temperature_rate_form='second_order')
