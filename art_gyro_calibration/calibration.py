@@ -13,7 +13,10 @@ A file is ``/**: ros__parameters: {...}`` so that the node takes it with
   range a calibration is expected to hold, used only to warn and count outside it: the report's
   calibrations, whose range the report does not print and whose polynomial applies at every
   temperature exactly as the report's program applies it); not both,
-- optional ``filters.temperature_rate_tau_s`` and ``filters.rate_change_tau_s``,
+- optional ``filters.temperature_rate_tau_s``, ``filters.rate_change_tau_s`` and
+  ``filters.temperature_rate_form`` (``local_linear``, which ``calibrate fit`` writes, or ``first_order``:
+  a file that names no form was fitted with it, at 120 s unless it names a time constant;
+  see :mod:`art_gyro_calibration.temperature_rate`),
 - optional extended terms: ``extended.signals`` (list, one term per signal) and
   for each ``extended.<signal>.form``, ``.coefficients``, ``.powers`` and optional
   ``.rate_powers`` (power form), ``.time_constant_s`` (exp_decay form, and the lag of
@@ -45,8 +48,9 @@ import yaml
 
 from art_gyro_calibration.frame import INT16_MIN
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
-from art_gyro_calibration.signals import (DERIVED_SIGNALS, LAGGED_SIGNAL, POWER_ON_SIGNAL, SIGNALS, Envelope,
-                                          SignalFilters)
+from art_gyro_calibration.signals import (DERIVED_SIGNALS, FIRST_ORDER_TAU_S, LAGGED_SIGNAL, POWER_ON_SIGNAL, SIGNALS,
+                                          Envelope, SignalFilters)
+from art_gyro_calibration.temperature_rate import FIRST_ORDER
 from art_gyro_calibration.terms import FORMS, Term
 
 PACKAGE = 'art_gyro_calibration'
@@ -165,6 +169,7 @@ class Calibration:
                 params[key] = [float(v) for v in span]
         params['filters.temperature_rate_tau_s'] = self.filters.temperature_rate_tau_s
         params['filters.rate_change_tau_s'] = self.filters.rate_change_tau_s
+        params['filters.temperature_rate_form'] = self.filters.temperature_rate_form
         if self.terms:
             params['extended.signals'] = [t.signal for t in self.terms]
         for t in self.terms:
@@ -295,11 +300,15 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
         raise CalibrationError(f'{where}: temperature_range_c (calibrated: clamped to) and temperature_warn_range_c '
                                '(expected: warned outside, never clamped) are both given: keep one')
     try:
+        # A file that names no form was written before the local linear fit: its first-order filter, exactly.
+        form = params.get('filters.temperature_rate_form', FIRST_ORDER)
         filters = SignalFilters(
-            _number(params.get('filters.temperature_rate_tau_s', SignalFilters.temperature_rate_tau_s),
+            _number(params.get('filters.temperature_rate_tau_s',
+                               FIRST_ORDER_TAU_S if form == FIRST_ORDER else SignalFilters.temperature_rate_tau_s),
                     'filters.temperature_rate_tau_s', where),
             _number(params.get('filters.rate_change_tau_s', SignalFilters.rate_change_tau_s),
-                    'filters.rate_change_tau_s', where))
+                    'filters.rate_change_tau_s', where),
+            form)
     except ValueError as e:
         raise CalibrationError(f'{where}: {e}') from None
     terms = _terms(params, where)

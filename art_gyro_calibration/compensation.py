@@ -168,7 +168,7 @@ class Compensator:
     @bias.setter
     def bias(self, bias: StaticBias) -> None:
         self._bias = bias
-        self._refinement = Refinement(bias, self._model.refinable, self.calibration.filters.temperature_rate_tau_s) \
+        self._refinement = Refinement(bias, self._model.refinable, self.calibration.filters.refinement_scale_s) \
             if bias.window is not None and self._refinable else None
 
     def scale(self, raw_rate: float, raw_temp: float) -> tuple[float, float]:
@@ -427,7 +427,7 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
             causal = _refinable_error(model, signals, slice(0, n))
             bias = replace(bias, window=BiasWindow(log.t[:n].copy(), log.rate_dps[:n].copy(), log.temp_c[:n].copy(),
                                                    float(np.mean(causal))))
-            refinement = Refinement(bias, model.refinable, calibration.filters.temperature_rate_tau_s)
+            refinement = Refinement(bias, model.refinable, calibration.filters.refinement_scale_s)
         first = n   # the rows after the window feed the refinement
     else:
         bias, refinement, first = after.bias, after.refinement, 0

@@ -19,14 +19,21 @@ from typing import Protocol, cast
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from art_gyro_calibration.temperature_rate import (FIRST_ORDER, FORMS, LOCAL_QUADRATIC, SPAN_FACTOR, LocalQuadraticRate,
+                                                   local_quadratic_rate)
+
 # The signal whose value a term's own time constant sets: the temperature through a first-order lag.
 LAGGED_SIGNAL = 'temperature_lag'
 # The signal that counts from the gyro's power-on: only a run declared to start with it can judge a term on it.
 POWER_ON_SIGNAL = 'time_since_power_on'
 
-# A temperature count is 0.05 degC and a chamber ramps at about 1 degC/min: the
-# derivative needs minutes of smoothing to rise above the quantisation.
-DEFAULT_TEMPERATURE_RATE_TAU_S = 120.0
+# A temperature count is 0.05 degC and a chamber ramps at about 1 degC/min: the first-order
+# derivative needs minutes of smoothing to rise above the quantisation. A file that names no
+# filter form was fitted with it, at this time constant unless it names one.
+FIRST_ORDER_TAU_S = 120.0
+# The local quadratic fit's time constant (:mod:`art_gyro_calibration.temperature_rate`): the lowest median
+# error against the true rate over bench/bench_temperature_rate.py's profiles.
+DEFAULT_TEMPERATURE_RATE_TAU_S = 20.0
 # Angular acceleration of a rate table or robot settles within a second.
 DEFAULT_RATE_CHANGE_TAU_S = 0.5
 
@@ -50,16 +57,36 @@ class TermLike(Protocol):
 
 @dataclass(frozen=True)
 class SignalFilters:
-    """Time constants of the causal derivative filters (first order, in seconds)."""
+    """The causal derivative filters: time constants (s) and the temperature rate's form.
+
+    ``temperature_rate_form``: :data:`~art_gyro_calibration.temperature_rate.LOCAL_QUADRATIC` (new fits) or
+    :data:`~art_gyro_calibration.temperature_rate.FIRST_ORDER` (``(x - s1) / tau``: a file that names no form).
+    The rate change is always first order.
+    """
 
     temperature_rate_tau_s: float = DEFAULT_TEMPERATURE_RATE_TAU_S
     rate_change_tau_s: float = DEFAULT_RATE_CHANGE_TAU_S
+    temperature_rate_form: str = LOCAL_QUADRATIC
 
     def __post_init__(self) -> None:
         for name in ('temperature_rate_tau_s', 'rate_change_tau_s'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'filters.{name} must be a positive number of seconds, got {value!r}')
+        if self.temperature_rate_form not in FORMS:
+            raise ValueError(f'filters.temperature_rate_form must be one of {", ".join(FORMS)}, '
+                             f'got {self.temperature_rate_form!r}')
+
+    @property
+    def refinement_scale_s(self) -> float:
+        """The time scale of a static bias refinement (:class:`~art_gyro_calibration.static_bias.Refinement`).
+
+        The first-order filter's own time constant (as every file before the local quadratic fit). The local
+        quadratic fit settles within a few of its shorter ``tau`` (three lags of it), but the refinement's span
+        also has to see a slope through 0.05 degC counts: the first-order default's minutes, or ``3 tau`` if longer.
+        """
+        tau_s = self.temperature_rate_tau_s
+        return tau_s if self.temperature_rate_form == FIRST_ORDER else max(FIRST_ORDER_TAU_S, 3.0 * tau_s)
 
 
 @dataclass(frozen=True)
@@ -97,9 +124,10 @@ def _temperature_range(e: Envelope) -> tuple[float, float]:
 
 
 def _temperature_rate_range(e: Envelope) -> tuple[float, float]:
-    """A filtered derivative ``(x - ema(x)) / tau`` is bounded by the span of ``x`` over ``tau``."""
+    """The estimate is bounded by the span of ``x`` over ``tau``, times its form's factor (:mod:`.temperature_rate`)."""
     low_c, high_c = e.temperature_range_c
-    span_c = (high_c - low_c) / e.filters.temperature_rate_tau_s
+    filters = e.filters
+    span_c = SPAN_FACTOR[filters.temperature_rate_form] * (high_c - low_c) / filters.temperature_rate_tau_s
     return -span_c, span_c
 
 
@@ -147,6 +175,7 @@ class SignalState:
     rate_level: float           # level of the rate_change filter (smoothed rate)
     lag_levels: tuple[tuple[float, float], ...] = ()   # (time constant, level) of each lagged temperature
     angle_rate: float | None = None   # the rate the angle integrates, when not the measured one
+    temperature_levels: tuple[float, float] | None = None   # the local quadratic fit's s2, s3 (None: first order)
 
 
 @dataclass(frozen=True)
@@ -197,10 +226,31 @@ class Signals:
 
     @cached_property
     def temperature_rate(self) -> NDArray[np.float64]:
-        """Filtered temperature rate of change, degC/s."""
+        """Filtered temperature rate of change, degC/s (:attr:`SignalFilters.temperature_rate_form`)."""
         if self.run_starts:
             return self._joined(lambda run: run.temperature_rate)
-        return self._derivative(self.temperature, 'temperature_level', self.filters.temperature_rate_tau_s)
+        tau_s = self.filters.temperature_rate_tau_s
+        if self.filters.temperature_rate_form == FIRST_ORDER:
+            return self._derivative(self.temperature, 'temperature_level', tau_s)
+        previous = self.previous
+        if previous is None:
+            level = self._smoothed(self.temperature, None, tau_s)
+            level2 = self._smoothed(level, None, tau_s)
+            level3 = self._smoothed(level2, None, tau_s)
+            start = (float(level[0]), float(level[0])) if len(level) else (0.0, 0.0)
+            dt = np.diff(self.t, prepend=self.t[:1])
+        else:
+            if previous.temperature_levels is None:
+                raise ValueError('the local quadratic temperature rate continues only from a state with its levels')
+            start = previous.temperature_levels
+            level = self._smoothed(self.temperature, previous.temperature_level, tau_s)
+            level2 = self._smoothed(level, start[0], tau_s)
+            level3 = self._smoothed(level2, start[1], tau_s)
+            dt = np.diff(self.t, prepend=previous.t)
+        if len(level):
+            self._levels.update(temperature_level=float(level[-1]), temperature_level2=float(level2[-1]),
+                                temperature_level3=float(level3[-1]))
+        return local_quadratic_rate((level, level2, level3), start, dt, tau_s)
 
     @cached_property
     def rate_change(self) -> NDArray[np.float64]:
@@ -314,7 +364,8 @@ class Signals:
                            temperature_level=self._level_at_end('temperature_rate', 'temperature_level'),
                            rate_level=self._level_at_end('rate_change', 'rate_level'),
                            lag_levels=self.lag_levels(),
-                           angle_rate=None if self.angle_correction is None else float(self._angle_rate[-1]))
+                           angle_rate=None if self.angle_correction is None else float(self._angle_rate[-1]),
+                           temperature_levels=self._quadratic_levels())
 
     @property
     def _angle_rate(self) -> NDArray[np.float64]:
@@ -324,6 +375,13 @@ class Signals:
     def lag_levels(self) -> tuple[tuple[float, float], ...]:
         """(time constant, level after the last sample) of each lagged temperature computed so far."""
         return tuple((tau, float(lag[-1])) for tau, lag in sorted(self._lags.items()))
+
+    def _quadratic_levels(self) -> tuple[float, float] | None:
+        """The local quadratic fit's s2, s3 after the last sample (None for the first-order filter)."""
+        if self.filters.temperature_rate_form == FIRST_ORDER:
+            return None
+        return self._level_at_end('temperature_rate', 'temperature_level2'), \
+            self._level_at_end('temperature_rate', 'temperature_level3')
 
     def _level_at_end(self, derivative: str, level: str) -> float:
         """The level after the last sample of the filter of ``derivative`` (computed if not yet)."""
@@ -503,7 +561,9 @@ class SignalTracker:
         self.temperature = 0.0
         # Added to ``time`` for ``time_since_power_on``: infinite when power-on is unknown (a warm gyro).
         self.power_on_offset_s = 0.0 if powered_on_at_start else math.inf
-        self._temperature_rate = _Derivative(filters.temperature_rate_tau_s)
+        tau_s = filters.temperature_rate_tau_s
+        self._temperature_rate: _Derivative | LocalQuadraticRate = \
+            _Derivative(tau_s) if filters.temperature_rate_form == FIRST_ORDER else LocalQuadraticRate(tau_s)
         self._rate_change = _Derivative(filters.rate_change_tau_s)
         self._lags = {tau: _Derivative(tau) for tau in lags}
         self.extras = dict.fromkeys(extras, math.nan)

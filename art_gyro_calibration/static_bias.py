@@ -185,9 +185,11 @@ class StaticBiasCollector:
 class Refinement:
     """Refines a static bias once the temperature around its window is known (see the module's docstring).
 
-    The temperature from the window's start over :data:`REFINE_SPAN_TAUS` filter time constants ``tau_s`` is
-    fitted with a polynomial in time (:data:`REFINE_DEGREE`); its slope at each window sample replaces what the
-    causal filter read there, and ``CalcStaticBiasDrift`` moves by the change of the temperature-rate ``terms``' mean.
+    The temperature from the window's start over :data:`REFINE_SPAN_TAUS` times ``tau_s`` (the filters'
+    :attr:`~art_gyro_calibration.signals.SignalFilters.refinement_scale_s`: 120 s at either filter's default, by
+    which the constants here were measured) is fitted with a polynomial in time (:data:`REFINE_DEGREE`); its slope
+    at each window sample replaces what the causal filter read there, and ``CalcStaticBiasDrift`` moves by the
+    change of the temperature-rate ``terms``' mean.
     Until :attr:`ready_at` the terms' part of the modelled error is :meth:`error_one` (the node, a sample at a
     time) or :meth:`error_many` (arrays): the provisional fit's slope at the sample less its mean over the window,
     on top of the window's mean as the filter gave it. The refined bias applies from the first sample at or

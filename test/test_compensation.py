@@ -16,6 +16,7 @@ from art_gyro_calibration.gyro_physics import measured_from_true
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import SignalFilters, compute_signals
 from art_gyro_calibration.static_bias import StaticBiasCollector
+from art_gyro_calibration.temperature_rate import FIRST_ORDER
 from art_gyro_calibration.terms import Term
 
 RATE_HZ = 10.0
@@ -25,7 +26,7 @@ DPH = 3600.0
 
 def _calibration(*terms: Term, tau_s: float = 120.0) -> Calibration:
     base = load_packaged_calibration('NAVC3545')
-    return dataclasses.replace(base, terms=terms, filters=SignalFilters(temperature_rate_tau_s=tau_s))
+    return dataclasses.replace(base, terms=terms, filters=SignalFilters(tau_s, temperature_rate_form=FIRST_ORDER))
 
 
 def _still_run(hours: float, temp: np.ndarray | None = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -226,7 +227,7 @@ def test_the_frame_corrector_publishes_what_apply_gives_and_drops_what_it_drops(
         Term('temperature_rate', 'power', (0.02,), (1,)), Term('time', 'power', (1e-4,), (1,)),
         Term('time_since_power_on', 'exp_decay', (0.03,), (), 5.0),
         Term('temperature_lag', 'power', (1e-4, 2e-5), (1,), 3.0, (0, 1)),
-        Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(temperature_rate_tau_s=0.2))
+        Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(0.2, temperature_rate_form=FIRST_ORDER))
     n, rate_hz = 20, 50.0
     t = np.arange(1500) / rate_hz
     raw_rate = np.where(t < 2.0, np.arange(t.size) % 3 - 1, np.round(30.0 * np.sin(t) / cal.rate_scale_factor))

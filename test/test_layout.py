@@ -70,7 +70,7 @@ cal = dataclasses.replace(load_packaged_calibration('NAVC3545'),
                           terms=(Term('temperature_rate', 'power', (0.2,), (1,)),))
 c = Compensator(cal)
 errors = [c.error(0.1 * i, 0.0, 20.0 + 0.01 * i) for i in range(100)]
-s = compute_signals(0.1 * np.arange(100), np.zeros(100), 20.0 + 0.01 * np.arange(100))
+s = compute_signals(0.1 * np.arange(100), np.zeros(100), 20.0 + 0.01 * np.arange(100), filters=cal.filters)
 assert np.allclose(cal.model.error(s), errors, rtol=0, atol=1e-12)
 print('ok')
 ''')

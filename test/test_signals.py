@@ -1,11 +1,14 @@
 """Causal signals: per sample and over a log they agree, and they measure what they claim."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
-from art_gyro_calibration.signals import (DERIVED_SIGNALS, LAGGED_SIGNAL, SIGNALS, SignalFilters, Signals,
-                                          SignalTracker, compute_signals)
+from art_gyro_calibration.signals import (DERIVED_SIGNALS, FIRST_ORDER_TAU_S, LAGGED_SIGNAL, SIGNALS, Envelope,
+                                          SignalFilters, Signals, SignalTracker, compute_signals)
+from art_gyro_calibration.temperature_rate import FIRST_ORDER, FORMS, LocalQuadraticRate
 from art_gyro_calibration.terms import Term
 
 
@@ -16,14 +19,16 @@ def _run(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rate, temp
 
 
+@pytest.mark.parametrize('form', FORMS)
 @pytest.mark.parametrize('jitter', [0.0, 0.01])
-def test_tracker_agrees_with_batch(jitter: float) -> None:
+def test_tracker_agrees_with_batch(jitter: float, form: str) -> None:
     rng = np.random.default_rng(4)
     t = np.arange(20000) * 0.1 + rng.uniform(0, jitter, 20000)
     rate, temp = _run(t)
-    signals = compute_signals(t, rate, temp, filters=SignalFilters(60.0, 0.3))
+    filters = SignalFilters(60.0, 0.3, form)
+    signals = compute_signals(t, rate, temp, filters=filters)
     lag = Term('temperature_lag', 'power', (1.0,), (1,), 300.0)
-    tracker = SignalTracker(SignalFilters(60.0, 0.3), lags=(300.0,), powered_on_at_start=True)
+    tracker = SignalTracker(filters, lags=(300.0,), powered_on_at_start=True)
     tracked = [name for name in DERIVED_SIGNALS if name not in ('angle', 'temperature_lag')]   # not per sample
     got: dict[str, list[float]] = {name: [] for name in tracked + ['temperature_lag']}
     for k in range(len(t)):
@@ -46,17 +51,16 @@ def test_a_warm_gyro_has_no_time_since_power_on() -> None:
     np.testing.assert_array_equal(compute_signals(t, t, t).time_since_power_on, t)
 
 
-def test_temperature_rate_of_a_ramp() -> None:
+# Each form at its default time constant, and after how many of them it reads a ramp's slope within 2 %.
+@pytest.mark.parametrize('filters, settled_taus', [(SignalFilters(), 9.0),
+                                                   (SignalFilters(FIRST_ORDER_TAU_S, 0.5, FIRST_ORDER), 5.0)])
+def test_temperature_rate_of_a_ramp(filters: SignalFilters, settled_taus: float) -> None:
     t = np.arange(0, 3600, 0.1)
     temp = 15 + t / 60.0  # 1 degC per minute
-    signals = compute_signals(t, np.zeros_like(t), np.round(temp / 0.05) * 0.05)
-    settled = t > 5 * signals_tau()
+    signals = compute_signals(t, np.zeros_like(t), np.round(temp / 0.05) * 0.05, filters=filters)
+    settled = t > settled_taus * filters.temperature_rate_tau_s
     np.testing.assert_allclose(signals.temperature_rate[settled], 1 / 60.0, rtol=0.02)
     assert signals.temperature_rate[0] == 0.0  # nothing is known of the past at the first sample
-
-
-def signals_tau() -> float:
-    return SignalFilters().temperature_rate_tau_s
 
 
 def test_angle_and_time() -> None:
@@ -122,12 +126,13 @@ def _irregular_log(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return t, rate, temp, 12.0 + rng.normal(0, 0.01, n)
 
 
+@pytest.mark.parametrize('form', FORMS)
 @pytest.mark.parametrize('seed', [0, 1, 2])
-def test_chunked_equals_whole_log(seed: int) -> None:
+def test_chunked_equals_whole_log(seed: int, form: str) -> None:
     """Signals computed chunk by chunk, each from the previous chunk's end state, equal the whole log's."""
     n = 30000
     t, rate, temp, supply = _irregular_log(n, seed)
-    filters = SignalFilters(60.0, 0.3)
+    filters = SignalFilters(60.0, 0.3, form)
     whole = compute_signals(t, rate, temp, {'supply_v': supply}, filters)
     rng = np.random.default_rng(10 + seed)
     # Random boundaries, chunks of one sample, and a boundary on each side of the gap's first sample.
@@ -158,6 +163,10 @@ def test_chunked_equals_whole_log(seed: int) -> None:
         (state.t0, state.t, state.rate, state.temperature, state.angle)
     assert (end.temperature_level, end.rate_level) == pytest.approx((state.temperature_level, state.rate_level),
                                                                     rel=1e-14)
+    if form == FIRST_ORDER:
+        assert end.temperature_levels is None and state.temperature_levels is None
+    else:
+        assert end.temperature_levels == pytest.approx(state.temperature_levels, rel=1e-14)
     assert state.t0 == t[0] and state.t == t[-1]
 
 
@@ -170,7 +179,12 @@ def test_end_state_continues_the_tracker() -> None:
         tracker.update(t[k], rate[k], temp[k])
     assert (state.t0, state.t, state.rate, state.temperature) == \
         (tracker.t0, tracker.t, tracker.rate, tracker.temperature)
-    assert state.temperature_level == pytest.approx(tracker._temperature_rate.smooth, rel=1e-12)
+    quadratic = tracker._temperature_rate
+    assert isinstance(quadratic, LocalQuadraticRate)   # the default: what a new fit writes
+    assert (state.temperature_level, *(state.temperature_levels or ())) == \
+        pytest.approx((quadratic.level, quadratic.level2, quadratic.level3), rel=1e-12)
+    with pytest.raises(ValueError, match='continues only from a state with its levels'):
+        _ = compute_signals(t, rate, temp, state=dataclasses.replace(state, temperature_levels=None)).temperature_rate
     assert state.rate_level == pytest.approx(tracker._rate_change.smooth, rel=1e-12)
     with pytest.raises(ValueError, match='no samples'):
         compute_signals([], [], []).end_state()
@@ -195,3 +209,20 @@ def test_each_run_of_several_starts_its_signals_afresh() -> None:
     assert s.temperature_rate[600] == 0.0 and s.lagged_temperature(60.0)[600] == 35.0
     with pytest.raises(ValueError, match='row 0'):
         compute_signals(t, rate, temp, run_starts=((5, True),))
+
+
+def test_the_temperature_rate_filters_time_scales_and_bounds() -> None:
+    """A static bias refinement keeps an old file's scale (its tau) and at least 2 min with the local quadratic fit.
+
+    The envelope bounds each form's estimate: the span over tau, five times that for the local quadratic fit.
+    """
+    old = SignalFilters(60.0, 0.5, FIRST_ORDER)
+    assert old.refinement_scale_s == 60.0
+    assert SignalFilters().refinement_scale_s == FIRST_ORDER_TAU_S
+    assert SignalFilters(50.0).refinement_scale_s == 150.0
+    envelope = Envelope((10.0, 50.0), 100.0, old, 3600.0)
+    assert SIGNALS['temperature_rate'].range(envelope) == (-40.0 / 60.0, 40.0 / 60.0)
+    assert SIGNALS['temperature_rate'].range(dataclasses.replace(envelope, filters=SignalFilters(60.0))) == \
+        (-200.0 / 60.0, 200.0 / 60.0)
+    with pytest.raises(ValueError, match="filters.temperature_rate_form must be one of first_order, local_quadratic"):
+        SignalFilters(temperature_rate_form='second_order')

@@ -11,7 +11,8 @@ from art_gyro_calibration.log import read_log
 from art_gyro_calibration.analysis.simulate import (COIL_LAG_TAU_S, EFFECTS, WIDER_EFFECTS, SimulationSettings,
                                                     chamber_profile, lagged, same_gyro, simulate_run, truth_path,
                                                     warm_restart, write_run)
-from art_gyro_calibration.signals import compute_signals
+from art_gyro_calibration.signals import FIRST_ORDER_TAU_S, SignalFilters, compute_signals
+from art_gyro_calibration.temperature_rate import FIRST_ORDER
 
 
 @pytest.fixture(scope='module')
@@ -212,7 +213,8 @@ def test_shupe_on_the_true_temperature_rate(calibration):
         want = k * (chamber_rate + dt_c / tau * np.exp(-time_s / tau))
         # Within a count and a half of the gyro's error in the polynomial's rate slope (ppm).
         assert diff[row] == pytest.approx(want, abs=2 * calibration.rate_scale_factor + 0.01 * abs(want))
-    # Not the node's filtered rate: at the ramp's start the true rate leads it.
-    signals = compute_signals(t, run.columns['ref_rate'], run.columns['raw_temp'] * calibration.temp_scale_factor)
+    # Not a filtered rate: at the ramp's start the true rate leads the first-order filter's (old files').
+    signals = compute_signals(t, run.columns['ref_rate'], run.columns['raw_temp'] * calibration.temp_scale_factor,
+                              filters=SignalFilters(FIRST_ORDER_TAU_S, 0.5, FIRST_ORDER))
     row = int(np.searchsorted(t, settings.hold_s + 120.0))
     assert diff[row] > 1.5 * k * signals.temperature_rate[row]

@@ -23,6 +23,7 @@ from art_gyro_calibration.calibration import load_packaged_calibration, write_ca
 from art_gyro_calibration.fake_gyro import FakeGyro, RateProfile, TemperatureProfile  # noqa: E402
 from art_gyro_calibration.protocols.rd2100_binary import encode_binary  # noqa: E402
 from art_gyro_calibration.signals import SignalFilters  # noqa: E402
+from art_gyro_calibration.temperature_rate import FIRST_ORDER  # noqa: E402
 from art_gyro_calibration.terms import Term  # noqa: E402
 
 BIAS_SAMPLES = 20
@@ -35,7 +36,7 @@ def test_apply_on_the_node_log_equals_what_the_node_published(tmp_path: Path, lo
         Term('temperature_rate', 'power', (0.02,), (1,)), Term('time', 'power', (1e-4,), (1,)),
         Term('time_since_power_on', 'exp_decay', (0.03,), (), 5.0),
         Term('temperature_lag', 'power', (1e-4, 2e-5), (1,), 3.0, (0, 1)),
-        Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(temperature_rate_tau_s=0.2),
+        Term('rate_change', 'power', (0.002,), (1,))), filters=SignalFilters(0.2, temperature_rate_form=FIRST_ORDER),
         temperature_range_c=(10.0, 50.0), temperature_warn_range_c=None)   # fitted: clamped to its logged range
     cal_path = tmp_path / 'CAL.yaml'
     write_calibration(cal_path, cal)
