@@ -23,7 +23,8 @@ from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.analysis.metrics import (DEFAULT_SETTLE_S, Segments, correlation_time_s, noise_floor,
                                                    steady_segments)
-from art_gyro_calibration.signals import SIGNALS, SignalFilters, Signals, compute_signals
+from art_gyro_calibration.signals import FIRST_ORDER_TAU_S, SIGNALS, SignalFilters, Signals, compute_signals
+from art_gyro_calibration.temperature_rate import FIRST_ORDER
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.allan import allan_deviation
@@ -383,11 +384,16 @@ def retuned(binned: trace.Binned, specs: list[TermSpec]) -> list[TermSpec]:
 # no thermal effect, modelled or not, moves the bias, and what is left is the gyro's own wander.
 THERMAL_STILL_RATE = 3e-3
 THERMAL_STILL_S = 180.0
+# Whether the temperature holds is read over minutes, whatever estimator the calibration's terms use (the node's
+# fast one follows each count): the first-order derivative over 2 min, by which the threshold was chosen.
+THERMAL_STILL_FILTERS = SignalFilters(FIRST_ORDER_TAU_S, temperature_rate_form=FIRST_ORDER)
 
 
 def thermally_still_runs(binned: trace.Binned) -> NDArray[np.int64] | None:
     """Per bin, a label of its stretch of steady temperature (-1 for none); None if under 10 minutes in all."""
-    rate = binned.signals.temperature_rate[binned.index[binned.starts]]
+    s = binned.signals
+    rate = compute_signals(s.t, s.rate, s.temperature, filters=THERMAL_STILL_FILTERS,
+                           run_starts=s.run_starts).temperature_rate[binned.index[binned.starts]]
     still = np.abs(rate) <= THERMAL_STILL_RATE
     edges = np.flatnonzero(np.diff(np.concatenate(([0], still.astype(np.int8), [0]))))
     labels = np.full(len(still), -1)
