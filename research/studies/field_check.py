@@ -72,6 +72,8 @@ WORSE_DPH = 1.0                  # no null run worse than the packaged calibrati
 MULTI = 'loop_multi'             # the label of the several-run fit
 REFERENCES = ('true_node', 'true_signals')
 # Figure colours (a loop's single-run fit: red).
+# The case (the first of these in the results) whose cold second run the time figure follows.
+TIME_CASES = ('shupe2.4_warmup', 'shupe_warmup', 'shupe_k2.4_slow')
 COLOURS = {'baseline': '#7f7f7f', MULTI: '#9467bd', 'true_node': '#1f77b4', 'true_signals': '#2ca02c'}
 
 
@@ -843,7 +845,11 @@ def document(results: list[dict[str, Any]], meta: dict[str, Any]) -> str:
         for name in ('cold', 'warm'):
             lines.append(f'| {case} | {name} | ' + ' | '.join(_med_cell(group, name, lab) for lab in series) + ' |')
     lines += ['', '![field-errors.png](figures/field-errors.png)', '',
-              '![field-targets.png](figures/field-targets.png)', '', HISTORY, '## Per case and run', '']
+              '![field-targets.png](figures/field-targets.png)', '',
+              *([f'Over time, {meta["time_figure"]} (simulated again from its seed, the calibrations applied again; '
+                 'the lower panel is the true rate of the gyro\'s temperature, which the node\'s causal filter '
+                 'follows):', '', '![field-time.png](figures/field-time.png)', ''] if meta.get('time_figure') else []),
+              HISTORY, '## Per case and run', '']
     for case, group in groups.items():
         r0 = group[0]
         lines += [f'### {case}', '', f"{r0['note']}. Physics: "
@@ -872,11 +878,61 @@ def document(results: list[dict[str, Any]], meta: dict[str, Any]) -> str:
     return '\n'.join(lines)
 
 
+def figure_time(results: list[dict[str, Any]], meta: dict[str, Any], work: Path, path: Path) -> str:
+    """Over a cold second run of a Shupe and warm-up case: each calibration's error and the true temperature rate.
+
+    The run is simulated again from its seed and the calibrations written by the run (its directory under `work`)
+    applied again. Returns the run's name ('' when no such run is in the results).
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    r = next((r for name in TIME_CASES for r in results if r['case'] == name and r['rep'] == 0), None)
+    if r is None:
+        return ''
+    case = next(c for c in CASES if c.name == r['case'])
+    d = work / f"{r['case']}-{r['rep']}"
+    run = simulate(Gyro.packaged(SERIAL), case.physics, meta['cold_hours'], r['seed'] * 100 + 1, 0.0, 0.0)
+    log, cmd_log = d / 'second-cold.csv', d / 'commands-time.log'
+    write_log(run, log)
+    cals = {'baseline': REPO / 'config' / f'{SERIAL}.yaml', **{lab: d / f'{lab}.yaml' for lab in r['found']},
+            'true_node': d / 'true-form.yaml'}
+    errors = {lab: applied_error(log, cal, run, True, d / f'applied-time-{lab}.csv', cmd_log)
+              for lab, cal in cals.items()}
+    errors['true_signals'] = true_signals_error(run)
+    log.unlink()
+    per = int(BLOCK_S * RATE_HZ)
+    n = (len(run['t']) - BIAS_SAMPLES) // per * per
+    minutes = run['t'][BIAS_SAMPLES:BIAS_SAMPLES + n].reshape(-1, per).mean(axis=1) / 60.0
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(12, 8), sharex=True, gridspec_kw={'height_ratios': (2, 1)})
+    for lab, e in errors.items():
+        blocks = e[BIAS_SAMPLES:BIAS_SAMPLES + n].reshape(-1, per).mean(axis=1) * DPH
+        ax.plot(minutes, blocks, color=COLOURS.get(lab, '#d62728'), lw=1.2,
+                label=f'{_label_text(lab)} (rms {r["scores"]["cold"][lab]["sys_rms_dph"]:.2f} deg/h)')
+    ax.axhline(0.0, color='k', lw=0.5)
+    ax.set_ylabel('error of the corrected rate,\n60 s means, bias included (deg/h)')
+    ax.set_ylim(-25.0, 25.0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"{r['case']}, run 0: the cold second run ({meta['cold_hours']:g} h from power-on); "
+                 'curves beyond +-25 deg/h are cut')
+    ax2.plot(run['t'] / 60.0, np.gradient(run['temp'], run['t']) * 60.0, 'k', lw=1.0)
+    ax2.set_ylabel('true rate of the gyro\'s\ntemperature (degC/min)')
+    ax2.set_xlabel('time since power-on (min)')
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return f"{r['case']} run 0"
+
+
 def write_outputs(results: list[dict[str, Any]], meta: dict[str, Any], quick: bool, out: Path) -> tuple[Path, Path]:
     """The figures and the document (into out/ for --quick, doc/ otherwise)."""
     fig_dir = out if quick else REPO / 'research' / 'doc' / 'figures'
     figure(results, fig_dir / 'field-errors.png', meta['cold_hours'])
     figure_targets(results, fig_dir / 'field-targets.png')
+    meta['time_figure'] = figure_time(results, meta, out, fig_dir / 'field-time.png')
     doc_dir = out if quick else REPO / 'research' / 'doc'
     (doc_dir / 'field-check.md').write_text(document(results, meta))
     return fig_dir, doc_dir
