@@ -88,7 +88,7 @@ class SerialGyroDriver:
             raise ValueError(f'rate_scale_dps must be a positive number of deg/s per count, got {rate_scale_dps!r}')
         self._stamper = WireStamper(baud, self._parser.frame_bytes)
         description = self._parser.description
-        self._guard = (FrameGuard(description.corrupt_rate_steps)
+        self._guard = (FrameGuard(description.corrupt_rate_steps, description.continuous_temperature)
                        if rate_scale_dps is not None and description.checks_rate_jumps else None)
         self.port = port
         self.baud = baud

@@ -2,9 +2,10 @@
 
 A corrupt frame is told from real motion by two things the motion cannot do (doc/benchmark.md measures both):
 
-- its temperature jumps: a unit's temperature moves a fraction of a count between frames, so a frame whose
-  temperature is TEMPERATURE_JUMP_COUNTS or more from the last delivered one's is refused, unless the frame before
-  was refused with about the same temperature (a new level that persists is trusted from its second frame);
+- its temperature jumps (``continuous_temperature``): a unit's temperature moves a fraction of a count between
+  frames, so a frame whose temperature is TEMPERATURE_JUMP_COUNTS or more from the last delivered one's is refused,
+  unless the frame before was refused with about the same temperature (a new level that persists is trusted from
+  its second frame);
 - its rate departs from what the motion's own recent frames predict by one of the changes the protocol's
   corruptions make (``ProtocolDescription.corrupt_rate_steps``: a checksum-passing two-bit error changes the
   rate by +-2^a or +-255 * 2^a counts; a digit replaced, by k * 10^j), to within the prediction's envelope.
@@ -53,12 +54,16 @@ def _wrapped(counts: float) -> float:
 class FrameGuard:
     """Decides frame by frame whether a frame is delivered; counts what it refuses in ``rejected_by_reason``."""
 
-    __slots__ = ('_steps', '_temp', '_refused_temp', '_rates', '_gain_uv', '_gain_vv', '_mean_square', '_trusted',
-                 '_steady', 'rejected_by_reason')
+    __slots__ = ('_steps', '_jump', '_temp', '_refused_temp', '_rates', '_gain_uv', '_gain_vv', '_mean_square',
+                 '_trusted', '_steady', 'rejected_by_reason')
 
-    def __init__(self, corrupt_rate_steps: tuple[int, ...]) -> None:
-        """``corrupt_rate_steps``: the rate changes (counts, positive) the protocol's undetected corruptions make."""
+    def __init__(self, corrupt_rate_steps: tuple[int, ...], continuous_temperature: bool = False) -> None:
+        """``corrupt_rate_steps``: the rate changes (counts, positive) the protocol's undetected corruptions make.
+
+        ``continuous_temperature``: a temperature jump is refused too.
+        """
         self._steps = sorted(set(corrupt_rate_steps))
+        self._jump = TEMPERATURE_JUMP_COUNTS if continuous_temperature else math.inf
         self.rejected_by_reason = dict.fromkeys(GUARD_REASONS, 0)
         self.reset()
 
@@ -85,8 +90,8 @@ class FrameGuard:
         lost between two are bridged by the prediction.
         """
         temp, refused = self._temp, self._refused_temp
-        temp_ok = (temp is None or abs(raw_temp - temp) < TEMPERATURE_JUMP_COUNTS
-                   or refused is not None and abs(raw_temp - refused) < TEMPERATURE_JUMP_COUNTS)
+        temp_ok = (temp is None or abs(raw_temp - temp) < self._jump
+                   or refused is not None and abs(raw_temp - refused) < self._jump)
         self._refused_temp = None if temp_ok else raw_temp
         missed = round((steady_ns - self._steady) / period_ns) - 1 if period_ns > 0 and self._steady else 0
         self._steady = steady_ns

@@ -33,12 +33,17 @@ class _Port:
         return chunk
 
 
-def deliver(protocol, rates, temps, rate_hz, seed=0):
-    """The (rate, temperature) counts the driver delivers of frames sent at ``rate_hz``, and its stats."""
+def deliver(protocol, rates, temps, rate_hz, seed=0, continuous_temperature=False):
+    """The (rate, temperature) counts the driver delivers of frames sent at ``rate_hz``, and its stats.
+
+    ``continuous_temperature``: the guard refuses temperature jumps too (no protocol's description asks it yet).
+    """
     got = []
     now = [0]
     driver = SerialGyroDriver('/dev/null', BAUD, protocol, lambda f: got.append((f.sample.raw_rate, f.sample.raw_temp)),
                               clock_ns=lambda: now[0], monotonic_ns=lambda: now[0], rate_scale_dps=SCALE)
+    if continuous_temperature:
+        driver._guard = FrameGuard(describe(protocol).corrupt_rate_steps, continuous_temperature=True)
     port = _Port()
     driver._serial = port
     encode = make_encoder(protocol)
@@ -81,12 +86,17 @@ def test_a_corrupt_rate_on_a_still_gyro_is_refused(protocol, rate_hz, step):
     assert stats.rejected_by_reason[RATE_JUMP] == 1
 
 
-def test_a_temperature_jump_is_refused_and_a_level_that_persists_is_trusted_from_its_second_frame():
-    """Before: passed (only the rate was checked); 0.1 degC between frames is no real temperature."""
+@pytest.mark.parametrize('continuous_temperature', [False, True])
+def test_a_temperature_jump_is_refused_and_a_level_that_persists_is_trusted_from_its_second_frame(
+        continuous_temperature):
+    """Where the guard checks the temperature; 0.1 degC between frames is no real temperature."""
     rates, temps = still(40)
     temps[20] += 2
     temps[30:] += 40   # a new level that persists: its first frame refused, then trusted
-    got, stats = deliver('binary', rates, temps, 100.0)
+    got, stats = deliver('binary', rates, temps, 100.0, continuous_temperature=continuous_temperature)
+    if not continuous_temperature:
+        assert [t for _, t in got] == list(temps[LOCK_FRAMES - 1:]) and stats.rejected_by_reason[TEMPERATURE_JUMP] == 0
+        return
     assert [t for _, t in got] == [500] * (30 - LOCK_FRAMES + 1 - 1) + [540] * 9
     assert stats.rejected_by_reason[TEMPERATURE_JUMP] == 2 and stats.frames == len(got)
 
