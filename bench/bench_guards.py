@@ -1,8 +1,9 @@
 """The RD2100 frame guards measured: real motion they drop, and corrupt frames they let through.
 
 ``python bench/bench_guards.py [--seconds 10] [--seed 1] [--mean] [--continuous-temperature]`` drives
-:class:`SerialGyroDriver`'s per-chunk path (parser, stream lock, stamper, guard) without a port: each encoded frame is one read, returned after its wire
-time and a random latency of up to 30 % of the period (stamp jitter). At 10, 100 and 1000 Hz it reports:
+:class:`SerialGyroDriver`'s per-chunk path (parser, stream lock, stamper, guard) without a port: each encoded frame
+is one read, returned after its wire time and a random latency of up to 30 % of the period (stamp jitter). At 10,
+100 and 1000 Hz it reports:
 
 - real motion (no corruption), point-sampled (``--mean``: each frame the mean rate over its interval) with
   0.02 deg/s of noise: vibrations of 10, 23, 37 and 50 Hz at 30 and 50 deg/s, ten bumps (a 10 ms half-sine of
