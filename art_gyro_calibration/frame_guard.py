@@ -13,8 +13,8 @@ A corrupt frame is told from real motion by two things the motion cannot do (doc
 
 The prediction follows vibration whatever its frequency: a sinusoid with an offset obeys
 ``x[n] = x[n-3] + g * (x[n-1] - x[n-2])`` with ``g = 1 + 2 cos(w)`` (a ramp: g = 3), and g is fitted on the
-recent frames. Frames the parser lost are filled with the prediction. No latency: each frame is decided as it
-comes.
+recent frames. Frames the parser lost are filled with the prediction; after a refusal it starts again from the
+next frames (a motion wrongly refused is not followed by a guess). No latency: each frame is decided as it comes.
 """
 
 from __future__ import annotations
@@ -23,8 +23,7 @@ import bisect
 import math
 
 # A real temperature moves a fraction of a count (0.05 degC) between frames; a frame this far from the last
-# delivered one's is corrupt (a two-bit error that passes the RD2100's checksum changes it by 2 counts or
-# more about half the time).
+# delivered one's is corrupt.
 TEMPERATURE_JUMP_COUNTS = 2
 # g's least-squares fit forgets by this per frame (about ten frames): a vibration's frequency is followed.
 FIT_MEMORY = 0.9
