@@ -92,12 +92,13 @@ class FrameGuard:
         temp_ok = (temp is None or abs(raw_temp - temp) < self._jump
                    or refused is not None and abs(raw_temp - refused) < self._jump)
         self._refused_temp = None if temp_ok else raw_temp
-        missed = round((steady_ns - self._steady) / period_ns) - 1 if period_ns > 0 and self._steady else 0
+        # Frames lost since the last one (none for a frame closer than a period: an extra one is tested as the next).
+        missed = max(round((steady_ns - self._steady) / period_ns) - 1, 0) if period_ns > 0 and self._steady else 0
         self._steady = steady_ns
         rates = self._rates
-        if missed > MAX_BRIDGED or missed < 0:
+        if missed > MAX_BRIDGED:
             rates.clear()
-        for _ in range(max(missed, 0) if len(rates) == 3 else 0):
+        for _ in range(missed if len(rates) == 3 else 0):
             self._push(self._predict())
         if not temp_ok:
             self.rejected_by_reason[TEMPERATURE_JUMP] += 1
@@ -110,7 +111,7 @@ class FrameGuard:
             return True
         predicted = self._predict()
         error = raw_rate - predicted
-        tolerance = max(ERROR_MARGIN * math.sqrt(self._mean_square), FLOOR_COUNTS) * (1 + max(missed, 0))
+        tolerance = max(ERROR_MARGIN * math.sqrt(self._mean_square), FLOOR_COUNTS) * (1 + missed)
         if self._trusted >= WARMUP_FRAMES and self._corrupt(error, tolerance):
             self.rejected_by_reason[RATE_JUMP] += 1
             rates.clear()   # learnt anew from the next frames: a motion wrongly refused is not followed by a guess

@@ -161,3 +161,18 @@ def test_a_corrupt_frame_from_a_device_is_counted_not_delivered(tmp_path):
         silent.stop()
     assert [f.sample.raw_rate for f in got] == rates[LOCK_FRAMES - 1:] + rates
     assert driver.stats.rejected_by_reason[RATE_JUMP] == 1
+
+
+def test_an_extra_frame_between_two_is_tested_and_a_lost_one_bridged():
+    """A corrupt frame half a period after the last (garbage that formed a valid frame) is refused.
+
+    Before: let through untested (the prediction started again). One after a frame the parser lost is bridged.
+    """
+    guard = FrameGuard(CORRUPT_RATE_STEPS)
+    period = 100_000_000
+    assert all(guard.passes(0, 500, k * period, period) for k in range(1, 40))
+    assert not guard.passes(1 << 12, 500, 39 * period + period // 2, period)
+    assert guard.passes(0, 500, 40 * period, period) and guard.passes(0, 500, 41 * period, period)
+    assert all(guard.passes(0, 500, k * period, period) for k in range(42, 50))
+    assert not guard.passes(1 << 12, 500, 51 * period, period)   # the frame at 50 lost
+    assert guard.rejected_by_reason[RATE_JUMP] == 2
