@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import serial
 
 from art_gyro_calibration.frame import LOCK_FRAMES, Frame, RawSample
+from art_gyro_calibration.frame_guard import FrameGuard
 from art_gyro_calibration.protocols import KVH_BAUDS, KvhFogConfig, make_parser
 from art_gyro_calibration.stamper import UnitClock, WireStamper, wire_byte_ns
 
@@ -39,12 +40,6 @@ NO_FRAMES_WARNING_S = 2.0
 BAD_SHARE_WARNING = 0.5
 # A port that stays missing (or unreadable) is reported again this often while the driver retries it.
 LINK_DOWN_REPEAT_S = 10.0
-# RD2100 protocols: a yaw rate cannot change faster than this between two frames (deg/s per second between their
-# stamps). A chosen bound, not a measured one: it takes a rate from 0 to the RD2100's full 98.8 deg/s in 20 ms,
-# faster than a vehicle's body turns; a frame beyond it is a corrupt one whose checksum passed (at 50 Hz, a jump of
-# more than 100 deg/s from the last trusted frame). Counted as RATE_JUMP, not delivered.
-MAX_ANGULAR_ACCEL_DPS2 = 5000.0
-RATE_JUMP = 'rate_jump'
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,40 +60,6 @@ class DriverStats:
     stamp_source: str = 'arrival'   # where the latest stamps came from: arrival, or unit_clock (kvh_fog Format B)
 
 
-class RateJumpGuard:
-    """Refuses a frame whose raw rate moved from the last one delivered faster than MAX_ANGULAR_ACCEL_DPS2 allows.
-
-    For counts behind a weak checksum (the RD2100's): a corrupt frame whose checksum passed. It counts
-    what it refuses (``rejected``); the driver delivers the rest.
-    """
-
-    __slots__ = ('_counts_per_ns', '_min_elapsed_ns', '_trusted', 'rejected')
-
-    def __init__(self, rate_scale_dps: float, min_elapsed_ns: int) -> None:
-        """``rate_scale_dps``: deg/s per count; ``min_elapsed_ns``: a frame's wire time (frames are that far apart)."""
-        self._counts_per_ns = MAX_ANGULAR_ACCEL_DPS2 * 1e-9 / rate_scale_dps
-        self._min_elapsed_ns = min_elapsed_ns
-        self._trusted: tuple[float, int] | None = None   # (raw rate, steady ns) of the last frame delivered
-        self.rejected = 0
-
-    def reset(self) -> None:
-        """After a reopen: the next frame is trusted."""
-        self._trusted = None
-
-    def passes(self, raw_rate: float, steady_ns: int) -> bool:
-        """Whether a frame is delivered; one that is not is counted in ``rejected``."""
-        trusted = self._trusted
-        if trusted is not None:
-            # At least a frame's wire time apart: the stamps are estimates (one pushed back to its arrival may come
-            # closer to the last), the wire is not.
-            elapsed = max(steady_ns - trusted[1], self._min_elapsed_ns)
-            if abs(raw_rate - trusted[0]) > self._counts_per_ns * elapsed:
-                self.rejected += 1
-                return False
-        self._trusted = (raw_rate, steady_ns)
-        return True
-
-
 class SerialGyroDriver:
     """Reads a gyro of any protocol on ``port``, calling ``on_frame`` for every valid frame (on the reader thread)."""
 
@@ -109,9 +70,9 @@ class SerialGyroDriver:
                  monotonic_ns: Callable[[], int] = time.monotonic_ns, rate_scale_dps: float | None = None) -> None:
         """``clock_ns`` is the stamps' clock; ``on_warning`` hears of clock steps and of no frames after an open.
 
-        ``rate_scale_dps`` (deg/s per count, the calibration's rate_scale_factor) turns on the rate-jump check
-        (:class:`RateJumpGuard`) of the protocols whose description asks for it (the RD2100's; kvh_fog is left to
-        its CRC-32); None: no check.
+        ``rate_scale_dps`` (deg/s per count, the calibration's rate_scale_factor) turns on the frame guard
+        (:class:`~art_gyro_calibration.frame_guard.FrameGuard`) of the protocols whose description asks for it (the
+        RD2100's; kvh_fog is left to its CRC-32); None: no guard.
         """
         if not isinstance(port, str) or not port:
             raise ValueError(f'port must be a device path such as /dev/ttyUSB0, got {port!r}')
@@ -127,8 +88,8 @@ class SerialGyroDriver:
             raise ValueError(f'rate_scale_dps must be a positive number of deg/s per count, got {rate_scale_dps!r}')
         self._stamper = WireStamper(baud, self._parser.frame_bytes)
         description = self._parser.description
-        self._jump_guard = (RateJumpGuard(rate_scale_dps, self._stamper.frame_ns)
-                            if rate_scale_dps is not None and description.checks_rate_jumps else None)
+        self._guard = (FrameGuard(description.corrupt_rate_steps, description.continuous_temperature)
+                       if rate_scale_dps is not None and description.checks_rate_jumps else None)
         self.port = port
         self.baud = baud
         self.protocol = protocol
@@ -175,14 +136,14 @@ class SerialGyroDriver:
                            stamp_source=self._stamp_source)
 
     def _delivered(self) -> int:
-        """Frames handed to ``on_frame`` (or being handed): the parser's, less those the rate-jump guard refused."""
-        return self._parser.stats.frames - (self._jump_guard.rejected if self._jump_guard is not None else 0)
+        """Frames handed to ``on_frame`` (or being handed): the parser's, less those the frame guard refused."""
+        return self._parser.stats.frames - (self._guard.rejected if self._guard is not None else 0)
 
     def _rejected_by_reason(self) -> dict[str, int]:
-        """The parser's rejections by reason, and the rate-jump guard's if it checks."""
+        """The parser's rejections by reason, and the frame guard's if it checks."""
         reasons = dict(self._parser.stats.rejected_by_reason)
-        if self._jump_guard is not None:
-            reasons[RATE_JUMP] = self._jump_guard.rejected
+        if self._guard is not None:
+            reasons.update(self._guard.rejected_by_reason)
         return reasons
 
     def start(self) -> None:
@@ -228,8 +189,8 @@ class SerialGyroDriver:
         self._serial, self._identity = port, (st.st_dev, st.st_ino)
         self._parser.reset()
         self._stamper.restart()
-        if self._jump_guard is not None:
-            self._jump_guard.reset()
+        if self._guard is not None:
+            self._guard.reset()
         if self._unit_clock is not None:
             self._unit_clock.reset()   # the unit's clock is read anew from 0: the mapping too
             self._stamp_source = 'arrival'
@@ -303,9 +264,9 @@ class SerialGyroDriver:
                        'stamps re-anchored to it')
         if self._unit_clock is not None and frames:
             stamps = self._unit_clock_stamps(frames, stamps, monotonic_ns, len(data))
-        guard = self._jump_guard
+        guard, period_ns = self._guard, self._stamper.period_ns
         for (sample, _), (stamp, steady) in zip(frames, stamps):
-            if guard is None or guard.passes(sample.raw_rate, steady):
+            if guard is None or guard.passes(sample.raw_rate, sample.raw_temp, steady, period_ns):
                 self._on_frame(Frame(sample, stamp, steady))
         if not frames:
             self._check_quiet(monotonic_ns)

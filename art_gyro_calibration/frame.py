@@ -113,6 +113,9 @@ class ProtocolDescription:
     rate (the diagnostics report it and :meth:`rate_error`). ``startup_rejections``: reasons the
     parser rejects frames for at the start of every connection by design, not a sign of a wrong
     link. ``temperature_hint``: what a temperature outside the plausible range says of the settings.
+    ``corrupt_rate_steps``: the rate changes (counts) a corruption that passes the protocol's check makes (the
+    frame guard refuses a departure of that size from the motion's prediction). ``continuous_temperature``: the
+    temperature moves less than a count between frames, so the frame guard refuses a frame whose temperature jumps.
     """
 
     hardware: str = 'KVH RD2100'
@@ -122,6 +125,8 @@ class ProtocolDescription:
     reports_rate: bool = False
     startup_rejections: tuple[str, ...] = ()
     temperature_hint: str = 'the temperature field is not m[3]:m[4] on this unit'   # m: the RD2100's 7-bit groups
+    corrupt_rate_steps: tuple[int, ...] = ()
+    continuous_temperature: bool = False
 
     def rate_error(self, measured_hz: float | None) -> str:
         """Why the unit is not sending at the rate it is said to ('' when it is, or nothing is said or measured)."""

@@ -46,7 +46,9 @@ def make_parser(protocol: str, kvh_fog: KvhFogConfig | None = None, lock_frames:
 def describe(protocol: str, kvh_fog: KvhFogConfig | None = None) -> ProtocolDescription:
     """What the node and its diagnostics need of ``protocol`` beyond its frames (its parser's ``description``)."""
     check_protocol(protocol)
-    return (kvh_fog or KvhFogConfig()).description if protocol == KVH_FOG else ProtocolDescription()
+    if protocol == KVH_FOG:
+        return (kvh_fog or KvhFogConfig()).description
+    return (BinaryFrameParser if protocol == 'binary' else AsciiFrameParser).description
 
 
 def make_encoder(protocol: str, kvh_fog: KvhFogConfig | None = None) -> Callable[..., bytes]:

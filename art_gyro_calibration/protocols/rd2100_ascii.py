@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import re
 
-from art_gyro_calibration.frame import INT16_MAX, INT16_MIN, ChunkParser, RawSample, check_int16
+from art_gyro_calibration.frame import INT16_MAX, INT16_MIN, ChunkParser, ProtocolDescription, RawSample, check_int16
 
 # Rejection reasons, the keys of ParserStats.rejected_by_reason.
 MALFORMED = 'malformed'         # a line that is not two integers
@@ -19,6 +19,9 @@ LINE_TOO_LONG = 'line_too_long'  # no newline within MAX_LINE_BYTES
 # bound the buffer so a stream without newlines cannot grow memory.
 MAX_LINE_BYTES = 64
 
+# No checksum: a digit replaced by another changes the rate by k * 10^j counts.
+CORRUPT_RATE_STEPS = tuple(sorted(k * 10 ** j for k in range(1, 10) for j in range(5)))
+
 _ASCII_LINE = re.compile(rb'\s*([+-]?\d{1,10})[ \t]+([+-]?\d{1,10})\s*')
 _BLANK = re.compile(rb'\s*')
 
@@ -28,6 +31,7 @@ class AsciiFrameParser(ChunkParser):
 
     # Nominal: a typical line such as b'-1234 500\r\n' (wire-time stamping needs a figure).
     frame_bytes = 11
+    description = ProtocolDescription(corrupt_rate_steps=CORRUPT_RATE_STEPS)
 
     def __init__(self, lock_frames: int = 1) -> None:
         """``lock_frames``: valid lines in a row before one is accepted (the driver's LOCK_FRAMES, 1 for none)."""

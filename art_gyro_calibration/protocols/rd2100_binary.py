@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import re
 
-from art_gyro_calibration.frame import BinaryChunkParser, RawSample, check_int16
+from art_gyro_calibration.frame import BinaryChunkParser, ProtocolDescription, RawSample, check_int16
 
 # Rejection reasons, keys of ParserStats.rejected_by_reason (with GARBAGE, of frame.py).
 BAD_CHECKSUM = 'bad_checksum'   # well-framed 8 bytes whose checksum is wrong
@@ -26,6 +26,10 @@ BAD_CHECKSUM = 'bad_checksum'   # well-framed 8 bytes whose checksum is wrong
 ALL_ZERO = 'all_zero'
 
 BINARY_FRAME_BYTES = 8
+# The rate changes of two flipped bits that pass the checksum (-(m[1] + ... + m[6]) mod 256, the rate m[5]:m[6]):
+# a checksum bit and a rate bit, +-2^a (m[6]) or +-2^(a+8) (m[5]); a bit of each rate byte that cancel,
+# +-255 * 2^a (both top bits: 2^15 + 2^7, which the 16-bit field wraps to -255 * 2^7).
+CORRUPT_RATE_STEPS = tuple(sorted({1 << a for a in range(16)} | {255 << a for a in range(8)}))
 
 # A candidate binary frame: a top-bit byte followed by seven clear bytes. A top-bit byte
 # not followed by seven clear bytes can never start a valid frame, so the regex jumps
@@ -70,6 +74,7 @@ class BinaryFrameParser(BinaryChunkParser):
     """
 
     frame_bytes = BINARY_FRAME_BYTES
+    description = ProtocolDescription(corrupt_rate_steps=CORRUPT_RATE_STEPS)
 
     def __init__(self, lock_frames: int = 1) -> None:
         """``lock_frames``: valid frames in a row before one is accepted (the driver's LOCK_FRAMES, 1 for none)."""

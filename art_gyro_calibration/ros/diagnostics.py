@@ -23,6 +23,7 @@ from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibratio
 from art_gyro_calibration.compensation import IMPLAUSIBLE_TEMPERATURE, FrameCorrector
 from art_gyro_calibration.driver import DriverStats, SerialGyroDriver
 from art_gyro_calibration.frame import AXIS_INVALID, NOT_FINITE, ProtocolDescription
+from art_gyro_calibration.frame_guard import GUARD_REASONS
 from art_gyro_calibration.ros.bias_service import ParkedState, StaticBiasService
 from art_gyro_calibration.ros.parameters import EXTRA_SIGNAL_MESSAGES, ExtraSignal, Settings, ros_type_name
 from art_gyro_calibration.ros.raw_log import LOG_RETRY_S, RawLog
@@ -31,6 +32,9 @@ from art_gyro_calibration.signals import SignalFeed
 
 DIAGNOSTICS_PERIOD_S = 1.0
 RATE_MISMATCH_CONSOLE_PERIOD_S = 60.0   # the console repeats a wrong output rate parameter this often
+# Frames the frame guard refused beyond this share of those read since the last report: the link is an ERROR (a
+# corrupting link whose corrupt frames pass the checksum, or motion the guard mistakes; each refused is lost).
+GUARD_REFUSED_SHARE = 0.01
 
 
 class DiagnosedNode(Protocol):
@@ -92,6 +96,7 @@ class Diagnostics:
         self._frames = SinceLastReport()
         self._dropped = {reason: SinceLastReport() for reason in node.corrector.dropped}
         self._lost = SinceLastReport()                # gaps in the gyro's sequence numbers (kvh_fog numbers them)
+        self._guarded = SinceLastReport()             # frames the frame guard refused
         self._invalid = SinceLastReport()             # frames the gyro flagged invalid (AXIS_INVALID)
         self._outside_range = SinceLastReport()       # frames outside the expected range (Compensator.outside_range)
         self._implausible = SinceLastReport()
@@ -151,6 +156,7 @@ class Diagnostics:
         beyond = self._beyond_unit_range.take(compensator.beyond_unit_range)
         lost = self._lost.take(stats.lost_frames)
         flagged = self._invalid.take(stats.rejected_by_reason.get(AXIS_INVALID, 0))
+        guarded = self._guarded.take(sum(stats.rejected_by_reason.get(reason, 0) for reason in GUARD_REASONS))
         if not stats.connected:
             return self._status('link', DiagnosticStatus.ERROR, f'disconnected: {stats.last_error}', values)
         mismatch = self._rate_error(stats, values)
@@ -164,6 +170,11 @@ class Diagnostics:
                                 f'rates since the last report beyond the unit\'s range +-{span:g} deg/s (the last '
                                 f'{compensator.last_beyond_dps:+.6g} deg/s): published uncorrected, flagged '
                                 '(covariance)', values)
+        if guarded > GUARD_REFUSED_SHARE * (frames + guarded):
+            return self._status('link', DiagnosticStatus.ERROR, f'connected, {rate_hz:.1f} Hz; {guarded} frames '
+                                f'since the last report ({100 * guarded / (frames + guarded):.1f} % of those read) '
+                                'refused by the frame guard (a rate or temperature jump): corrupt frames that passed '
+                                'the checksum, a noisy link', values)
         # An implausible temperature is the temperature status's ERROR; the others would show nowhere else.
         if any(count for reason, count in recent.items() if reason != IMPLAUSIBLE_TEMPERATURE):
             not_published = ', '.join(f'{count} {reason}' for reason, count in recent.items() if count)

@@ -36,8 +36,7 @@ RATE_HZ = 50.0
 TEMP_BASE = 200        # counts: 10 degC, the bottom of NAVC3545's calibrated range
 PERIOD = 800           # sequence numbers repeat after this many frames (16 s at 50 Hz)
 TEMP_SCALE = 0.05      # degC per count (packaged calibrations)
-# Counts a frame the simulated rate may move by: 3.05 deg/s, inside what the driver's rate-jump check allows
-# between frames a wire time apart (5000 deg/s^2 x 8 bytes at 115200 baud = 3.47 deg/s).
+# Counts a frame the simulated rate may move by: 3.05 deg/s, a turn's onset.
 SLEW_COUNTS = 1000
 OK, WARN, ERROR = b'\x00', b'\x01', b'\x02'
 
@@ -507,11 +506,8 @@ def test_bad_files_refused_at_once(tmp_path: Path, args, message: str) -> None:
 def test_clipped_and_jumping_rates_are_counted_not_published(tmp_path: Path, loopback: None) -> None:
     """+-32767 counts went out as +-98.8 deg/s with every status OK: a faster turn passed off as a slower one.
 
-    And a frame whose rate jumps by more than any turn allows (a corrupt one whose checksum
-    passed) is counted and not published. At 100 Hz the check allows 50 deg/s a period; a
-    frame's stamp comes less than two periods after the last trusted one's however the node is
-    scheduled, so a 195 deg/s jump is caught on any machine (at 50 Hz, 91.5 deg/s was not when
-    the node read the corrupt frame late, and the next good one was rejected in its place).
+    And a frame whose rate departs from the turn by what a corruption that passes the checksum makes (2^14 counts,
+    50 deg/s: a checksum bit and a bit of m[5]) is counted and not published, whenever the node reads it.
     """
     domain = domain_id()
     output = tmp_path / 'node.log'
@@ -523,6 +519,7 @@ def test_clipped_and_jumping_rates_are_counted_not_published(tmp_path: Path, loo
           as (proc, listener)):
         wait_frames(listener, 10, proc, output)
         wait_until(lambda: fake.last_sample[0] >= 32000 - 1, 'the fake turning near full scale')
+        turning = len(listener.imu_since(0))
         for raw_rate in clipped:   # temperatures outside the sequence code: any of them published would show
             inject_alone(fake, encode_binary(raw_rate, TEMP_BASE + PERIOD + 5))
         inject_alone(fake, encode_binary(32766, TEMP_BASE + PERIOD + 6))   # one count inside: a measurement
@@ -530,8 +527,8 @@ def test_clipped_and_jumping_rates_are_counted_not_published(tmp_path: Path, loo
                                     'the clipped frames counted', proc, output)
         assert link['level'] == ERROR and f'{len(clipped)} clipped' in link['message'], link
         assert counter(link, 'dropped') == len(clipped)
-        # A frame of the sequence comes with -97.6 deg/s in it.
-        fake.simulator.spike = -32000
+        # A frame of the sequence comes with 47.6 deg/s in it (the turn's 97.6 less 2^14 counts).
+        fake.simulator.spike = 32000 - (1 << 14)
         jumped = listener.wait_status('link', lambda s: counter(s, 'rejected_rate_jump') == 1,
                                       'the rate jump counted', proc, output)
         assert counter(jumped, 'rejected') == counter(jumped, 'rejected_unlocked') + 1
@@ -540,5 +537,5 @@ def test_clipped_and_jumping_rates_are_counted_not_published(tmp_path: Path, loo
         assert extra == [TEMP_BASE + PERIOD + 6], extra
         seq = residues(listener.temperatures())
         assert gaps(seq) == lost(seq) == 1   # the corrupt frame's place, nothing else
-        rates = np.array([m.angular_velocity.z for m in listener.imu_since(0)])
-        assert rates.size and np.all(rates > -1.0), rates.min()   # rad/s: the -1.70 (-97.6 deg/s) not published
+        rates = np.array([m.angular_velocity.z for m in listener.imu_since(turning)])
+        assert rates.size and np.all(rates > 1.0), rates.min()   # rad/s: the 0.83 (47.6 deg/s) not published

@@ -1,0 +1,148 @@
+"""The frame guard: refuses a frame that passed a weak check (the RD2100's 8-bit checksum, or none) but is corrupt.
+
+A corrupt frame is told from real motion by two things the motion cannot do (doc/benchmark.md measures both):
+
+- its temperature jumps (``continuous_temperature``): a unit's temperature moves a fraction of a count between
+  frames, so a frame whose temperature is TEMPERATURE_JUMP_COUNTS or more from the last delivered one's is refused,
+  unless the frame before was refused with about the same temperature (a new level that persists is trusted from
+  its second frame);
+- its rate departs from what the motion's own recent frames predict by one of the changes the protocol's
+  corruptions make (``ProtocolDescription.corrupt_rate_steps``: a checksum-passing two-bit error changes the
+  rate by +-2^a or +-255 * 2^a counts; a digit replaced, by k * 10^j), to within the prediction's envelope.
+  A departure of any other size is motion (a bump, a turn's onset): delivered, and the envelope widens with it.
+
+The prediction follows vibration whatever its frequency: a sinusoid with an offset obeys
+``x[n] = x[n-3] + g * (x[n-1] - x[n-2])`` with ``g = 1 + 2 cos(w)`` (a ramp: g = 3), and g is fitted on the
+recent frames. Frames the parser lost are filled with the prediction; after a refusal it starts again from the
+next frames (a motion wrongly refused is not followed by a guess). No latency: each frame is decided as it comes.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+
+# A real temperature moves a fraction of a count (0.05 degC) between frames; a frame this far from the last
+# delivered one's is corrupt.
+TEMPERATURE_JUMP_COUNTS = 2
+# g's least-squares fit forgets by this per frame (about ten frames): a vibration's frequency is followed.
+FIT_MEMORY = 0.9
+# The prediction error's mean square is averaged with this memory per frame (about 50 frames).
+ERROR_MEMORY = 0.98
+# A frame is refused when its departure is one of corrupt_rate_steps to within ERROR_MARGIN rms errors (at
+# least FLOOR_COUNTS), and that step is more than STEP_MARGIN times that tolerance: a smaller one is noise, or a
+# motion's own departure (a turn's onset) as likely as a corruption.
+ERROR_MARGIN = 3.0
+STEP_MARGIN = 8.0
+FLOOR_COUNTS = 4.0
+# Frames delivered before the rate is tested: the envelope is measured first.
+WARMUP_FRAMES = 8
+# Frames the parser lost in a row that the prediction bridges; more, and it starts again.
+MAX_BRIDGED = 3
+INT16_SPAN = 65536
+RATE_JUMP = 'rate_jump'
+TEMPERATURE_JUMP = 'temperature_jump'
+GUARD_REASONS = (RATE_JUMP, TEMPERATURE_JUMP)
+
+
+def _wrapped(counts: float) -> float:
+    """A change of a 16-bit count, as the two's complement field wraps it (-32768..32767)."""
+    return (counts + INT16_SPAN / 2) % INT16_SPAN - INT16_SPAN / 2
+
+
+class FrameGuard:
+    """Decides frame by frame whether a frame is delivered; counts what it refuses in ``rejected_by_reason``."""
+
+    __slots__ = ('_steps', '_jump', '_temp', '_refused_temp', '_rates', '_gain_uv', '_gain_vv', '_mean_square',
+                 '_trusted', '_steady', 'rejected_by_reason')
+
+    def __init__(self, corrupt_rate_steps: tuple[int, ...], continuous_temperature: bool = False) -> None:
+        """``corrupt_rate_steps``: the rate changes (counts, positive) the protocol's undetected corruptions make.
+
+        ``continuous_temperature``: a temperature jump is refused too.
+        """
+        self._steps = sorted(set(corrupt_rate_steps))
+        self._jump = TEMPERATURE_JUMP_COUNTS if continuous_temperature else math.inf
+        self.rejected_by_reason = dict.fromkeys(GUARD_REASONS, 0)
+        self.reset()
+
+    def reset(self) -> None:
+        """After a reopen: everything is learnt anew (a new temperature level is trusted at once)."""
+        self._temp: float | None = None           # the last delivered frame's temperature
+        self._refused_temp: float | None = None   # the last frame's, if it was refused for it
+        self._rates: list[float] = []   # the last three rates: x[n-3], x[n-2], x[n-1] (a refused one predicted)
+        self._gain_uv = 0.0
+        self._gain_vv = 0.0
+        self._mean_square = 0.0
+        self._trusted = 0
+        self._steady = 0
+
+    @property
+    def rejected(self) -> int:
+        """Frames refused, of all reasons."""
+        return sum(self.rejected_by_reason.values())
+
+    def passes(self, raw_rate: float, raw_temp: float, steady_ns: int, period_ns: float) -> bool:
+        """Whether a frame is delivered; one that is not is counted.
+
+        ``steady_ns``: its monotonic stamp; ``period_ns``: the gyro's period as estimated (0: unknown): frames
+        lost between two are bridged by the prediction.
+        """
+        temp, refused = self._temp, self._refused_temp
+        temp_ok = (temp is None or abs(raw_temp - temp) < self._jump
+                   or refused is not None and abs(raw_temp - refused) < self._jump)
+        self._refused_temp = None if temp_ok else raw_temp
+        # Frames lost since the last one (none for a frame closer than a period: an extra one is tested as the next).
+        missed = max(round((steady_ns - self._steady) / period_ns) - 1, 0) if period_ns > 0 and self._steady else 0
+        self._steady = steady_ns
+        rates = self._rates
+        if missed > MAX_BRIDGED:
+            rates.clear()
+        for _ in range(missed if len(rates) == 3 else 0):
+            self._push(self._predict())
+        if not temp_ok:
+            self.rejected_by_reason[TEMPERATURE_JUMP] += 1
+            if len(rates) == 3:
+                self._push(self._predict())
+            return False
+        if len(rates) < 3:
+            rates.append(raw_rate)
+            self._temp = raw_temp
+            return True
+        predicted = self._predict()
+        error = raw_rate - predicted
+        tolerance = max(ERROR_MARGIN * math.sqrt(self._mean_square), FLOOR_COUNTS) * (1 + missed)
+        if self._trusted >= WARMUP_FRAMES and self._corrupt(error, tolerance):
+            self.rejected_by_reason[RATE_JUMP] += 1
+            rates.clear()   # learnt anew from the next frames: a motion wrongly refused is not followed by a guess
+            return False
+        x3, x2, x1 = rates
+        u, v = raw_rate - x3, x1 - x2
+        self._gain_uv = FIT_MEMORY * self._gain_uv + u * v
+        self._gain_vv = FIT_MEMORY * self._gain_vv + v * v
+        square = error * error
+        self._mean_square += (1 - ERROR_MEMORY) * (square - self._mean_square) if self._trusted else square
+        self._trusted += 1
+        self._push(raw_rate)
+        self._temp = raw_temp
+        return True
+
+    def _predict(self) -> float:
+        """The next rate from the last three: x[n-3] + g (x[n-1] - x[n-2]), g fitted and held to -1..3."""
+        x3, x2, x1 = self._rates
+        gain = min(max(self._gain_uv / self._gain_vv, -1.0), 3.0) if self._gain_vv > 0 else 1.0
+        return x3 + gain * (x1 - x2)
+
+    def _push(self, rate: float) -> None:
+        rates = self._rates
+        del rates[0]
+        rates.append(rate)
+
+    def _corrupt(self, error: float, tolerance: float) -> bool:
+        """Whether ``error`` is, to within ``tolerance``, a corruption's step larger than STEP_MARGIN tolerances."""
+        size = abs(_wrapped(error))
+        if size <= tolerance:
+            return False
+        steps = self._steps
+        i = max(bisect.bisect_left(steps, size - tolerance), bisect.bisect_right(steps, STEP_MARGIN * tolerance))
+        return i < len(steps) and steps[i] <= size + tolerance
