@@ -29,9 +29,11 @@ alternating rounds (node first in odd rounds, lean first in even ones) of ``--ro
 fresh process and subscriber: CPU, latency and loss of each, and the node's CPU as a share of the lean reader's of
 the same round. ``--protocol kvh_fog``: Format A rate messages at 921600 baud whose x rate carries the sequence
 number (``config/kvh_fog.params.yaml`` with ``kvh_fog.rotation:=rate``); the subscriber decodes ``angular_velocity.x``.
+``--sources DIR...``: the node of each checkout (``git worktree add DIR COMMIT``) in each round, to measure what
+each change bought. ``--variants NAME...``: candidates not shipped (:data:`VARIANTS`), each in each round too.
 
 Usage: python bench/bench_node.py [--minutes 10] [--slow-seconds 120] [--serial NAVC3545]
-       python bench/bench_node.py --compare 3 [--round-seconds 60] [--protocol rd2100_binary|kvh_fog]
+       python bench/bench_node.py --compare 3 [--round-seconds 60] [--protocol rd2100_binary|kvh_fog] [--sources DIR...]
 """
 
 from __future__ import annotations
@@ -108,6 +110,22 @@ def levels() -> np.ndarray:
     """
     k = np.arange(PERIOD)
     return np.where(k < PERIOD // 2, 2 * k, 2 * (PERIOD - 1 - k) + 1) - PERIOD // 2
+
+
+# Candidates measured and not shipped: gyro_node with one thing changed, patched in before its main().
+VARIANTS = {
+    # rclpy 7.1.6's single-threaded events executor instead of the node's three-thread executor.
+    'events_executor': 'import art_gyro_calibration.ros.node as n\n'
+                       'from rclpy.experimental import EventsExecutor\n'
+                       'n.MultiThreadedExecutor = lambda num_threads: EventsExecutor()\n',
+    # Batching: after each read the reader waits 5 ms, so that a read takes the frames of about 5 ms at once.
+    'read_every_5ms': 'from art_gyro_calibration.driver import SerialGyroDriver as D\n'
+                      'read = D._read_once\n'
+                      'def batched(self):\n'
+                      '    read(self)\n'
+                      '    self._stop.wait(0.005)\n'
+                      'D._read_once = batched\n',
+}
 
 
 def kvh_rates() -> np.ndarray:
@@ -283,14 +301,10 @@ def decode(table: np.ndarray, step: float, got: np.ndarray, arrival_ns: np.ndarr
     index -= (got - ordered[index - 1]) < (ordered[index] - got)
     residual = float(np.abs(got - ordered[index]).max() / step) if len(got) else 0.0
     index = order[index]   # the residue
-    # The first message: the latest frame of its residue written before it arrived.
-    candidates = np.flatnonzero((np.arange(len(written_ns)) % PERIOD == index[0])
-                                & (written_ns > 0) & (written_ns <= arrival_ns[0]))
-    seq = np.empty(len(index), dtype=np.int64)
-    seq[0] = candidates[-1]
-    steps = np.mod(np.diff(index), PERIOD)
-    steps[steps == 0] = PERIOD   # one publisher, in order: equal residues are a whole period apart
-    seq[1:] = seq[0] + np.cumsum(steps)
+    # Each message: the latest frame of its residue written before it arrived (latencies are far below the
+    # period's 4 s), so that a loss or a stall of any length leaves the others decoded right.
+    latest = np.searchsorted(written_ns, arrival_ns, side='right') - 1
+    seq = latest - np.mod(latest - index, PERIOD)
     return seq, residual
 
 
@@ -311,8 +325,11 @@ def latency_row(label: str, seq: np.ndarray, arrival: np.ndarray, stamp: np.ndar
             f'{after50:.3f} / {after99:.3f} | {write_p99:.3f} | {np.median(stamp_ms):.3f} |')
 
 
-def command(kind: str, protocol: str, serial: str, port: str, baud: int) -> list[str]:
-    """The process under test: ``gyro_node`` as shipped ('node') or :data:`LEAN` ('lean')."""
+def command(kind: str, protocol: str, serial: str, port: str, baud: int, source: Path = REPO) -> list[str]:
+    """The process under test: ``gyro_node`` as shipped ('node', of the checkout ``source``) or :data:`LEAN`."""
+    if kind in VARIANTS:
+        return ([sys.executable, '-c', VARIANTS[kind] + 'import sys\nfrom art_gyro_calibration.ros.node import main\n'
+                 'sys.exit(main(["gyro_node", *sys.argv[1:]]))'] + command('node', protocol, serial, port, baud)[3:])
     if kind == 'lean':
         from art_gyro_calibration.calibration import load_packaged_calibration
         scale = load_packaged_calibration(serial).rate_scale_factor if protocol == 'binary' else 1.0
@@ -321,7 +338,7 @@ def command(kind: str, protocol: str, serial: str, port: str, baud: int) -> list
     if protocol == 'binary':
         return node + ['-p', f'serial_number:={serial}', '-p', f'port:={port}', '-p', f'baud:={baud}',
                        '-p', 'static_bias_on_startup:=false']
-    return node + ['--params-file', str(REPO / 'config' / 'kvh_fog.params.yaml'), '-p', f'port:={port}',
+    return node + ['--params-file', str(source / 'config' / 'kvh_fog.params.yaml'), '-p', f'port:={port}',
                    '-p', 'kvh_fog.rotation:=rate', '-p', 'static_bias_on_startup:=false']
 
 
@@ -332,8 +349,10 @@ class Session:
     of each phase, the process's CPU share over the 1 kHz phase, its memory and load samples, its link status.
     """
 
-    def __init__(self, kind: str, protocol: str, serial: str, baud: int, slow_s: float, fast_s: float) -> None:
-        self.kind, self.protocol, self.serial, self.baud = kind, protocol, serial, baud
+    def __init__(self, kind: str, protocol: str, serial: str, baud: int, slow_s: float, fast_s: float,
+                 source: Path = REPO) -> None:
+        """``source``: the checkout whose node runs (``python -m`` from its directory imports its package)."""
+        self.kind, self.protocol, self.serial, self.baud, self.source = kind, protocol, serial, baud, source
         self.slow_frames, self.fast_frames = int(slow_s * 10), int(fast_s * 1000)
 
     def run(self) -> Session:
@@ -348,8 +367,9 @@ class Session:
             log = Path(tmp) / 'node.log'
             out = str(Path(tmp) / 'received')
             with open(log, 'wb') as node_out:
-                node = subprocess.Popen(command(self.kind, self.protocol, self.serial, port, self.baud),
-                                        env=child_env(domain), cwd=REPO, stdout=node_out, stderr=subprocess.STDOUT)
+                node = subprocess.Popen(command(self.kind, self.protocol, self.serial, port, self.baud, self.source),
+                                        env=child_env(domain), cwd=self.source, stdout=node_out,
+                                        stderr=subprocess.STDOUT)
             sub = subprocess.Popen([sys.executable, __file__, '--subscriber', out], env=child_env(domain), cwd=REPO,
                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
             assert sub.stdin is not None and sub.stdout is not None   # both piped
@@ -458,19 +478,24 @@ def compare(args: argparse.Namespace) -> int:
     print(f'{args.protocol}, {args.round_seconds:g} s at 1 kHz per process and round; {os.cpu_count()} cores')
     print('\n| round | process | CPU % of a core | latency p50 ms | p99 ms | lost | load avg (1 min) |')
     print('|---|---|---:|---:|---:|---:|---:|')
-    ratios = []
+    sources = [Path(d).resolve() for d in args.sources] if args.sources else [REPO]
+    processes = ([('lean', REPO, 'lean')] + [('node', d, 'node' if d == REPO else f'node {d.name}') for d in sources]
+                 + [(name, REPO, f'node {name}') for name in args.variants or ()])
+    ratios: dict[str, list[float]] = {label: [] for _, _, label in processes[1:]}
     for r in range(args.compare):
         cpu = {}
-        for kind in ('node', 'lean') if r % 2 == 0 else ('lean', 'node'):
-            s = Session(kind, protocol, args.serial, baud, 0.0, args.round_seconds).run()
+        for kind, source, label in processes if r % 2 == 0 else processes[::-1]:
+            s = Session(kind, protocol, args.serial, baud, 0.0, args.round_seconds, source).run()
             p50, p99, lost = s.latency_lost()
             load = np.array(s.probe.samples)[:, 2].mean()
-            cpu[kind] = s.cpu
-            print(f'| {r + 1} | {kind} | {s.cpu * 100:.1f} | {p50:.2f} | {p99:.2f} | {lost} | {load:.2f} |',
+            cpu[label] = s.cpu
+            print(f'| {r + 1} | {label} | {s.cpu * 100:.1f} | {p50:.2f} | {p99:.2f} | {lost} | {load:.2f} |',
                   flush=True)
-        ratios.append(cpu['node'] / cpu['lean'])
-    print(f'\nnode CPU / lean CPU per round: {", ".join(f"{x:.2f}" for x in ratios)}; '
-          f'median {np.median(ratios):.2f}')
+        for label in ratios:
+            ratios[label].append(cpu[label] / cpu['lean'])
+    for label, values in ratios.items():
+        print(f'\n{label} CPU / lean CPU per round: {", ".join(f"{x:.2f}" for x in values)}; '
+              f'median {np.median(values):.2f}')
     return 0
 
 
@@ -485,6 +510,8 @@ def main() -> int:
     parser.add_argument('--round-seconds', type=float, default=60.0, help='1 kHz per process and round (default 60)')
     parser.add_argument('--protocol', choices=('rd2100_binary', 'kvh_fog'), default='rd2100_binary',
                         help='of --compare (default rd2100_binary)')
+    parser.add_argument('--sources', nargs='+', metavar='DIR', help='of --compare: the node of each checkout')
+    parser.add_argument('--variants', nargs='+', choices=tuple(VARIANTS), help='of --compare: candidates, each too')
     parser.add_argument('--subscriber', metavar='OUT', help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.subscriber:

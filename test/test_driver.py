@@ -342,3 +342,25 @@ def test_a_rate_jump_beyond_the_gyro_in_one_period_is_counted_not_delivered(reco
         silent.stop()
     assert [f.sample.raw_rate for f in recorder.frames] == rates[LOCK_FRAMES - 1:4] + rates[5:]
     assert driver.stats.frames == 5 and driver.stats.rejected_by_reason[RATE_JUMP] == 1
+
+
+def test_a_backlog_written_at_once_is_delivered_whole_in_order_each_frame_with_its_own_stamp(recorder, tmp_path):
+    """The driver reads all the port holds in one read (up to READ_BYTES): 400 frames queued at once, as a USB adapter
+    hands them over, are each delivered once, in order, stamped apart (not with the read's one time)."""
+    silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
+    try:
+        driver = SerialGyroDriver(silent.path, 115200, 'binary', recorder.on_frame, rate_scale_dps=0.00305)
+        driver.start()
+        try:
+            assert wait_for(lambda: driver.stats.connected)
+            rates = [i % 50 for i in range(400)]   # 3,200 bytes: within one read
+            silent.inject(b''.join(encode_binary(r, 500) for r in rates))
+            assert wait_for(lambda: recorder.count() == len(rates) - (LOCK_FRAMES - 1))
+            time.sleep(0.2)
+        finally:
+            driver.stop()
+    finally:
+        silent.stop()
+    assert [f.sample.raw_rate for f in recorder.frames] == rates[LOCK_FRAMES - 1:]
+    stamps = np.array([f.stamp_ns for f in recorder.frames])
+    assert np.all(np.diff(stamps) > 0)
