@@ -345,8 +345,10 @@ def test_a_rate_jump_beyond_the_gyro_in_one_period_is_counted_not_delivered(reco
 
 
 def test_a_backlog_written_at_once_is_delivered_whole_in_order_each_frame_with_its_own_stamp(recorder, tmp_path):
-    """The driver reads all the port holds in one read (up to READ_BYTES): 400 frames queued at once, as a USB adapter
-    hands them over, are each delivered once, in order, stamped apart (not with the read's one time)."""
+    """400 frames queued at once, as a USB adapter hands them over, are read together and each delivered once.
+
+    In order, and stamped apart (not all with the read's one time).
+    """
     silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
     try:
         driver = SerialGyroDriver(silent.path, 115200, 'binary', recorder.on_frame, rate_scale_dps=0.00305)
