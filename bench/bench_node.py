@@ -31,6 +31,8 @@ the same round. ``--protocol kvh_fog``: Format A rate messages at 921600 baud wh
 number (``config/kvh_fog.params.yaml`` with ``kvh_fog.rotation:=rate``); the subscriber decodes ``angular_velocity.x``.
 ``--sources DIR...``: the node of each checkout (``git worktree add DIR COMMIT``) in each round, to measure what
 each change bought. ``--variants NAME...``: candidates not shipped (:data:`VARIANTS`), each in each round too.
+(rclpy 7.1.6's ``EventsExecutor`` cannot run the node: its ``spin`` raises "Guard conditions not
+supported".)
 
 Usage: python bench/bench_node.py [--minutes 10] [--slow-seconds 120] [--serial NAVC3545]
        python bench/bench_node.py --compare 3 [--round-seconds 60] [--protocol rd2100_binary|kvh_fog] [--sources DIR...]
@@ -114,10 +116,6 @@ def levels() -> np.ndarray:
 
 # Candidates measured and not shipped: gyro_node with one thing changed, patched in before its main().
 VARIANTS = {
-    # rclpy 7.1.6's single-threaded events executor instead of the node's three-thread executor.
-    'events_executor': 'import art_gyro_calibration.ros.node as n\n'
-                       'from rclpy.experimental import EventsExecutor\n'
-                       'n.MultiThreadedExecutor = lambda num_threads: EventsExecutor()\n',
     # Batching: after each read the reader waits 5 ms, so that a read takes the frames of about 5 ms at once.
     'read_every_5ms': 'from art_gyro_calibration.driver import SerialGyroDriver as D\n'
                       'read = D._read_once\n'
