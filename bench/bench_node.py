@@ -412,7 +412,7 @@ class Session:
         self.cpu = (ticks1 - ticks0) / os.sysconf('SC_CLK_TCK') / (t1 - t0)
         self.link, self.sub_cpu_s = extra['link'], extra['cpu_s']
         if self.protocol == 'binary':
-            table, step = published_table(self.serial, self.kind == 'node')
+            table, step = published_table(self.serial, self.kind != 'lean')
             got = np.degrees(received['rate'])
         else:
             table, step, got = kvh_rates(), KVH_STEP_RAD_S, received['rate_x']
