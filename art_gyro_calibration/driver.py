@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import select
 import threading
 import time
 from collections.abc import Callable
@@ -32,6 +33,8 @@ STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 4
 BAUDS = tuple(sorted(set(STANDARD_BAUDS) | set(KVH_BAUDS)))
 # A read returns after this long without data: bounds how late stop() and an unplug are seen.
 READ_TIMEOUT_S = 0.1
+# The most one read takes: all a port's buffer holds (a Linux tty's is 4 KiB), so a backlog comes in one read.
+READ_BYTES = 4096
 # After the port opens, this long without a valid frame means the wrong baud rate or protocol (or no gyro).
 NO_FRAMES_WARNING_S = 2.0
 # Once frames came: more than this share of the bytes of a NO_FRAMES_WARNING_S window skipped (garbage, bad or
@@ -236,13 +239,17 @@ class SerialGyroDriver:
         port = self._serial
         assert port is not None
         try:
-            data = port.read(1)
-            if data:
-                waiting = port.in_waiting
-                if waiting:
-                    data += port.read(waiting)
+            # One wait and one read of all that is there (the port is non-blocking): pyserial's read(1), in_waiting
+            # and read(n) did the same in three calls and two waits (doc/benchmark.md: what it bought).
+            fd = port.fileno()
+            data = os.read(fd, READ_BYTES) if select.select([fd], [], [], READ_TIMEOUT_S)[0] else None
+            if data == b'':   # readable with nothing to read: pyserial's sign of a device gone
+                raise serial.SerialException('device reports readiness to read but returned no data '
+                                             '(device disconnected or multiple access on port?)')
             now_ns = self._clock_ns()
             monotonic_ns = self._monotonic_ns()
+        except BlockingIOError:   # woken with nothing to read after all
+            return
         except (serial.SerialException, OSError) as e:
             if not self._stop.is_set():
                 self._lost(f'read from {self.port} failed: {e}')
@@ -251,6 +258,10 @@ class SerialGyroDriver:
             self._check_path()
             self._check_quiet(monotonic_ns)
             return
+        self._on_data(data, now_ns, monotonic_ns)
+
+    def _on_data(self, data: bytes, now_ns: int, monotonic_ns: int) -> None:
+        """One read's bytes, read at ``now_ns`` (stamps' clock) and ``monotonic_ns``: parsed, stamped, guarded."""
         frames = self._parser.feed(data, monotonic_ns)
         self._window_bytes += len(data)
         if monotonic_ns - self._window_ns >= NO_FRAMES_WARNING_S * 1e9:

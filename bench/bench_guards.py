@@ -74,18 +74,6 @@ MOTIONS: dict[str, Callable[[NDArray[np.float64]], NDArray[np.float64]]] = {
 }
 
 
-class _Port:
-    """A port whose reads return the chunks given, one per read."""
-
-    def __init__(self) -> None:
-        self.chunk = b''
-        self.in_waiting = 0
-
-    def read(self, size: int) -> bytes:
-        chunk, self.chunk = self.chunk, b''
-        return chunk
-
-
 def run(protocol: str, rate_hz: float, raw_rates: NDArray[np.int64], raw_temps: NDArray[np.int64],
         wire: list[bytes], rng: np.random.Generator) -> tuple[list[Frame], NDArray[np.int64], SerialGyroDriver]:
     """The frames the driver delivers from ``wire`` (one read each), and the sent index of each."""
@@ -93,8 +81,6 @@ def run(protocol: str, rate_hz: float, raw_rates: NDArray[np.int64], raw_temps: 
     now = [0]
     driver = SerialGyroDriver('/dev/null', BAUD, protocol, frames.append, clock_ns=lambda: now[0],
                               monotonic_ns=lambda: now[0], rate_scale_dps=SCALE)
-    port = _Port()
-    driver._serial = port   # type: ignore[assignment]   # the per-chunk path, without a device
     if CONTINUOUS_TEMPERATURE[0]:
         driver._guard = FrameGuard(driver._parser.description.corrupt_rate_steps, continuous_temperature=True)
     period_ns = 1e9 / rate_hz
@@ -102,8 +88,7 @@ def run(protocol: str, rate_hz: float, raw_rates: NDArray[np.int64], raw_temps: 
     latency = rng.uniform(0, 0.3 * period_ns, len(wire))
     for i, chunk in enumerate(wire):
         now[0] = int(t0 + i * period_ns + len(chunk) * 1e10 / BAUD + latency[i])
-        port.chunk = chunk
-        driver._read_once()
+        driver._on_data(chunk, now[0], now[0])   # the per-chunk path, without a device
     index = np.array([round((f.steady_ns - t0) / period_ns) for f in frames], dtype=np.int64)
     return frames, index, driver
 

@@ -8,8 +8,9 @@ and a writer pre-empted after its write cannot make a latency look shorter); ``g
 script with ``--subscriber``, its own process so it shares no GIL with the writer) stamps
 each ``imu/data_raw`` message on arrival with the same CLOCK_MONOTONIC.
 
-Each frame carries its sequence number: ``raw_rate = (seq mod 4096 - 2048) * 8`` counts at a
-constant 25 degC (rates within +-50 deg/s, 8 counts = 0.024 deg/s apart). The packaged
+Each frame carries its sequence number: ``raw_rate = (levels()[seq mod 4096] - 2048) * 8`` counts
+(:func:`levels`: distinct, successive ones 2 apart at most) at a constant 25 degC (rates within +-50 deg/s,
+8 counts = 0.024 deg/s apart). The packaged
 calibration has no history-dependent terms and the startup static bias is off, so the
 published rate is a fixed, monotonic function of ``raw_rate``: the subscriber's rates decode
 back to ``seq mod 4096`` by a table lookup, and the order of arrival (one publisher) gives
@@ -22,7 +23,19 @@ memory (VmRSS, every second) are taken over the 1 kHz phase. The node is told a 
 115200 (--baud): a pty ignores it, but the node's wire-time stamp correction uses it, and the
 node's default of 9600 baud could not carry 1 kHz of 8-byte frames (8 kB/s) on a real wire.
 
+``--compare ROUNDS``: the node against :data:`LEAN`, the leanest rclpy reader-publisher (the package's
+parser, then a new ``Imu`` stamped with the node clock's now and published, frame by frame, no executor), in
+alternating rounds (node first in odd rounds, lean first in even ones) of ``--round-seconds`` at 1 kHz each, on a
+fresh process and subscriber: CPU, latency and loss of each, and the node's CPU as a share of the lean reader's of
+the same round. ``--protocol kvh_fog``: Format A rate messages at 921600 baud whose x rate carries the sequence
+number (``config/kvh_fog.params.yaml`` with ``kvh_fog.rotation:=rate``); the subscriber decodes ``angular_velocity.x``.
+``--sources DIR...``: the node of each checkout (``git worktree add DIR COMMIT``) in each round, to measure what
+each change bought. ``--variants NAME...``: candidates not shipped (:data:`VARIANTS`), each in each round too.
+(rclpy 7.1.6's ``EventsExecutor`` cannot run the node: its ``spin`` raises "Guard conditions not
+supported".)
+
 Usage: python bench/bench_node.py [--minutes 10] [--slow-seconds 120] [--serial NAVC3545]
+       python bench/bench_node.py --compare 3 [--round-seconds 60] [--protocol rd2100_binary|kvh_fog] [--sources DIR...]
 """
 
 from __future__ import annotations
@@ -51,9 +64,76 @@ READY_TIMEOUT_S = 60.0
 DRAIN_S = 3.0           # after the last write, time for the last messages to arrive
 
 
+KVH_STEP_RAD_S = 1e-4   # kvh_fog: x rate between successive sequence numbers
+KVH_BAUD = 921600
+# The leanest reader-publisher: the package's parser, a new Imu per frame stamped with now, published at once.
+# argv: port, baud, protocol, rate scale (deg/s per count; kvh_fog: unused).
+LEAN = '''
+import math, sys
+sys.modules['rosidl_generator_py.generate_py_impl'] = None   # as gyro_node's main() does
+import rclpy, serial
+from rclpy.utilities import ok
+from sensor_msgs.msg import Imu
+from art_gyro_calibration.protocols import KvhFogConfig, make_parser
+port, baud, protocol, scale = sys.argv[1], int(sys.argv[2]), sys.argv[3], float(sys.argv[4])
+rclpy.init()
+node = rclpy.create_node('lean_reader')
+pub = node.create_publisher(Imu, 'imu/data_raw', 10)
+clock = node.get_clock()
+parser = make_parser(protocol, KvhFogConfig(rotation='rate'), 3)
+link = serial.Serial(port, baud, timeout=0.1)
+try:
+    while ok():
+        data = link.read(1)
+        if data and link.in_waiting:
+            data += link.read(link.in_waiting)
+        for sample, _ in parser.feed(data):
+            msg = Imu()
+            msg.header.stamp = clock.now().to_msg()
+            msg.header.frame_id = 'imu_link'
+            if sample.imu is None:
+                msg.angular_velocity.z = math.radians(sample.raw_rate * scale)
+            else:
+                rates = sample.imu.rates_dps
+                msg.angular_velocity.x = math.radians(rates[0])
+                msg.angular_velocity.y = math.radians(rates[1])
+                msg.angular_velocity.z = math.radians(sample.raw_rate)
+            pub.publish(msg)
+except KeyboardInterrupt:
+    pass
+'''
+
+
+def levels() -> np.ndarray:
+    """A distinct level 0..PERIOD-1 for each ``seq mod PERIOD``, up by 2 then down by 2 (1 at the turns).
+
+    Successive frames, across the period's wrap too, differ by at most 2 levels: never a jump that the node's
+    rate-jump guard refuses (a sawtooth's wrap, 4096 levels in 1 ms, was refused for about 20 ms each time).
+    """
+    k = np.arange(PERIOD)
+    return np.where(k < PERIOD // 2, 2 * k, 2 * (PERIOD - 1 - k) + 1) - PERIOD // 2
+
+
+# Candidates measured and not shipped: gyro_node with one thing changed, patched in before its main().
+VARIANTS = {
+    # Batching: after each read the reader waits 5 ms, so that a read takes the frames of about 5 ms at once.
+    'read_every_5ms': 'from art_gyro_calibration.driver import SerialGyroDriver as D\n'
+                      'read = D._read_once\n'
+                      'def batched(self):\n'
+                      '    read(self)\n'
+                      '    self._stop.wait(0.005)\n'
+                      'D._read_once = batched\n',
+}
+
+
+def kvh_rates() -> np.ndarray:
+    """kvh_fog: the x rate (rad/s, as the wire's float32) of each ``seq mod PERIOD``."""
+    return (levels() * KVH_STEP_RAD_S).astype(np.float32).astype(np.float64)
+
+
 def raw_rates() -> np.ndarray:
     """``raw_rate`` of each ``seq mod PERIOD``."""
-    return (np.arange(PERIOD) - PERIOD // 2) * STEP_COUNTS
+    return levels() * STEP_COUNTS
 
 
 # --- subscriber process ----------------------------------------------------------------
@@ -73,6 +153,7 @@ def run_subscriber(out: str) -> int:
     node = rclpy.create_node('bench_subscriber')
     arrival: list[int] = []
     rate: list[float] = []
+    rate_x: list[float] = []
     stamp: list[int] = []
     link: dict[str, str] = {}
     ready = threading.Event()
@@ -80,6 +161,7 @@ def run_subscriber(out: str) -> int:
     def on_imu(msg: Imu) -> None:
         arrival.append(time.monotonic_ns())
         rate.append(msg.angular_velocity.z)
+        rate_x.append(msg.angular_velocity.x)
         stamp.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
         if not ready.is_set():
             ready.set()
@@ -102,7 +184,7 @@ def run_subscriber(out: str) -> int:
     executor.shutdown()
     thread.join(5.0)
     usage = os.times()
-    np.savez(out, arrival=np.array(arrival, dtype=np.int64), rate=np.array(rate),
+    np.savez(out, arrival=np.array(arrival, dtype=np.int64), rate=np.array(rate), rate_x=np.array(rate_x),
              stamp=np.array(stamp, dtype=np.int64))
     Path(out + '.json').write_text(json.dumps({'link': link, 'cpu_s': usage.user + usage.system}))
     node.destroy_node()   # type: ignore[no-untyped-call]  # rclpy: destroy_node unannotated
@@ -137,10 +219,13 @@ def rss_kb(pid: int) -> int:
 class Writer:
     """Writes frame ``seq`` at its deadline and records when each write returned."""
 
-    def __init__(self, master: int, capacity: int) -> None:
+    def __init__(self, master: int, capacity: int, protocol: str = 'binary') -> None:
+        from art_gyro_calibration.protocols.kvh_fog import KVH_SEQUENCE_MODULO, KVH_STATUS_ALL_VALID, encode_kvh_fog
         from art_gyro_calibration.protocols.rd2100_binary import encode_binary
         self.master = master
-        self.frames = [encode_binary(int(r), RAW_TEMP) for r in raw_rates()]
+        self.frames = ([encode_binary(int(r), RAW_TEMP) for r in raw_rates()] if protocol == 'binary' else
+                       [encode_kvh_fog((float(x), 0.0, 0.0), (0.0, 0.0, 1.0), KVH_STATUS_ALL_VALID,
+                                       i % KVH_SEQUENCE_MODULO, 25.0) for i, x in enumerate(kvh_rates())])
         self.mono_ns = np.zeros(capacity, dtype=np.int64)
         self.real_ns = np.zeros(capacity, dtype=np.int64)
         self.write_ns = np.zeros(capacity, dtype=np.int64)   # how long each write took
@@ -190,27 +275,34 @@ class Probe:
         self._thread.join()
 
 
-def decode(serial: str, rate_rad_s: np.ndarray, arrival_ns: np.ndarray,
-           written_ns: np.ndarray) -> tuple[np.ndarray, float]:
-    """Sequence number of each received message, and the worst decoding residual in counts."""
+def published_table(serial: str, compensated: bool) -> tuple[np.ndarray, float]:
+    """Binary: the yaw rate (deg/s) published for each ``seq mod PERIOD``, and deg/s per count.
+
+    ``compensated``: the node's (the calibration's polynomial taken off); else the lean reader's (scaled only).
+    """
     from art_gyro_calibration.calibration import load_packaged_calibration
     cal = load_packaged_calibration(serial)
     assert not cal.terms, 'the decoding needs a calibration without history-dependent terms'
     rate = raw_rates() * cal.rate_scale_factor
-    table = rate - cal.polynomial.error(rate, RAW_TEMP * cal.temp_scale_factor)   # what the node publishes
-    assert np.all(np.diff(table) > 0)
-    got = np.degrees(rate_rad_s)
-    index = np.clip(np.searchsorted(table, got), 1, PERIOD - 1)
-    index -= (got - table[index - 1]) < (table[index] - got)
-    residual = float(np.abs(got - table[index]).max() / cal.rate_scale_factor) if len(got) else 0.0
-    # The first message: the latest frame of its residue written before it arrived.
-    candidates = np.flatnonzero((np.arange(len(written_ns)) % PERIOD == index[0])
-                                & (written_ns > 0) & (written_ns <= arrival_ns[0]))
-    seq = np.empty(len(index), dtype=np.int64)
-    seq[0] = candidates[-1]
-    steps = np.mod(np.diff(index), PERIOD)
-    steps[steps == 0] = PERIOD   # one publisher, in order: equal residues are a whole period apart
-    seq[1:] = seq[0] + np.cumsum(steps)
+    if compensated:
+        rate = rate - cal.polynomial.error(rate, RAW_TEMP * cal.temp_scale_factor)   # what the node publishes
+    return rate, cal.rate_scale_factor
+
+
+def decode(table: np.ndarray, step: float, got: np.ndarray, arrival_ns: np.ndarray,
+           written_ns: np.ndarray) -> tuple[np.ndarray, float]:
+    """Sequence number of each received value ``got`` (``table``: per ``seq mod PERIOD``); worst residual, in steps."""
+    order = np.argsort(table)
+    ordered = table[order]
+    assert np.all(np.diff(ordered) > 0)
+    index = np.clip(np.searchsorted(ordered, got), 1, PERIOD - 1)
+    index -= (got - ordered[index - 1]) < (ordered[index] - got)
+    residual = float(np.abs(got - ordered[index]).max() / step) if len(got) else 0.0
+    index = order[index]   # the residue
+    # Each message: the latest frame of its residue written before it arrived (latencies are far below the
+    # period's 4 s), so that a loss or a stall of any length leaves the others decoded right.
+    latest = np.searchsorted(written_ns, arrival_ns, side='right') - 1
+    seq = latest - np.mod(latest - index, PERIOD)
     return seq, residual
 
 
@@ -231,105 +323,177 @@ def latency_row(label: str, seq: np.ndarray, arrival: np.ndarray, stamp: np.ndar
             f'{after50:.3f} / {after99:.3f} | {write_p99:.3f} | {np.median(stamp_ms):.3f} |')
 
 
+def command(kind: str, protocol: str, serial: str, port: str, baud: int, source: Path = REPO) -> list[str]:
+    """The process under test: ``gyro_node`` as shipped ('node', of the checkout ``source``) or :data:`LEAN`."""
+    if kind in VARIANTS:
+        return ([sys.executable, '-c', VARIANTS[kind] + 'import sys\nfrom art_gyro_calibration.ros.node import main\n'
+                 'sys.exit(main(["gyro_node", *sys.argv[1:]]))'] + command('node', protocol, serial, port, baud)[3:])
+    if kind == 'lean':
+        from art_gyro_calibration.calibration import load_packaged_calibration
+        scale = load_packaged_calibration(serial).rate_scale_factor if protocol == 'binary' else 1.0
+        return [sys.executable, '-c', LEAN, port, str(baud), protocol, repr(scale)]
+    node = [sys.executable, '-m', 'art_gyro_calibration.ros.node', '--ros-args']
+    if protocol == 'binary':
+        return node + ['-p', f'serial_number:={serial}', '-p', f'port:={port}', '-p', f'baud:={baud}',
+                       '-p', 'static_bias_on_startup:=false']
+    return node + ['--params-file', str(source / 'config' / 'kvh_fog.params.yaml'), '-p', f'port:={port}',
+                   '-p', 'kvh_fog.rotation:=rate', '-p', 'static_bias_on_startup:=false']
+
+
+class Session:
+    """One process under test on a fresh pty and subscriber: 10 Hz warm-up, ``slow_s`` at 10 Hz, ``fast_s`` at 1 kHz.
+
+    After ``run``: the writer, the decoded sequence numbers with their arrival and stamp, the [first, end) sequence
+    of each phase, the process's CPU share over the 1 kHz phase, its memory and load samples, its link status.
+    """
+
+    def __init__(self, kind: str, protocol: str, serial: str, baud: int, slow_s: float, fast_s: float,
+                 source: Path = REPO) -> None:
+        """``source``: the checkout whose node runs (``python -m`` from its directory imports its package)."""
+        self.kind, self.protocol, self.serial, self.baud, self.source = kind, protocol, serial, baud, source
+        self.slow_frames, self.fast_frames = int(slow_s * 10), int(fast_s * 1000)
+
+    def run(self) -> Session:
+        """Run the phases; decode what the subscriber received."""
+        domain = 1 + os.getpid() % 200
+        capacity = self.slow_frames + self.fast_frames + int(READY_TIMEOUT_S * 10) + 1000
+        master, slave = os.openpty()
+        tty.setraw(slave)   # no byte translated
+        port = os.ttyname(slave)
+        writer = self.writer = Writer(master, capacity, self.protocol)
+        with tempfile.TemporaryDirectory() as tmp:
+            log = Path(tmp) / 'node.log'
+            out = str(Path(tmp) / 'received')
+            with open(log, 'wb') as node_out:
+                node = subprocess.Popen(command(self.kind, self.protocol, self.serial, port, self.baud, self.source),
+                                        env=child_env(domain), cwd=self.source, stdout=node_out,
+                                        stderr=subprocess.STDOUT)
+            sub = subprocess.Popen([sys.executable, __file__, '--subscriber', out], env=child_env(domain), cwd=REPO,
+                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+            assert sub.stdin is not None and sub.stdout is not None   # both piped
+            try:
+                # Warm-up at 10 Hz until the subscriber hears the node (discovery, imports).
+                heard = threading.Event()
+                warm = threading.Thread(target=writer.run, args=(10.0, None, heard))
+                warm.start()
+                ready, _, _ = select.select([sub.stdout], [], [], READY_TIMEOUT_S)
+                heard.set()
+                warm.join()
+                if not ready or sub.stdout.readline().strip() != 'ready':
+                    raise RuntimeError(f'the subscriber heard nothing within {READY_TIMEOUT_S} s:\n{log.read_text()}')
+                writer.run(10.0, 20)   # settle
+                print(f'# {self.kind} pid {node.pid}, port {port}, domain {domain}', file=sys.stderr)
+                self.slow = writer.run(10.0, self.slow_frames)
+                self.probe = Probe(node.pid)
+                ticks0, t0 = cpu_ticks(node.pid), time.monotonic()
+                self.fast = writer.run(1000.0, self.fast_frames)
+                ticks1, t1 = cpu_ticks(node.pid), time.monotonic()
+                self.probe.stop()
+                time.sleep(DRAIN_S)
+                writer.run(10.0, 20)   # trailing frames so that a loss at the very end would show
+                time.sleep(DRAIN_S)
+                sub.stdin.write('stop\n')
+                sub.stdin.flush()
+                if sub.wait(60) != 0:
+                    raise RuntimeError('the subscriber failed')
+            finally:
+                node.send_signal(signal.SIGINT)
+                try:
+                    self.node_code = node.wait(30)
+                except subprocess.TimeoutExpired:
+                    node.kill()
+                    self.node_code = node.wait()
+                if sub.poll() is None:
+                    sub.kill()
+                os.close(master)
+                os.close(slave)
+            received = np.load(out + '.npz')
+            extra = json.loads(Path(out + '.json').read_text())
+        self.cpu = (ticks1 - ticks0) / os.sysconf('SC_CLK_TCK') / (t1 - t0)
+        self.link, self.sub_cpu_s = extra['link'], extra['cpu_s']
+        if self.protocol == 'binary':
+            table, step = published_table(self.serial, self.kind != 'lean')
+            got = np.degrees(received['rate'])
+        else:
+            table, step, got = kvh_rates(), KVH_STEP_RAD_S, received['rate_x']
+        self.seq, self.residual = decode(table, step, got, received['arrival'], writer.mono_ns[:writer.seq])
+        self.arrival, self.stamp = received['arrival'], received['stamp']
+        latency = self.arrival - writer.mono_ns[self.seq]
+        if self.residual > 0.25 or latency.min() < 0 or latency.max() > 2e9:
+            print(f'warning: decoding doubtful (residual {self.residual:.2f} steps, latency '
+                  f'{latency.min() * 1e-6:.2f}..{latency.max() * 1e-6:.2f} ms)', file=sys.stderr)
+        return self
+
+    def latency_lost(self) -> tuple[float, float, int]:
+        """Latency p50 and p99 (ms) and frames lost over the 1 kHz phase."""
+        first, end = self.fast
+        inside = (self.seq >= first) & (self.seq < end)
+        latency_ms = (self.arrival[inside] - self.writer.mono_ns[self.seq[inside]]) * 1e-6
+        p50, p99 = np.percentile(latency_ms, [50, 99])
+        return float(p50), float(p99), (end - first) - len(np.unique(self.seq[inside]))
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the node, the writer and the subscriber through the phases; print the tables."""
-    domain = 1 + os.getpid() % 200
-    slow_frames = int(args.slow_seconds * 10)
-    fast_frames = int(args.minutes * 60 * 1000)
-    capacity = slow_frames + fast_frames + int(READY_TIMEOUT_S * 10) + 1000
-    master, slave = os.openpty()
-    tty.setraw(slave)   # no byte translated
-    port = os.ttyname(slave)
-    writer = Writer(master, capacity)
     from art_gyro_calibration.protocols.rd2100_binary import BINARY_FRAME_BYTES
     from art_gyro_calibration.stamper import WireStamper
     frame_ns = WireStamper(args.baud, BINARY_FRAME_BYTES).frame_ns   # the wire time the node subtracts
-    with tempfile.TemporaryDirectory() as tmp:
-        log = Path(tmp) / 'node.log'
-        out = str(Path(tmp) / 'received')
-        with open(log, 'wb') as node_out:
-            node = subprocess.Popen(
-                [sys.executable, '-m', 'art_gyro_calibration.ros.node', '--ros-args',
-                 '-p', f'serial_number:={args.serial}', '-p', f'port:={port}', '-p', f'baud:={args.baud}',
-                 '-p', 'static_bias_on_startup:=false'],
-                env=child_env(domain), cwd=REPO, stdout=node_out, stderr=subprocess.STDOUT)
-        sub = subprocess.Popen([sys.executable, __file__, '--subscriber', out], env=child_env(domain), cwd=REPO,
-                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-        assert sub.stdin is not None and sub.stdout is not None   # both piped
-        try:
-            # Warm-up at 10 Hz until the subscriber hears the node (discovery, imports).
-            heard = threading.Event()
-            warm = threading.Thread(target=writer.run, args=(10.0, None, heard))
-            warm.start()
-            ready, _, _ = select.select([sub.stdout], [], [], READY_TIMEOUT_S)
-            heard.set()
-            warm.join()
-            if not ready or sub.stdout.readline().strip() != 'ready':
-                raise RuntimeError(f'the subscriber heard nothing within {READY_TIMEOUT_S} s:\n{log.read_text()}')
-            writer.run(10.0, 20)   # settle
-            print(f'# node pid {node.pid}, port {port}, domain {domain}; 10 Hz for {args.slow_seconds} s',
-                  file=sys.stderr)
-            slow = writer.run(10.0, slow_frames)
-            print(f'# 1 kHz for {args.minutes} min', file=sys.stderr)
-            probe = Probe(node.pid)
-            ticks0, t0 = cpu_ticks(node.pid), time.monotonic()
-            fast = writer.run(1000.0, fast_frames)
-            ticks1, t1 = cpu_ticks(node.pid), time.monotonic()
-            probe.stop()
-            time.sleep(DRAIN_S)
-            writer.run(10.0, 20)   # trailing frames so that a loss at the very end would show
-            time.sleep(DRAIN_S)
-            sub.stdin.write('stop\n')
-            sub.stdin.flush()
-            if sub.wait(60) != 0:
-                raise RuntimeError('the subscriber failed')
-        finally:
-            node.send_signal(signal.SIGINT)
-            try:
-                node_code = node.wait(30)
-            except subprocess.TimeoutExpired:
-                node.kill()
-                node_code = node.wait()
-            if sub.poll() is None:
-                sub.kill()
-            os.close(master)
-            os.close(slave)
-        received = np.load(out + '.npz')
-        extra = json.loads(Path(out + '.json').read_text())
-
-    seq, residual = decode(args.serial, received['rate'], received['arrival'], writer.mono_ns[:writer.seq])
-    arrival, stamp = received['arrival'], received['stamp']
-    latency = arrival - writer.mono_ns[seq]
-    if residual > STEP_COUNTS / 4 or latency.min() < 0 or latency.max() > 2e9:
-        print(f'warning: decoding doubtful (residual {residual:.2f} counts, latency '
-              f'{latency.min() * 1e-6:.2f}..{latency.max() * 1e-6:.2f} ms)', file=sys.stderr)
-
+    s = Session('node', 'binary', args.serial, args.baud, args.slow_seconds, args.minutes * 60).run()
+    writer, seq, arrival, stamp = s.writer, s.seq, s.arrival, s.stamp
     print(f'\nMachine: {platform.node()}, {os.cpu_count()} cores, {platform.processor() or platform.machine()}, '
           f'Python {platform.python_version()}, RMW {os.environ.get("RMW_IMPLEMENTATION", "default (Fast DDS)")}; '
-          f'node exit code {node_code}; writer fell behind {writer.late} times; decode residual {residual:.2f} counts')
+          f'node exit code {s.node_code}; writer fell behind {writer.late} times; decode residual '
+          f'{s.residual * STEP_COUNTS:.2f} counts')
     print('\n| rate | frames written | frames lost | latency p50 ms | p99 ms | p99.9 ms | max ms | '
           'from the write\'s end: p50 / p99 ms | write p99 ms | stamp - (write - wire time) median ms |')
     print('|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|')
-    print(latency_row(f'10 Hz, {args.slow_seconds:g} s', seq, arrival, stamp, writer, *slow, frame_ns))
-    print(latency_row(f'1 kHz, {args.minutes:g} min', seq, arrival, stamp, writer, *fast, frame_ns))
-    samples = np.array(probe.samples)
+    print(latency_row(f'10 Hz, {args.slow_seconds:g} s', seq, arrival, stamp, writer, *s.slow, frame_ns))
+    print(latency_row(f'1 kHz, {args.minutes:g} min', seq, arrival, stamp, writer, *s.fast, frame_ns))
+    samples = np.array(s.probe.samples)
     minutes = (samples[:, 0] - samples[0, 0]) / 60.0
     rss = samples[:, 1]
     half = minutes >= minutes[-1] / 2
     slope = np.polyfit(minutes, rss, 1)[0] if len(rss) > 1 else 0.0
     slope_late = np.polyfit(minutes[half], rss[half], 1)[0] if half.sum() > 1 else 0.0
-    cpu = (ticks1 - ticks0) / os.sysconf('SC_CLK_TCK') / (t1 - t0)
     print('\n| node at 1 kHz | value |')
     print('|---|---:|')
-    print(f'| CPU share of one core (utime + stime) | {cpu * 100:.1f} % |')
+    print(f'| CPU share of one core (utime + stime) | {s.cpu * 100:.1f} % |')
     print(f'| VmRSS start / end / max | {rss[0] / 1024:.1f} / {rss[-1] / 1024:.1f} / {rss.max() / 1024:.1f} MiB |')
     print(f'| VmRSS slope, whole phase / second half | {slope:+.1f} / {slope_late:+.1f} kB/min |')
     print(f'| load average (1 min) during the phase, min / mean / max | {samples[:, 2].min():.2f} / '
           f'{samples[:, 2].mean():.2f} / {samples[:, 2].max():.2f} |')
-    link = extra['link']
+    link = s.link
     print(f'| node counters at the end (/diagnostics) | frames {link.get("frames")}, rejected '
           f'{link.get("rejected")}, published {link.get("published")}, of {writer.seq} written |')
-    print(f'| subscriber process CPU (whole run) | {extra["cpu_s"]:.1f} s |')
+    print(f'| subscriber process CPU (whole run) | {s.sub_cpu_s:.1f} s |')
+    return 0
+
+
+def compare(args: argparse.Namespace) -> int:
+    """Alternating rounds of the node and the lean reader at 1 kHz; one row per process, the ratio per round."""
+    protocol = 'binary' if args.protocol == 'rd2100_binary' else 'kvh_fog'
+    baud = args.baud if protocol == 'binary' else KVH_BAUD
+    print(f'{args.protocol}, {args.round_seconds:g} s at 1 kHz per process and round; {os.cpu_count()} cores')
+    print('\n| round | process | CPU % of a core | latency p50 ms | p99 ms | lost | load avg (1 min) |')
+    print('|---|---|---:|---:|---:|---:|---:|')
+    sources = [Path(d).resolve() for d in args.sources] if args.sources else [REPO]
+    processes = ([('lean', REPO, 'lean')] + [('node', d, 'node' if d == REPO else f'node {d.name}') for d in sources]
+                 + [(name, REPO, f'node {name}') for name in args.variants or ()])
+    ratios: dict[str, list[float]] = {label: [] for _, _, label in processes[1:]}
+    for r in range(args.compare):
+        cpu = {}
+        for kind, source, label in processes if r % 2 == 0 else processes[::-1]:
+            s = Session(kind, protocol, args.serial, baud, 0.0, args.round_seconds, source).run()
+            p50, p99, lost = s.latency_lost()
+            load = np.array(s.probe.samples)[:, 2].mean()
+            cpu[label] = s.cpu
+            print(f'| {r + 1} | {label} | {s.cpu * 100:.1f} | {p50:.2f} | {p99:.2f} | {lost} | {load:.2f} |',
+                  flush=True)
+        for label in ratios:
+            ratios[label].append(cpu[label] / cpu['lean'])
+    for label, values in ratios.items():
+        print(f'\n{label} CPU / lean CPU per round: {", ".join(f"{x:.2f}" for x in values)}; '
+              f'median {np.median(values):.2f}')
     return 0
 
 
@@ -340,9 +504,17 @@ def main() -> int:
     parser.add_argument('--slow-seconds', type=float, default=120.0, help='duration of the 10 Hz phase (default 120)')
     parser.add_argument('--serial', default='NAVC3545', help='packaged calibration the node loads')
     parser.add_argument('--baud', type=int, default=115200, help='baud the node is told (default 115200)')
+    parser.add_argument('--compare', type=int, metavar='ROUNDS', help='alternate the node and the lean reader')
+    parser.add_argument('--round-seconds', type=float, default=60.0, help='1 kHz per process and round (default 60)')
+    parser.add_argument('--protocol', choices=('rd2100_binary', 'kvh_fog'), default='rd2100_binary',
+                        help='of --compare (default rd2100_binary)')
+    parser.add_argument('--sources', nargs='+', metavar='DIR', help='of --compare: the node of each checkout')
+    parser.add_argument('--variants', nargs='+', choices=tuple(VARIANTS), help='of --compare: candidates, each too')
     parser.add_argument('--subscriber', metavar='OUT', help=argparse.SUPPRESS)
     args = parser.parse_args()
-    return run_subscriber(args.subscriber) if args.subscriber else run(args)
+    if args.subscriber:
+        return run_subscriber(args.subscriber)
+    return compare(args) if args.compare else run(args)
 
 
 if __name__ == '__main__':

@@ -7,7 +7,9 @@ with its start-up static bias, lets it run ``--seconds``, then reads the node's 
 in the node's domain: its writers then have a reliable reader to send to and hear from, as on a robot.
 ``--floor`` runs, in place of ``gyro_node``, a bare rclpy node with the same runtime imports (numpy, yaml,
 pyserial, rclpy, the messages), the same publishers, service, timers and executor, publishing an Imu and a
-Float64 at 10 Hz, and none of this package's code: what any Python node of this shape costs. ``--stages``
+Float64 at 10 Hz, and none of this package's code: what any Python node of this shape costs. ``--lean`` runs
+``bench_node.LEAN``, the leanest reader-publisher (the package's parser, an Imu per frame, no executor), on the
+same fake gyro. ``--stages``
 instead builds the node step by step in one interpreter and prints VmRSS after each step (imports, DDS
 participant, spinning).
 """
@@ -24,6 +26,9 @@ import time
 from pathlib import Path
 
 from art_gyro_calibration.fake_gyro import FakeGyro
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_node import LEAN   # noqa: E402  # the bench directory, as above
 
 STAGES = '''
 import json, os, sys, threading, time
@@ -107,10 +112,11 @@ def _proc_kib(pid: int, name: str, key: str) -> float:
     return float(text.split(key + ':')[1].split()[0])
 
 
-def run_node(seconds: float, subscriber: bool = False, floor: bool = False) -> dict[str, float]:
+def run_node(seconds: float, subscriber: bool = False, floor: bool = False,
+             lean: bool = False) -> dict[str, float]:
     """One node against a fake gyro (and an ``imu_echo`` if ``subscriber``): its memory after ``seconds``, in MiB.
 
-    ``floor``: the bare node of :data:`FLOOR` instead of ``gyro_node``.
+    ``floor``: the bare node of :data:`FLOOR` instead of ``gyro_node``; ``lean``: ``bench_node.LEAN``.
     """
     with tempfile.TemporaryDirectory() as tmp, FakeGyro('NAVC3545', profile='0', seed=1) as fake:
         env = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
@@ -119,6 +125,7 @@ def run_node(seconds: float, subscriber: bool = False, floor: bool = False) -> d
                 if subscriber else None)
         with open(Path(tmp) / 'node.log', 'wb') as out:
             cmd = ([sys.executable, '-c', FLOOR] if floor else
+                   [sys.executable, '-c', LEAN, fake.path, '9600', 'binary', '0.00305'] if lean else
                    [sys.executable, '-m', 'art_gyro_calibration.ros.node', '--ros-args',
                     '-p', 'serial_number:=NAVC3545', '-p', f'port:={fake.path}'])
             proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT)
@@ -126,7 +133,7 @@ def run_node(seconds: float, subscriber: bool = False, floor: bool = False) -> d
             time.sleep(seconds)
             assert proc.poll() is None, (Path(tmp) / 'node.log').read_text()
             log = (Path(tmp) / 'node.log').read_text()
-            assert floor or 'static bias: StaticBiasDrift=' in log, log   # running: frames corrected, the bias taken
+            assert floor or lean or 'static bias: StaticBiasDrift=' in log, log   # frames corrected, the bias taken
             mib = {key: _proc_kib(proc.pid, 'status', key) / 1024 for key in ('VmRSS', 'VmHWM')}
             mib.update({key: _proc_kib(proc.pid, 'smaps_rollup', key) / 1024
                         for key in ('Anonymous', 'Pss_File', 'Shared_Clean')})
@@ -144,6 +151,8 @@ def main() -> int:
     parser.add_argument('--runs', type=int, default=3)
     parser.add_argument('--subscriber', action='store_true', help='an imu_echo subscribed to the node meanwhile')
     parser.add_argument('--floor', action='store_true', help='a bare rclpy node of the same shape instead')
+    parser.add_argument('--lean', action='store_true', help='the lean reader of bench_node.py instead')
+    parser.add_argument('--alternate', action='store_true', help='gyro_node and the lean reader in turn, each --runs')
     parser.add_argument('--stages', action='store_true',
                         help="VmRSS step by step, without and with main()'s block and profile")
     args = parser.parse_args()
@@ -153,13 +162,18 @@ def main() -> int:
                                     text=True, check=True)
             print(mode + ': ' + result.stdout.splitlines()[0])
         return 0
-    runs = [run_node(args.seconds, args.subscriber, args.floor) for _ in range(args.runs)]
-    for key in runs[0]:
-        values = sorted(r[key] for r in runs)
-        print(f'{key}: {statistics.median(values):.1f} MiB median ({values[0]:.1f}-{values[-1]:.1f})')
-    print(f'({args.runs} runs of ' + ('the bare node of --floor' if args.floor else 'gyro_node')
-          + f' at 10 Hz for {args.seconds:g} s'
-          + (', imu_echo subscribed)' if args.subscriber else ')'))
+    kinds = ('gyro_node', 'lean') if args.alternate else ('lean' if args.lean else 'floor' if args.floor else
+                                                          'gyro_node',)
+    runs: dict[str, list[dict[str, float]]] = {kind: [] for kind in kinds}
+    for _ in range(args.runs):
+        for kind in kinds:
+            runs[kind].append(run_node(args.seconds, args.subscriber, kind == 'floor', kind == 'lean'))
+    for kind, results in runs.items():
+        for key in results[0]:
+            values = sorted(r[key] for r in results)
+            print(f'{kind} {key}: {statistics.median(values):.1f} MiB median ({values[0]:.1f}-{values[-1]:.1f})')
+    print(f'({args.runs} runs of each of {", ".join(kinds)} at 10 Hz for {args.seconds:g} s'
+          + (', in turn' if args.alternate else '') + (', imu_echo subscribed)' if args.subscriber else ')'))
     return 0
 
 

@@ -321,3 +321,27 @@ def test_every_baud_opens_the_port_and_times_the_wire_by_it(baud):
         silent.stop()
     assert links[0] == (True, f'opened {silent.path} at {baud} baud') and driver.stats.last_error == ''
     assert driver._stamper.byte_ns == 10_000_000_000 // baud   # start, 8 data and stop bits
+
+
+def test_a_backlog_written_at_once_is_delivered_whole_in_order_each_frame_with_its_own_stamp(recorder, tmp_path):
+    """400 frames queued at once, as a USB adapter hands them over, are read together and each delivered once.
+
+    In order, and stamped apart (not all with the read's one time).
+    """
+    silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
+    try:
+        driver = SerialGyroDriver(silent.path, 115200, 'binary', recorder.on_frame, rate_scale_dps=0.00305)
+        driver.start()
+        try:
+            assert wait_for(lambda: driver.stats.connected)
+            rates = [i % 50 for i in range(400)]   # 3,200 bytes: within one read
+            silent.inject(b''.join(encode_binary(r, 500) for r in rates))
+            assert wait_for(lambda: recorder.count() == len(rates) - (LOCK_FRAMES - 1))
+            time.sleep(0.2)
+        finally:
+            driver.stop()
+    finally:
+        silent.stop()
+    assert [f.sample.raw_rate for f in recorder.frames] == rates[LOCK_FRAMES - 1:]
+    stamps = np.array([f.stamp_ns for f in recorder.frames])
+    assert np.all(np.diff(stamps) > 0)

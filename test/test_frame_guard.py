@@ -22,17 +22,6 @@ SCALE = 0.00305   # deg/s per count
 BAUD = 115200
 
 
-class _Port:
-    """A port whose next read returns the chunk set."""
-
-    chunk = b''
-    in_waiting = 0
-
-    def read(self, size):
-        chunk, self.chunk = self.chunk, b''
-        return chunk
-
-
 def deliver(protocol, rates, temps, rate_hz, seed=0, continuous_temperature=False):
     """The (rate, temperature) counts the driver delivers of frames sent at ``rate_hz``, and its stats.
 
@@ -44,14 +33,12 @@ def deliver(protocol, rates, temps, rate_hz, seed=0, continuous_temperature=Fals
                               clock_ns=lambda: now[0], monotonic_ns=lambda: now[0], rate_scale_dps=SCALE)
     if continuous_temperature:
         driver._guard = FrameGuard(describe(protocol).corrupt_rate_steps, continuous_temperature=True)
-    port = _Port()
-    driver._serial = port
     encode = make_encoder(protocol)
     latency = np.random.default_rng(seed).uniform(0, 0.3e9 / rate_hz, len(rates))
     for i, (rate, temp) in enumerate(zip(rates, temps)):
-        port.chunk = encode(int(rate), int(temp))
-        now[0] = int(1e9 + i * 1e9 / rate_hz + len(port.chunk) * 1e10 / BAUD + latency[i])
-        driver._read_once()
+        chunk = encode(int(rate), int(temp))
+        now[0] = int(1e9 + i * 1e9 / rate_hz + len(chunk) * 1e10 / BAUD + latency[i])
+        driver._on_data(chunk, now[0], now[0])   # the per-chunk path, without a device
     return got, driver.stats
 
 

@@ -46,14 +46,13 @@ startup with a message naming it.
 
 from __future__ import annotations
 
-import copy
 import math
 import os
 import signal
 import sys
 import threading
 import time
-from collections.abc import MutableMapping, Sequence
+from collections.abc import Callable, MutableMapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -78,7 +77,7 @@ from art_gyro_calibration.ros.diagnostics import Diagnostics
 from art_gyro_calibration.ros.parameters import (EXTRA_SIGNAL_MESSAGES, IMU_TOPIC, NODE_NAME, ExtraSignal,
                                                  NodeParameters, ParameterError, check_params_files, usage)
 from art_gyro_calibration.ros.raw_log import RawLog
-from art_gyro_calibration.ros.rclpy_typed import logger, qos_profile
+from art_gyro_calibration.ros.rclpy_typed import SerializedMessage, logger, qos_profile
 from art_gyro_calibration.signals import SignalFeed
 
 # Variance (rad/s)^2 given to the x and y rates, which a single-axis gyro does not measure:
@@ -98,6 +97,12 @@ LATCHED_QOS = qos_profile(1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliab
 TEMPERATURE_WARNING_PERIOD_S = 60.0
 # An extra signal's topic: only the latest value matters; best effort matches reliable and best-effort publishers.
 EXTRA_SIGNAL_QOS = qos_profile(1, reliability=ReliabilityPolicy.BEST_EFFORT)
+# The Imu fields written per frame (the rest is fixed at start-up); a whole IMU (kvh_fog) writes IMU_AXES_FIELDS too.
+IMU_FIELDS = ('header.stamp.sec', 'header.stamp.nanosec', 'angular_velocity.z', 'angular_velocity_covariance[8]')
+IMU_AXES_FIELDS = ('angular_velocity.x', 'angular_velocity.y', 'angular_velocity_covariance[0]',
+                   'angular_velocity_covariance[4]', 'linear_acceleration.x', 'linear_acceleration.y',
+                   'linear_acceleration.z', 'linear_acceleration_covariance[0]', 'linear_acceleration_covariance[4]',
+                   'linear_acceleration_covariance[8]')
 
 
 class GyroNode(Node):
@@ -125,21 +130,23 @@ class GyroNode(Node):
                                       'temperature_warn_range_c is an assumed range)')
         self.raw_log = RawLog(self, self.settings.log_path, self.calibration.serial_number, self._closing)
 
-        self._imu = Imu()
-        self._imu.header.frame_id = self.settings.frame_id
-        self._imu.orientation_covariance[0] = -1.0
-        self._imu.linear_acceleration_covariance[0] = -1.0
-        self._imu.angular_velocity_covariance[0] = UNMEASURED_VARIANCE
-        self._imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
-        self._imu.angular_velocity_covariance[8] = UNCORRECTED_YAW_VARIANCE   # until a static bias is in force
+        imu = Imu()
+        imu.header.frame_id = self.settings.frame_id
+        imu.orientation_covariance[0] = -1.0
+        imu.linear_acceleration_covariance[0] = -1.0
+        imu.angular_velocity_covariance[0] = UNMEASURED_VARIANCE
+        imu.angular_velocity_covariance[4] = UNMEASURED_VARIANCE
+        imu.angular_velocity_covariance[8] = UNCORRECTED_YAW_VARIANCE   # until a static bias is in force
         self.description = describe(self.settings.protocol, self.kvh_fog)
         # A whole IMU (kvh_fog): for the robot's x, y, z, the unit axis and its sign (REP 103 axes from the mounting).
         self._axes = self.description.imu_axes
         if self._axes:
             self._rate_variance = parameters.kvh_rate_stddev ** 2
             self._acceleration_variance = parameters.kvh_acceleration_stddev ** 2
-        self._temperature = Float64()
-        self._uncalibrated: Imu | None = None   # imu/uncalibrated's message, when publish_uncalibrated
+        # The messages are published serialized, their per-frame fields written in place (doc/benchmark.md).
+        self._imu = SerializedMessage(imu, IMU_FIELDS + (IMU_AXES_FIELDS if self._axes else ()))
+        self._temperature = SerializedMessage(Float64(), ('data',))
+        self._uncalibrated: SerializedMessage | None = None   # imu/uncalibrated's message, when publish_uncalibrated
         self._rate_scale = self.calibration.rate_scale_factor
         self._yaw_variance = self.settings.yaw_rate_stddev ** 2
         # Reliable, volatile, depth 10 unless overridden (qos_overrides.<topic>.publisher.* parameters, read-only).
@@ -153,7 +160,7 @@ class GyroNode(Node):
         self.is_calibrated = False   # a static bias in force: published on imu/is_calibrated
         self._calibrated_pub.publish(Bool(data=False))
         if self.settings.publish_uncalibrated:
-            self._uncalibrated = copy.deepcopy(self._imu)   # the same frame and covariances
+            self._uncalibrated = SerializedMessage(imu, IMU_FIELDS[:3])   # the same frame and covariances
             self._uncalibrated_pub = self.create_publisher(Imu, 'imu/uncalibrated', 10)
         self.extra_topics = tuple(self._subscribe(extra, feed) for extra, feed in zip(self.extra_signals, self.feeds))
         for extra in parameters.unused_extra_signals:
@@ -201,24 +208,27 @@ class GyroNode(Node):
         if corrector.step(raw_rate, raw_temp, t):
             return   # dropped, and counted by the corrector
         imu = self._imu
+        put = imu.put
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-        imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
-        imu.angular_velocity.z = math.radians(corrector.rate_dps)
+        put('header.stamp.sec', sec)
+        put('header.stamp.nanosec', nanosec)
+        put('angular_velocity.z', math.radians(corrector.rate_dps))
         if self._axes and sample is not None and sample.imu is not None:
-            self._fill_imu(imu, sample.imu)
+            self._fill_imu(put, sample.imu)
         # Flagged as before a static bias: an extra signal missing, stale or beyond its limits, or a corrected rate
         # beyond the unit's range (published uncorrected).
-        imu.angular_velocity_covariance[8] = (self._yaw_variance if self.is_calibrated and
-                                              corrector.compensator.current else UNCORRECTED_YAW_VARIANCE)
-        self._imu_pub.publish(imu)
+        put('angular_velocity_covariance[8]', self._yaw_variance if self.is_calibrated and
+            corrector.compensator.current else UNCORRECTED_YAW_VARIANCE)
+        self._imu_pub.publish(imu.data())
         uncalibrated = self._uncalibrated
         if uncalibrated is not None:   # the rate as the compensator scales it, before any correction
-            uncalibrated.header.stamp.sec, uncalibrated.header.stamp.nanosec = sec, nanosec
-            uncalibrated.angular_velocity.z = math.radians(raw_rate * self._rate_scale)
-            self._uncalibrated_pub.publish(uncalibrated)
+            uncalibrated.put('header.stamp.sec', sec)
+            uncalibrated.put('header.stamp.nanosec', nanosec)
+            uncalibrated.put('angular_velocity.z', math.radians(raw_rate * self._rate_scale))
+            self._uncalibrated_pub.publish(uncalibrated.data())
         temp_c = corrector.temp_c
-        self._temperature.data = temp_c
-        self._temp_pub.publish(self._temperature)
+        self._temperature.put('data', temp_c)
+        self._temp_pub.publish(self._temperature.data())
         self.last_temp_c = temp_c
         low, high = self._temp_range
         if not low <= temp_c <= high:   # the Compensator counted it (and clamped it if the range is calibrated)
@@ -293,30 +303,32 @@ class GyroNode(Node):
                 problems.append(f'{problem} on {topic}')
         return '; '.join(problems)
 
-    def _fill_imu(self, imu: Imu, reading: ImuReading) -> None:
-        """The x and y rates and the accelerations of a whole IMU in REP 103 axes (z is the calibrated yaw)."""
+    def _fill_imu(self, put: Callable[[str, float], None], reading: ImuReading) -> None:
+        """The x and y rates and the accelerations of a whole IMU in REP 103 axes (z is the calibrated yaw).
+
+        ``put(field, value)`` writes an Imu field of :data:`IMU_AXES_FIELDS`.
+        """
         (ix, sx), (iy, sy), _ = self._axes
         rates, rate_valid = reading.rates_dps, reading.rate_valid
-        covariance = imu.angular_velocity_covariance
         valid = rate_valid[ix] and math.isfinite(rates[ix])
-        imu.angular_velocity.x = math.radians(sx * rates[ix]) if valid else 0.0
-        covariance[0] = self._rate_variance if valid else UNMEASURED_VARIANCE
+        put('angular_velocity.x', math.radians(sx * rates[ix]) if valid else 0.0)
+        put('angular_velocity_covariance[0]', self._rate_variance if valid else UNMEASURED_VARIANCE)
         valid = rate_valid[iy] and math.isfinite(rates[iy])
-        imu.angular_velocity.y = math.radians(sy * rates[iy]) if valid else 0.0
-        covariance[4] = self._rate_variance if valid else UNMEASURED_VARIANCE
-        acceleration = imu.linear_acceleration
+        put('angular_velocity.y', math.radians(sy * rates[iy]) if valid else 0.0)
+        put('angular_velocity_covariance[4]', self._rate_variance if valid else UNMEASURED_VARIANCE)
         g = reading.acceleration_g
         # The three accelerometers valid (and a CRC-checked NaN is still no acceleration).
         if all(reading.acceleration_valid) and math.isfinite(g[0] + g[1] + g[2]):
             (ix, sx), (iy, sy), (iz, sz) = self._axes
-            acceleration.x = sx * g[ix] * STANDARD_GRAVITY
-            acceleration.y = sy * g[iy] * STANDARD_GRAVITY
-            acceleration.z = sz * g[iz] * STANDARD_GRAVITY
-            covariance = imu.linear_acceleration_covariance
-            covariance[0] = covariance[4] = covariance[8] = self._acceleration_variance
+            put('linear_acceleration.x', sx * g[ix] * STANDARD_GRAVITY)
+            put('linear_acceleration.y', sy * g[iy] * STANDARD_GRAVITY)
+            put('linear_acceleration.z', sz * g[iz] * STANDARD_GRAVITY)
+            for field in IMU_AXES_FIELDS[-3:]:
+                put(field, self._acceleration_variance)
         else:   # REP 145: not measured (a DSP-1760 has no accelerometers)
-            acceleration.x = acceleration.y = acceleration.z = 0.0
-            imu.linear_acceleration_covariance[0] = -1.0
+            for field in IMU_AXES_FIELDS[4:7]:
+                put(field, 0.0)
+            put('linear_acceleration_covariance[0]', -1.0)
 
     def _on_link(self, connected: bool, message: str) -> None:
         if connected:

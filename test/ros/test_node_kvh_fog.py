@@ -233,21 +233,21 @@ def test_imu_axes_flagged_invalid_or_not_finite_are_not_measured() -> None:
     """_fill_imu as the node calls it: REP 103 axes from the mounting; a bad axis gets no weight, never a NaN."""
     from types import SimpleNamespace
 
-    from sensor_msgs.msg import Imu
-
     from art_gyro_calibration.frame import ImuReading
     from art_gyro_calibration.ros.node import UNMEASURED_VARIANCE, GyroNode
     axes = KvhFogConfig(yaw_axis='+y', forward_axis='-x').description.imu_axes   # x = -x_unit, y = +z_unit, z = +y_unit
     assert axes == ((0, -1.0), (2, 1.0), (1, 1.0))
     node = SimpleNamespace(_axes=axes, _rate_variance=1e-6, _acceleration_variance=0.0025)
-    imu = Imu()
-    GyroNode._fill_imu(node, imu, ImuReading((10.0, 20.0, 30.0), (0.5, 1.0, -0.25)))
-    assert (imu.angular_velocity.x, imu.angular_velocity.y) == pytest.approx((math.radians(-10.0), math.radians(30.0)))
-    assert (imu.linear_acceleration.x, imu.linear_acceleration.y, imu.linear_acceleration.z) == pytest.approx(
+    imu: dict[str, float] = {}   # the Imu fields written, by name
+    GyroNode._fill_imu(node, imu.__setitem__, ImuReading((10.0, 20.0, 30.0), (0.5, 1.0, -0.25)))
+    assert (imu['angular_velocity.x'], imu['angular_velocity.y']) == pytest.approx(
+        (math.radians(-10.0), math.radians(30.0)))
+    assert (imu['linear_acceleration.x'], imu['linear_acceleration.y'], imu['linear_acceleration.z']) == pytest.approx(
         (-0.5 * 9.80665, -0.25 * 9.80665, 9.80665))
-    assert imu.angular_velocity_covariance[0] == imu.angular_velocity_covariance[4] == 1e-6
-    GyroNode._fill_imu(node, imu, ImuReading((math.nan, 20.0, 30.0), (0.5, math.inf, 0.0)))
-    assert imu.angular_velocity.x == 0.0 and imu.angular_velocity_covariance[0] == UNMEASURED_VARIANCE
-    assert imu.linear_acceleration_covariance[0] == -1.0 and imu.linear_acceleration.y == 0.0
-    GyroNode._fill_imu(node, imu, ImuReading((10.0, 20.0, 30.0), (0.5, 1.0, 0.0), rate_valid=(True, True, False)))
-    assert imu.angular_velocity.y == 0.0 and imu.angular_velocity_covariance[4] == UNMEASURED_VARIANCE
+    assert imu['angular_velocity_covariance[0]'] == imu['angular_velocity_covariance[4]'] == 1e-6
+    GyroNode._fill_imu(node, imu.__setitem__, ImuReading((math.nan, 20.0, 30.0), (0.5, math.inf, 0.0)))
+    assert imu['angular_velocity.x'] == 0.0 and imu['angular_velocity_covariance[0]'] == UNMEASURED_VARIANCE
+    assert imu['linear_acceleration_covariance[0]'] == -1.0 and imu['linear_acceleration.y'] == 0.0
+    GyroNode._fill_imu(node, imu.__setitem__, ImuReading((10.0, 20.0, 30.0), (0.5, 1.0, 0.0),
+                                                         rate_valid=(True, True, False)))
+    assert imu['angular_velocity.y'] == 0.0 and imu['angular_velocity_covariance[4]'] == UNMEASURED_VARIANCE
