@@ -47,6 +47,9 @@ SERIAL = 'NAVC3545'
 ROWS, COLUMNS = 3, 4
 RATE_HZ = 10.0
 BIAS_SAMPLES = 100
+# Where the robot runs, as its user tells `calibrate fit --operating-range` (issue 35 item 4): the second runs' chamber
+# spans 10..49.5 degC, beyond what a 6 h fit log may have logged.
+OPERATING_RANGE_C = (10.0, 50.0)
 INITIAL_REST_S = 60.0            # >= 100 rows at rest at the start of every log
 WARM_START_S = 3 * 3600.0        # the warm second run (and the protocol's warm restart) starts 3 h after power-on
 WARM_HEADING_DEG = 137.0
@@ -484,8 +487,9 @@ def fit(logs: list[Path], label: str, d: Path, cmd_log: Path, warm: list[Path]) 
     """`calibrate fit` of the logs (the runs named in `warm` began warm): the calibration file and what it found."""
     cal, report = d / f'{label}.yaml', d / f'{label}-REPORT.json'
     calibrate('fit', *map(str, logs), *[a for w in warm for a in ('--warm-start', str(w))], '--rows', str(ROWS),
-              '--columns', str(COLUMNS), '--serial', SERIAL, '--out', str(cal), '--report', str(report), '--plots',
-              str(d), '--plot-prefix', f'{label}-', '--force', log=cmd_log)
+              '--columns', str(COLUMNS), '--serial', SERIAL, '--operating-range', *map(str, OPERATING_RANGE_C),
+              '--out', str(cal), '--report', str(report), '--plots', str(d), '--plot-prefix', f'{label}-', '--force',
+              log=cmd_log)
     return cal, report_summary(report)
 
 
@@ -809,10 +813,12 @@ def document(results: list[dict[str, Any]], meta: dict[str, Any]) -> str:
               f'({WARM_SECOND_HOURS:g} h, starting {WARM_START_S / 3600:g} h after power-on, heading '
               f'{WARM_HEADING_DEG:g} deg). Every log starts with {INITIAL_REST_S:.0f} s at rest. Runs per case: '
               + ' or '.join(map(str, reps)) + '.',
-              f'- Fits: `calibrate fit FIT.csv --rows {ROWS} --columns {COLUMNS} --serial {SERIAL} --out CAL.yaml '
-              '--report REPORT.json` (defaults otherwise; the log starts at power-on), and `calibrate fit COLD1.csv '
-              'COLD2.csv WARM.csv --warm-start WARM.csv ...`. Apply: `calibrate apply SECOND.csv --calibration CAL '
-              f'--bias-samples {BIAS_SAMPLES}` (+ `--powered-on-at-start` on the cold run), as the node does.',
+              f'- Fits: `calibrate fit FIT.csv --rows {ROWS} --columns {COLUMNS} --serial {SERIAL} --operating-range '
+              f'{OPERATING_RANGE_C[0]:g} {OPERATING_RANGE_C[1]:g} --out CAL.yaml --report REPORT.json` (defaults '
+              'otherwise; the log starts at power-on; the operating range is where the second runs go), and '
+              '`calibrate fit COLD1.csv COLD2.csv WARM.csv --warm-start WARM.csv ...`. Apply: `calibrate apply '
+              f'SECOND.csv --calibration CAL --bias-samples {BIAS_SAMPLES}` (+ `--powered-on-at-start` on the cold '
+              'run), as the node does.',
               '- Calibrations: **packaged** = `config/NAVC3545.yaml` (what the gyro already has); the loop\'s '
               '**one run** and **several runs** fits; **true form through the node** = the packaged file (its '
               'polynomial moved by the aged slope in aged_poly) plus the true terms with their true coefficients '
