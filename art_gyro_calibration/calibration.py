@@ -14,7 +14,7 @@ A file is ``/**: ros__parameters: {...}`` so that the node takes it with
   calibrations, whose range the report does not print and whose polynomial applies at every
   temperature exactly as the report's program applies it); not both,
 - optional ``filters.temperature_rate_tau_s``, ``filters.rate_change_tau_s`` and
-  ``filters.temperature_rate_form`` (``local_linear``, which ``calibrate fit`` writes, or ``first_order``:
+  ``filters.temperature_rate_form`` (``local_quadratic``, which ``calibrate fit`` writes, or ``first_order``:
   a file that names no form was fitted with it, at 120 s unless it names a time constant;
   see :mod:`art_gyro_calibration.temperature_rate`),
 - optional extended terms: ``extended.signals`` (list, one term per signal) and
@@ -300,7 +300,7 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
         raise CalibrationError(f'{where}: temperature_range_c (calibrated: clamped to) and temperature_warn_range_c '
                                '(expected: warned outside, never clamped) are both given: keep one')
     try:
-        # A file that names no form was written before the local linear fit: its first-order filter, exactly.
+        # A file that names no form was written before the local quadratic fit: its first-order filter, exactly.
         form = params.get('filters.temperature_rate_form', FIRST_ORDER)
         filters = SignalFilters(
             _number(params.get('filters.temperature_rate_tau_s',

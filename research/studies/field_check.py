@@ -47,6 +47,9 @@ SERIAL = 'NAVC3545'
 ROWS, COLUMNS = 3, 4
 RATE_HZ = 10.0
 BIAS_SAMPLES = 100
+# The filters `calibrate fit` writes into a new file (the package's SignalFilters defaults; research/tests check they
+# agree): a true-form file must name them, since a file naming none keeps the old first-order filter.
+FIT_FILTERS = {'temperature_rate_tau_s': 20.0, 'rate_change_tau_s': 0.5, 'temperature_rate_form': 'local_quadratic'}
 # Where the robot runs, as its user tells `calibrate fit --operating-range` (issue 35 item 4): the second runs' chamber
 # spans 10..49.5 degC, beyond what a 6 h fit log may have logged.
 OPERATING_RANGE_C = (10.0, 50.0)
@@ -384,8 +387,9 @@ def true_form_file(phys: Physics, path: Path) -> bool:
 
     The packaged file (`config/<SERIAL>.yaml`: its polynomial, scale factors and warned range), its polynomial
     moved by an aged bias slope, plus the true terms with their true coefficients as `calibrate fit` writes them:
-    Shupe as a linear term on `temperature_rate`, the warm-up as an exponential on `time_since_power_on`. The
-    filters are the package's defaults (the file sets none). A heading effect or a temperature step has no form.
+    Shupe as a linear term on `temperature_rate`, the warm-up as an exponential on `time_since_power_on`, with the
+    filters `calibrate fit` writes (the package's defaults: a file that names none keeps the old first-order filter).
+    A heading effect or a temperature step has no form.
     """
     if phys.formless:
         return False
@@ -405,6 +409,7 @@ def true_form_file(phys: Physics, path: Path) -> bool:
                                         'time_constant_s': phys.warmup_tau_s}
     if terms:
         p['extended'] = {'signals': list(terms), **terms}
+    p['filters'] = dict(FIT_FILTERS)
     path.write_text('# The true form of the field check\'s simulated gyro (research/studies/field_check.py).\n'
                     + yaml.safe_dump(cal, sort_keys=False))
     return True
@@ -823,7 +828,7 @@ def document(results: list[dict[str, Any]], meta: dict[str, Any]) -> str:
               '**one run** and **several runs** fits; **true form through the node** = the packaged file (its '
               'polynomial moved by the aged slope in aged_poly) plus the true terms with their true coefficients '
               '(Shupe: a power term [1] on `temperature_rate`; warm-up: `exp_decay` on `time_since_power_on` with '
-              'its true time constant; the package\'s default filters), applied with `calibrate apply` exactly as '
+              'its true time constant; the filters `calibrate fit` writes), applied with `calibrate apply` exactly as '
               'the loop\'s file: what a perfect fit gives this node; **true form on the true signals** = the true '
               'error (polynomial and effects at the true temperature and its true rate) removed, the static bias '
               'then taken as the node takes it: what a perfect node could give (what is left is wander, random walk '

@@ -10,6 +10,8 @@ import field_check as fc
 import numpy as np
 import pytest
 
+from art_gyro_calibration.signals import SignalFilters
+
 
 def test_polynomial_is_the_report_form() -> None:
     """The correction is sum_ij c[i][j] T^(rows-1-i) rate^(cols-1-j), rows of temperature powers highest first."""
@@ -134,3 +136,11 @@ def test_the_several_run_fit_is_skipped_only_when_calibrate_fit_takes_one_log(
     fake.chmod(fake.stat().st_mode | stat.S_IXUSR)
     monkeypatch.setattr(fc, 'PYTHON', str(fake))
     assert bool(fc.several_runs_refusal()) == refused
+
+
+def test_the_true_form_file_names_the_filters_a_fit_writes() -> None:
+    """A file naming no filters keeps the old first-order one: the true form must use what a new fit writes."""
+    defaults = SignalFilters()
+    assert fc.FIT_FILTERS == {'temperature_rate_tau_s': defaults.temperature_rate_tau_s,
+                              'rate_change_tau_s': defaults.rate_change_tau_s,
+                              'temperature_rate_form': defaults.temperature_rate_form}
