@@ -663,7 +663,19 @@ def figure(results: list[dict[str, Any]], path: Path, cold_hours: float) -> None
 # The history of this document's runs, by hand (the numbers each entry quotes are from that run's results).
 HISTORY = '''## History
 
-- Issue 35, before (this run): the study gains the two references of every cold second run (the true form through
+- Issue 35, after (this run, 5d71f2c, 19.4 min): the package with several-run fits (`calibrate fit LOG [LOG ...]
+  --warm-start`), the window terms' cost, the temperature rate's local quadratic fit (tau 20 s; the true form's file
+  names it); fits told `--operating-range 10 50`. The true form through the node is within 1.5x the true signals in
+  18 of 18 cases (14 at f87be58, on the first-order 120 s filter); issue 35's rows, through the node / true signals
+  (deg/h): shupe_k2.4_slow 2.26 / 1.65, shupe2.4_fast_heat 1.99 / 1.55, shupe2.4_warmup 2.13 / 1.99, warmup_0.012
+  1.32 / 1.38. The loop's file is not: one 6 h run within 1.5x in 10 of 18 cases, the lab protocol's three 2 h runs
+  in 11 of 18. The Shupe k = 2.4 cases on 0.1 degC/min ramps are the worst (one run / several: 4.66 / 11.72,
+  6.75 / 12.53, 37.28 / 14.23 deg/h against about 2 through the node); the lab protocol wins on shupe_fast_heat,
+  shupe_two_tau_sine, shupe_warmup and shupe2.4_warmup and loses on shupe_k2.4_slow, shupe2.4_fast_heat,
+  warmup_4c10m and shupe_warmup_cold_soak (31.37 against 20.78 packaged). No null run is worse than the packaged
+  file; second runs that are, by more than 1 deg/h (medians): shupe_warmup_cold_soak, warmup_4c10m and warmup
+  (warm) after the several-run fit, temp_step and aged_poly (cold) after the 6 h fit.
+- Issue 35, before (f87be58): the study gains the two references of every cold second run (the true form through
   the node, and on the true signals; issue 20's "best" was the latter), 4 h cold second runs (2 h before), the lab
   protocol's several-run fit (skipped while `calibrate fit` takes one log), nine cases (issue 35's four rows and
   its item 5 cell, self-heating in two time constants and S-shaped, ramps of 1 and 1.5 degC/min, a sinusoidal
