@@ -194,3 +194,33 @@ def node_with_listener(domain: int, output: Path, *ros_args: str, signum: int = 
             stop_node(proc, signum, output)
         finally:
             listener.close()
+
+
+@contextmanager
+def node_fed_supply(tmp_path: Path, calibration: Path, volts: float, *ros_args: str
+                    ) -> Iterator[tuple[subprocess.Popen[bytes], Listener, Path, Callable[[float], None]]]:
+    """``gyro_node`` on a still fake NAVC3545 with ``calibration``, fed ``volts`` on ``supply`` every 50 ms.
+
+    Yields the node, its listener, its output file and a setter of the voltage published from then on; the
+    node's static bias (20 samples) is in force.
+    """
+    from art_gyro_calibration.fake_gyro import FakeGyro
+    output = tmp_path / 'node.log'
+    with (FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'), profile='0', temperature=25.0, seed=3) as fake,
+          node_with_listener(domain_id(), output, '-p', 'serial_number:=NAVC3545', '-p',
+                             f'calibration_file:={calibration}', '-p', f'port:={fake.path}', '-p', 'bias_samples:=20',
+                             '-p', 'extra_signals.supply_v.topic:=supply', *ros_args) as (proc, listener)):
+        voltage = [volts]
+        lock = threading.Lock()
+        publisher = listener.node.create_publisher(Float64, 'supply', 10)
+
+        def publish() -> None:
+            with lock:
+                publisher.publish(Float64(data=voltage[0]))
+
+        def set_voltage(value: float) -> None:
+            with lock:
+                voltage[0] = value
+        listener.node.create_timer(0.05, publish)
+        listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the static bias', proc, output)
+        yield proc, listener, output, set_voltage
