@@ -7,6 +7,8 @@ import re
 import subprocess
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +68,17 @@ def drive(fake: FakeGyro, rate_dps: float) -> None:
     fake.simulator.profile = RateProfile.parse(str(rate_dps))
 
 
+@contextmanager
+def parked_node(tmp_path: Path, seed: int, *ros_args: str
+                ) -> Iterator[tuple[FakeGyro, subprocess.Popen[bytes], Listener, Path]]:
+    """A still fake gyro at RATE_HZ and ``gyro_node`` on it with NODE_ARGS and ``ros_args``, and its output file."""
+    output = tmp_path / 'node.log'
+    with (FakeGyro('NAVC3545', rate_hz=RATE_HZ, profile='0', temperature=25.0, seed=seed) as fake,
+          node_with_listener(domain_id(), output, *NODE_ARGS, '-p', f'port:={fake.path}', *ros_args)
+          as (proc, listener)):
+        yield fake, proc, listener, output
+
+
 def wait_parked(listener: Listener, proc: subprocess.Popen[bytes], output: Path, key: str, value: str,
                 what: str) -> dict[str, Any]:
     return listener.wait_status('parked bias', lambda s: s[key] == value, what, proc, output)
@@ -73,11 +86,8 @@ def wait_parked(listener: Listener, proc: subprocess.Popen[bytes], output: Path,
 
 def test_a_bool_and_the_gyro_stillness_take_a_bias_at_a_stop_and_none_while_creeping(
         tmp_path: Path, loopback: None) -> None:
-    output = tmp_path / 'node.log'
-    with (FakeGyro('NAVC3545', rate_hz=RATE_HZ, profile='0', temperature=25.0, seed=11) as fake,
-          node_with_listener(domain_id(), output, *NODE_ARGS, '-p', f'port:={fake.path}',
-                             '-p', 'parked_bias.topic:=parked', '-p', 'parked_bias.gyro_stillness:=true')
-          as (proc, listener)):
+    with parked_node(tmp_path, 11, '-p', 'parked_bias.topic:=parked', '-p', 'parked_bias.gyro_stillness:=true') \
+            as (fake, proc, listener, output):
         robot = Robot(listener, odometry=False)
         listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the start-up bias', proc, output)
         # The robot turns, then stops and parks: a parked bias.
@@ -109,11 +119,8 @@ def test_a_bool_and_the_gyro_stillness_take_a_bias_at_a_stop_and_none_while_cree
 
 
 def test_odometry_reporting_a_creep_is_not_parked(tmp_path: Path, loopback: None) -> None:
-    output = tmp_path / 'node.log'
-    with (FakeGyro('NAVC3545', rate_hz=RATE_HZ, profile='0', temperature=25.0, seed=12) as fake,
-          node_with_listener(domain_id(), output, *NODE_ARGS, '-p', f'port:={fake.path}',
-                             '-p', 'parked_bias.topic:=odom', '-p', 'parked_bias.type:=odometry')
-          as (proc, listener)):
+    with parked_node(tmp_path, 12, '-p', 'parked_bias.topic:=odom', '-p', 'parked_bias.type:=odometry') \
+            as (fake, proc, listener, output):
         robot = Robot(listener, odometry=True)
         robot.set(30.0)
         listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the start-up bias', proc, output)
@@ -132,10 +139,7 @@ def test_odometry_reporting_a_creep_is_not_parked(tmp_path: Path, loopback: None
 
 def test_a_collection_is_aborted_when_the_robot_moves_or_its_topic_falls_silent(
         tmp_path: Path, loopback: None) -> None:
-    output = tmp_path / 'node.log'
-    with (FakeGyro('NAVC3545', rate_hz=RATE_HZ, profile='0', temperature=25.0, seed=13) as fake,
-          node_with_listener(domain_id(), output, *NODE_ARGS, '-p', f'port:={fake.path}',
-                             '-p', 'parked_bias.topic:=parked') as (proc, listener)):
+    with parked_node(tmp_path, 13, '-p', 'parked_bias.topic:=parked') as (fake, proc, listener, output):
         robot = Robot(listener, odometry=False)
         listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the start-up bias', proc, output)
         for n, (stop, reason) in enumerate(((False, 'moved'), (None, 'stale')), 1):
