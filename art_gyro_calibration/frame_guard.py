@@ -54,7 +54,7 @@ class FrameGuard:
     """Decides frame by frame whether a frame is delivered; counts what it refuses in ``rejected_by_reason``."""
 
     __slots__ = ('_steps', '_jump', '_temp', '_refused_temp', '_rates', '_gain_uv', '_gain_vv', '_mean_square',
-                 '_trusted', '_steady', 'rejected_by_reason')
+                 '_trusted', '_steady', '_guessed', '_skipped', 'rejected_by_reason')
 
     def __init__(self, corrupt_rate_steps: tuple[int, ...], continuous_temperature: bool = False) -> None:
         """``corrupt_rate_steps``: the rate changes (counts, positive) the protocol's undetected corruptions make.
@@ -76,6 +76,8 @@ class FrameGuard:
         self._mean_square = 0.0
         self._trusted = 0
         self._steady = 0
+        self._guessed = 0   # bits: which of the three rates the prediction filled in (frames lost or refused)
+        self._skipped = 0   # frames lost or refused since the last delivered one
 
     @property
     def rejected(self) -> int:
@@ -88,43 +90,49 @@ class FrameGuard:
         ``steady_ns``: its monotonic stamp; ``period_ns``: the gyro's period as estimated (0: unknown): frames
         lost between two are bridged by the prediction.
         """
-        temp, refused = self._temp, self._refused_temp
-        temp_ok = (temp is None or abs(raw_temp - temp) < self._jump
-                   or refused is not None and abs(raw_temp - refused) < self._jump)
-        self._refused_temp = None if temp_ok else raw_temp
         # Frames lost since the last one (none for a frame closer than a period: an extra one is tested as the next).
         missed = max(round((steady_ns - self._steady) / period_ns) - 1, 0) if period_ns > 0 and self._steady else 0
         self._steady = steady_ns
+        # The temperature may move a count for each frame since the one it is compared with.
+        temp, refused, skipped = self._temp, self._refused_temp, self._skipped + missed
+        temp_ok = (temp is None or abs(raw_temp - temp) < self._jump + skipped
+                   or refused is not None and abs(raw_temp - refused) < self._jump + missed)
+        self._refused_temp = None if temp_ok else raw_temp
+        self._skipped = skipped + 1   # until delivered
         rates = self._rates
         if missed > MAX_BRIDGED:
             rates.clear()
+            self._guessed = 0
         for _ in range(missed if len(rates) == 3 else 0):
-            self._push(self._predict())
+            self._push(self._predict(), guess=True)
         if not temp_ok:
             self.rejected_by_reason[TEMPERATURE_JUMP] += 1
             if len(rates) == 3:
-                self._push(self._predict())
+                self._push(self._predict(), guess=True)
             return False
         if len(rates) < 3:
             rates.append(raw_rate)
-            self._temp = raw_temp
+            self._temp, self._skipped = raw_temp, 0
             return True
         predicted = self._predict()
         error = raw_rate - predicted
-        tolerance = max(ERROR_MARGIN * math.sqrt(self._mean_square), FLOOR_COUNTS) * (1 + missed)
+        guessed = self._guessed
+        tolerance = max(ERROR_MARGIN * math.sqrt(self._mean_square), FLOOR_COUNTS) * (1 + guessed.bit_count())
         if self._trusted >= WARMUP_FRAMES and self._corrupt(error, tolerance):
             self.rejected_by_reason[RATE_JUMP] += 1
             rates.clear()   # learnt anew from the next frames: a motion wrongly refused is not followed by a guess
+            self._guessed = 0
             return False
-        x3, x2, x1 = rates
-        u, v = raw_rate - x3, x1 - x2
-        self._gain_uv = FIT_MEMORY * self._gain_uv + u * v
-        self._gain_vv = FIT_MEMORY * self._gain_vv + v * v
-        square = error * error
-        self._mean_square += (1 - ERROR_MEMORY) * (square - self._mean_square) if self._trusted else square
-        self._trusted += 1
+        if not guessed:   # a departure from a guess tells neither g nor the prediction's envelope
+            x3, x2, x1 = rates
+            u, v = raw_rate - x3, x1 - x2
+            self._gain_uv = FIT_MEMORY * self._gain_uv + u * v
+            self._gain_vv = FIT_MEMORY * self._gain_vv + v * v
+            square = error * error
+            self._mean_square += (1 - ERROR_MEMORY) * (square - self._mean_square) if self._trusted else square
+            self._trusted += 1
         self._push(raw_rate)
-        self._temp = raw_temp
+        self._temp, self._skipped = raw_temp, 0
         return True
 
     def _predict(self) -> float:
@@ -133,10 +141,11 @@ class FrameGuard:
         gain = min(max(self._gain_uv / self._gain_vv, -1.0), 3.0) if self._gain_vv > 0 else 1.0
         return x3 + gain * (x1 - x2)
 
-    def _push(self, rate: float) -> None:
+    def _push(self, rate: float, guess: bool = False) -> None:
         rates = self._rates
         del rates[0]
         rates.append(rate)
+        self._guessed = (self._guessed << 1 | guess) & 0b111
 
     def _corrupt(self, error: float, tolerance: float) -> bool:
         """Whether ``error`` is, to within ``tolerance``, a corruption's step larger than STEP_MARGIN tolerances."""

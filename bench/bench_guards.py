@@ -1,6 +1,6 @@
 """The RD2100 frame guards measured: real motion they drop, and corrupt frames they let through.
 
-``python bench/bench_guards.py [--seconds 10] [--seed 1] [--mean] [--continuous-temperature]`` drives
+``python bench/bench_guards.py [--seconds 10] [--seed 1] [--mean] [--no-temperature-test]`` drives
 :class:`SerialGyroDriver`'s per-chunk path (parser, stream lock, stamper, guard) without a port: each encoded frame
 is one read, returned after its wire time and a random latency of up to 30 % of the period (stamp jitter). At 10,
 100 and 1000 Hz it reports:
@@ -15,8 +15,8 @@ is one read, returned after its wire time and a random latency of up to 30 % of 
   five times the noise, or a temperature 2 counts or more off: what no plausibility test can tell from noise is
   not), and the largest rate error passed.
 
-``--continuous-temperature``: the guard refuses temperature jumps too (``FrameGuard``'s option, which no protocol
-description turns on yet).
+``--no-temperature-test``: the guard does not refuse temperature jumps (``FrameGuard``'s option, which the RD2100
+protocols' descriptions turn on).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ BAUD = 115200
 CORRUPT_SHARE = 0.05
 BUMP_OFFSETS = np.random.default_rng(7).uniform(0.0, 0.1, 10)
 CORRUPT_FRAMES = 100_000   # of each corrupt-frame run, at every rate
-CONTINUOUS_TEMPERATURE = [False]   # --continuous-temperature
+CONTINUOUS_TEMPERATURE = [True]   # False: --no-temperature-test
 
 
 def vibration(freq_hz: float, amp_dps: float) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
@@ -81,8 +81,8 @@ def run(protocol: str, rate_hz: float, raw_rates: NDArray[np.int64], raw_temps: 
     now = [0]
     driver = SerialGyroDriver('/dev/null', BAUD, protocol, frames.append, clock_ns=lambda: now[0],
                               monotonic_ns=lambda: now[0], rate_scale_dps=SCALE)
-    if CONTINUOUS_TEMPERATURE[0]:
-        driver._guard = FrameGuard(driver._parser.description.corrupt_rate_steps, continuous_temperature=True)
+    if not CONTINUOUS_TEMPERATURE[0]:
+        driver._guard = FrameGuard(driver._parser.description.corrupt_rate_steps, continuous_temperature=False)
     period_ns = 1e9 / rate_hz
     t0 = 1_000_000_000
     latency = rng.uniform(0, 0.3 * period_ns, len(wire))
@@ -181,10 +181,10 @@ def main() -> None:
     parser.add_argument('--seed', type=int, default=1)
     parser.add_argument('--mean', action='store_true',
                         help='each frame the mean rate over its interval (a fiber gyro\'s), not a point sample')
-    parser.add_argument('--continuous-temperature', action='store_true',
-                        help='the guard refuses temperature jumps too')
+    parser.add_argument('--no-temperature-test', action='store_true',
+                        help='the guard does not refuse temperature jumps')
     args = parser.parse_args()
-    CONTINUOUS_TEMPERATURE[0] = args.continuous_temperature
+    CONTINUOUS_TEMPERATURE[0] = not args.no_temperature_test
     start = time.perf_counter()
     totals: dict[str, dict[str, float]] = {}
     for protocol in ('binary', 'ascii'):

@@ -46,7 +46,8 @@ def test_every_parser_offers_the_one_interface_and_describes_its_protocol(protoc
         assert description.hardware == 'KVH FOG' and description.reports_rate
     else:   # the RD2100's: a rate and a temperature, counts behind an 8-bit checksum
         assert (sample.imu, sample.unit_time_us, sample.interval_s) == (None, None, None)
-        assert description == ProtocolDescription(corrupt_rate_steps=description.corrupt_rate_steps)
+        assert description == ProtocolDescription(corrupt_rate_steps=description.corrupt_rate_steps,
+                                                  continuous_temperature=True)
         assert description.checks_rate_jumps and description.corrupt_rate_steps
         assert description.hardware == 'KVH RD2100' and description.rate_error(10.0) == ''
 

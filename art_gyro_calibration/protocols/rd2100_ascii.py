@@ -31,7 +31,7 @@ class AsciiFrameParser(ChunkParser):
 
     # Nominal: a typical line such as b'-1234 500\r\n' (wire-time stamping needs a figure).
     frame_bytes = 11
-    description = ProtocolDescription(corrupt_rate_steps=CORRUPT_RATE_STEPS)
+    description = ProtocolDescription(corrupt_rate_steps=CORRUPT_RATE_STEPS, continuous_temperature=True)
 
     def __init__(self, lock_frames: int = 1) -> None:
         """``lock_frames``: valid lines in a row before one is accepted (the driver's LOCK_FRAMES, 1 for none)."""

@@ -10,7 +10,8 @@ family's output (a public driver for the E-Core 2000):
 
 The temperature is not documented: this package carries it as the signed 16-bit
 ``m[3]:m[4]`` in counts (x 0.05 degC). ``m[1]``, ``m[2]`` are status bits of unknown
-meaning: encoded as 0 and not exposed.
+meaning: encoded as 0 and not exposed, but a status that changes for one frame is refused
+(``STATUS_CHANGE``): most two-bit errors that pass the checksum flip a status bit.
 """
 
 from __future__ import annotations
@@ -21,6 +22,10 @@ from art_gyro_calibration.frame import BinaryChunkParser, ProtocolDescription, R
 
 # Rejection reasons, keys of ParserStats.rejected_by_reason (with GARBAGE, of frame.py).
 BAD_CHECKSUM = 'bad_checksum'   # well-framed 8 bytes whose checksum is wrong
+# A frame whose status m[1]:m[2] differs from the last delivered one's, unless the frame before was refused with the
+# same status (a new status that persists is trusted from its second frame): a unit's status holds for many
+# frames, and a third of the two-bit errors that pass the checksum flip a status bit with a rate or temperature bit.
+STATUS_CHANGE = 'status_change'
 # 0x80 and seven 0x00: its checksum passes, but it is what a line held low (a gyro at 9600 baud read at 115200,
 # a break) decodes to, not a gyro: dropped, even from a still gyro at exactly 0.00 degC reading 0 counts.
 ALL_ZERO = 'all_zero'
@@ -39,11 +44,13 @@ _CANDIDATE = re.compile(rb'[\x80-\xff][\x00-\x7f]{7}')
 _PARTIAL = re.compile(rb'[\x80-\xff][\x00-\x7f]{0,6}\Z')
 
 
-def encode_binary(raw_rate: int, raw_temp: int) -> bytes:
-    """The 8-byte binary frame of one sample (status bytes 0)."""
+def encode_binary(raw_rate: int, raw_temp: int, status: int = 0) -> bytes:
+    """The 8-byte binary frame of one sample; ``status``: m[1]:m[2] (0..65535, 0 by default)."""
     check_int16('raw_rate', raw_rate)
     check_int16('raw_temp', raw_temp)
-    payload = ((raw_temp & 0xFFFF) << 16) | (raw_rate & 0xFFFF)   # m[1..6], m[1] = m[2] = 0
+    if not 0 <= status <= 0xFFFF:
+        raise ValueError(f'status must be 0..65535, got {status}')
+    payload = (status << 32) | ((raw_temp & 0xFFFF) << 16) | (raw_rate & 0xFFFF)   # m[1..6]
     checksum = -sum(payload.to_bytes(6, 'big')) & 0xFF
     bits = (checksum << 48) | payload                              # 56 bits, m[0] first
     frame = bytearray(BINARY_FRAME_BYTES)
@@ -74,11 +81,18 @@ class BinaryFrameParser(BinaryChunkParser):
     """
 
     frame_bytes = BINARY_FRAME_BYTES
-    description = ProtocolDescription(corrupt_rate_steps=CORRUPT_RATE_STEPS)
+    description = ProtocolDescription(corrupt_rate_steps=CORRUPT_RATE_STEPS, continuous_temperature=True)
 
     def __init__(self, lock_frames: int = 1) -> None:
         """``lock_frames``: valid frames in a row before one is accepted (the driver's LOCK_FRAMES, 1 for none)."""
-        super().__init__((BAD_CHECKSUM, ALL_ZERO), lock_frames)
+        super().__init__((BAD_CHECKSUM, ALL_ZERO, STATUS_CHANGE), lock_frames)
+        self._status: int | None = None           # m[1]:m[2] of the last frame delivered
+        self._refused_status: int | None = None   # of the last frame, if it was refused for it
+
+    def reset(self) -> None:
+        """Drop a partly received frame, the lock and the status learnt (a reopened unit's may differ)."""
+        super().reset()
+        self._status = self._refused_status = None
 
     def feed(self, data: bytes, arrival_ns: int | None = None) -> list[tuple[RawSample, int]]:
         """Parse a chunk (``arrival_ns`` unused); each valid frame with the offset just past it in ``data``."""
@@ -99,7 +113,13 @@ class BinaryFrameParser(BinaryChunkParser):
                 stats.rejected_by_reason[ALL_ZERO] += 1
                 stats.bytes_skipped += BINARY_FRAME_BYTES
                 self._run = 0
+            elif (status := (bits >> 32) & 0xFFFF) != self._status and status != self._refused_status \
+                    and self._status is not None:
+                stats.rejected_by_reason[STATUS_CHANGE] += 1
+                stats.bytes_skipped += BINARY_FRAME_BYTES
+                self._refused_status = status
             else:
+                self._status, self._refused_status = status, None
                 self._accept(RawSample(_int16(bits & 0xFFFF), _int16((bits >> 16) & 0xFFFF)), end - held,
                              BINARY_FRAME_BYTES, out)
             self._in_garbage = False

@@ -3,7 +3,8 @@
 from test_protocols import samples
 
 from art_gyro_calibration.frame import GARBAGE, UNLOCKED, RawSample
-from art_gyro_calibration.protocols.rd2100_binary import ALL_ZERO, BAD_CHECKSUM, BinaryFrameParser, encode_binary
+from art_gyro_calibration.protocols.rd2100_binary import (ALL_ZERO, BAD_CHECKSUM, STATUS_CHANGE, BinaryFrameParser,
+                                                          encode_binary)
 
 
 def test_binary_frame_layout_follows_the_e_core_description():
@@ -34,7 +35,7 @@ def test_binary_garbage_before_and_between_is_skipped_and_counted():
     data = (b'\x00\x7f\xff\x80\x81' + encode_binary(10, 20) + b'\xfe\x01\x02' + encode_binary(-5, 7)
             + b'\x90' + encode_binary(3, 4))
     assert samples(parser.feed(data)) == [(10, 20), (-5, 7), (3, 4)]
-    assert parser.stats.rejected_by_reason == {BAD_CHECKSUM: 0, ALL_ZERO: 0, GARBAGE: 3}
+    assert parser.stats.rejected_by_reason == {BAD_CHECKSUM: 0, ALL_ZERO: 0, STATUS_CHANGE: 0, GARBAGE: 3}
     assert parser.stats.bytes_skipped == 5 + 3 + 1
 
 
@@ -53,7 +54,7 @@ def test_binary_truncated_frame_followed_by_a_frame_loses_only_the_truncated_one
     parser = BinaryFrameParser()
     assert samples(parser.feed(truncated)) == []
     assert samples(parser.feed(encode_binary(9, 10))) == [(9, 10)]
-    assert parser.stats.rejected_by_reason == {BAD_CHECKSUM: 0, ALL_ZERO: 0, GARBAGE: 1}
+    assert parser.stats.rejected_by_reason == {BAD_CHECKSUM: 0, ALL_ZERO: 0, STATUS_CHANGE: 0, GARBAGE: 1}
     assert parser.stats.bytes_skipped == 5
 
 
@@ -113,3 +114,21 @@ def test_random_bytes_publish_no_frame_once_locked():
     assert BinaryFrameParser().feed(data)   # the checksum alone lets some through
     parser = BinaryFrameParser(lock_frames=3)
     assert parser.feed(data) == [] and parser.stats.rejected_by_reason[UNLOCKED] > 0
+
+
+def test_a_status_that_changes_for_one_frame_is_refused_and_one_that_persists_is_trusted_from_its_second_frame():
+    """Two flipped bits that pass the checksum: a status bit set and the rate's same bit cleared.
+
+    Before: delivered, the rate 64 counts off (a third of the two-bit errors that pass the checksum flip a status bit).
+    """
+    good = encode_binary(100, 500)   # m[6] = 0b1100100
+    corrupt = encode_binary(36, 500, status=1 << 6)   # m[2] bit 6 set, m[6] bit 6 cleared: the same checksum
+    assert sum(bin(a ^ b).count('1') for a, b in zip(good, corrupt)) == 2
+    parser = BinaryFrameParser()
+    assert samples(parser.feed(good + corrupt + good)) == [(100, 500), (100, 500)]
+    assert parser.stats.rejected_by_reason[STATUS_CHANGE] == 1 and parser.stats.frames == 2
+    new = encode_binary(7, 500, status=3)   # a unit's status that changes and holds
+    assert samples(parser.feed(new + new + good)) == [(7, 500)]
+    assert parser.stats.rejected_by_reason[STATUS_CHANGE] == 3
+    parser.reset()   # a reopened unit's status is learnt anew
+    assert samples(parser.feed(new)) == [(7, 500)]

@@ -1,9 +1,14 @@
 """Fault injection: gyro_node as a process against what real serial links and operators do.
 
-Every frame the fake gyro sends carries its sequence number in its temperature counts
-(10.00 degC + 0.05 degC x (seq mod 800), inside the calibrated 10..50 degC), so the
-listener's ``imu/temperature`` messages tell which frames arrived: a frame lost shows as a
-step other than one. Each test groups several faults per node process (start-up costs
+Every frame the fake gyro sends carries its sequence number in its temperature counts, up
+and down a count a frame as a temperature moves continuously (the frame guard refuses a
+temperature that jumps): 10.00 degC + 0.05 degC x c, c = 0..799 then 799..0 (seq mod 1600),
+inside the calibrated 10..50 degC, so the listener's ``imu/temperature`` messages tell which
+frames arrived: a frame lost shows as a step other than one. A temperature injected outside
+that code is refused for its first frame, as is the sequence's first frame after it (each a
+jump): the tests inject such a level as two frames (``inject_level``) or hold it.
+
+Each test groups several faults per node process (start-up costs
 seconds) and checks, after each, the counters and /diagnostics and that the frames after
 recovery arrive without loss.
 """
@@ -34,7 +39,8 @@ from art_gyro_calibration.protocols.rd2100_binary import encode_binary  # noqa: 
 
 RATE_HZ = 50.0
 TEMP_BASE = 200        # counts: 10 degC, the bottom of NAVC3545's calibrated range
-PERIOD = 800           # sequence numbers repeat after this many frames (16 s at 50 Hz)
+PERIOD = 800           # temperature codes: 0..799 counts above TEMP_BASE
+CYCLE = 2 * PERIOD     # sequence numbers repeat after this many frames (32 s at 50 Hz): up, then down
 TEMP_SCALE = 0.05      # degC per count (packaged calibrations)
 # Counts a frame the simulated rate may move by: 3.05 deg/s, a turn's onset.
 SLEW_COUNTS = 1000
@@ -42,7 +48,7 @@ OK, WARN, ERROR = b'\x00', b'\x01', b'\x02'
 
 
 class SequenceCounts:
-    """Stands in for the fake's simulator: frame ``i`` carries ``i mod PERIOD`` in its temperature counts.
+    """Stands in for the fake's simulator: frame ``i`` carries ``code(i)`` in its temperature counts.
 
     The rate moves to ``raw_rate`` by at most SLEW_COUNTS a frame, as a gyro on a vehicle does:
     a step of it could be a rate jump the driver rejects (a frame's stamp may come within its
@@ -60,7 +66,7 @@ class SequenceCounts:
     def counts(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Raw (rate, temperature) counts of the frames sent at times ``t``."""
         index = np.rint(np.asarray(t) * self.rate_hz).astype(np.int64)
-        temp = TEMP_BASE + index % PERIOD if self.raw_temp is None else np.full(index.shape, self.raw_temp)
+        temp = TEMP_BASE + code(index) if self.raw_temp is None else np.full(index.shape, self.raw_temp)
         reach = SLEW_COUNTS * np.arange(1, index.size + 1)
         rate = self._rate + np.clip(self.raw_rate - self._rate, -reach, reach)
         self._rate = int(rate[-1])
@@ -69,6 +75,12 @@ class SequenceCounts:
         if self.spike is not None:
             rate[0], self.spike = self.spike, None
         return rate, temp
+
+
+def code(index: np.ndarray) -> np.ndarray:
+    """The temperature code of frames ``index``: 0..PERIOD-1, then back down (a step of at most one count)."""
+    phase = index % CYCLE
+    return np.minimum(phase, CYCLE - 1 - phase)
 
 
 def sequence_gyro(link: Path, protocol: str = 'binary', rate_hz: float = RATE_HZ) -> FakeGyro:
@@ -90,19 +102,33 @@ def counts(temperatures: list[float]) -> np.ndarray:
 
 
 def residues(temperatures: list[float]) -> np.ndarray:
-    """Sequence numbers mod PERIOD of the received temperatures; injected frames outside the code are dropped."""
-    code = counts(temperatures) - TEMP_BASE
-    return code[(code >= 0) & (code < PERIOD)]
+    """Sequence numbers mod CYCLE of the received temperatures; injected frames outside the code are dropped.
+
+    A code comes twice a cycle (up, then down): each frame is the nearest after the last one that carries it; the
+    first, the one of its two from which the second is nearer.
+    """
+    codes = counts(temperatures) - TEMP_BASE
+    seq: list[int] = []
+    for c in codes[(codes >= 0) & (codes < PERIOD)].tolist():
+        if len(seq) == 1:
+            seq[0] = min((seq[0], CYCLE - 1 - seq[0]), key=lambda q: (_next(q, c) - q) % CYCLE)
+        seq.append(_next(seq[-1], c) if seq else c)
+    return np.asarray(seq, dtype=np.int64)
+
+
+def _next(last: int, c: int) -> int:
+    """The sequence number mod CYCLE of the first frame after ``last`` whose code is ``c``."""
+    return min((c, CYCLE - 1 - c), key=lambda q: (q - last - 1) % CYCLE)
 
 
 def gaps(seq: np.ndarray) -> int:
     """Places where the sequence steps by anything but one: frames lost (or a restart)."""
-    return int(np.count_nonzero(np.mod(np.diff(seq), PERIOD) != 1))
+    return int(np.count_nonzero(np.mod(np.diff(seq), CYCLE) != 1))
 
 
 def lost(seq: np.ndarray) -> int:
     """Frames missing from the sequence: each step's excess over one."""
-    return int(np.sum(np.mod(np.diff(seq), PERIOD) - 1))
+    return int(np.sum(np.mod(np.diff(seq), CYCLE) - 1))
 
 
 def wait_lost_held_back(listener: Listener, unlocked_at_start: int, other: int, proc: subprocess.Popen[bytes],
@@ -123,9 +149,9 @@ def wait_frames(listener: Listener, n: int, proc: subprocess.Popen[bytes], outpu
 def wait_tail(listener: Listener, fake: FakeGyro, proc: subprocess.Popen[bytes], output: Path) -> None:
     """Stop the fake and wait until its last frame has arrived (no loss at the end either)."""
     fake.stop()
-    last = (fake.sent - 1) % PERIOD
+    last = (fake.sent - 1) % CYCLE
     wait_until(lambda: (r := residues(listener.temperatures())).size and r[-1] == last,
-               f'the last frame sent (seq mod {PERIOD} = {last})', proc, output)
+               f'the last frame sent (seq mod {CYCLE} = {last})', proc, output)
 
 
 def inject_alone(fake: FakeGyro, data: bytes) -> None:
@@ -133,6 +159,12 @@ def inject_alone(fake: FakeGyro, data: bytes) -> None:
     fake.inject(data)
     sent = fake.sent   # read after the injection: a frame counted later was written after it
     wait_until(lambda: fake.sent > sent, 'a frame after the injection')
+
+
+def inject_level(fake: FakeGyro, frame: bytes) -> None:
+    """Inject ``frame`` twice between two of the fake's: a temperature level the frame guard trusts from its second
+    frame (it refuses the first, and the sequence's first frame after it, as temperature jumps)."""
+    inject_alone(fake, frame + frame)
 
 
 def counter(status: dict, key: str) -> int:
@@ -222,9 +254,10 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
         wait_lost_held_back(listener, unlocked, 0, proc, output)
 
         # Absurd temperature counts (frames with a valid checksum: dropped, counted, ERROR for the
-        # period) and a hot, real-looking 60 degC (published, counted outside the calibrated range).
+        # period) and a hot, real-looking 60 degC (published, counted outside the calibrated range), each as a
+        # level of two frames (a lone frame's temperature jump is the frame guard's).
         for raw_temp in (32767, -32768, 1200):
-            inject_alone(fake, encode_binary(0, raw_temp))
+            inject_level(fake, encode_binary(0, raw_temp))
         wait_frames(listener, 10, proc, output)
         received = counts(listener.temperatures(start))
         assert [c for c in received if not TEMP_BASE <= c < TEMP_BASE + PERIOD] == [1200]
@@ -249,9 +282,12 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
         assert counter(back, 'frames_outside_range') > 3
 
         # No frame of the fake lost in the whole test, including the end, but the hot frames (not in the
-        # sequence) and those the lock held back after the faults.
+        # sequence), those the lock held back after the faults, and the frame guard's temperature jumps: the first
+        # of each level injected (3), the first hot frame, and the sequence's first frame after each level (5).
         wait_tail(listener, fake, proc, output)
-        wait_lost_held_back(listener, unlocked, int(np.count_nonzero(counts(listener.temperatures()) == 1100)),
+        listener.wait_status('link', lambda s: counter(s, 'rejected_temperature_jump') == 3 + 5,
+                             'the temperature jumps counted', proc, output)
+        wait_lost_held_back(listener, unlocked, int(np.count_nonzero(counts(listener.temperatures()) == 1100)) + 5,
                             proc, output)
         assert fake.dropped == 0
         final = listener.wait_status('link', lambda s: True, 'a link status', proc, output)
@@ -382,15 +418,16 @@ def test_ascii_line_faults_nan_and_absurd_temperatures(tmp_path: Path, loopback:
         too_long = [b'1 ' * 40 + b'\r\n']
         for line in malformed + out_of_range + too_long:
             inject_alone(fake, line)
-        # Absurd counts within 16 bits are valid lines, but no gyro is at +-1638 degC: dropped and counted.
-        for line in (b'0 32767\r\n', b'0 -32768\r\n'):
-            inject_alone(fake, line)
         link = listener.wait_status(
             'link', lambda s: (counter(s, 'rejected_malformed'), counter(s, 'rejected_out_of_range'),
                                counter(s, 'rejected_line_too_long')) == (len(malformed), len(out_of_range), 1),
             'the bad lines counted', proc, output)
         assert link['level'] == OK
         assert counter(link, 'rejected') - counter(link, 'rejected_unlocked') == len(malformed) + len(out_of_range) + 1
+        # Absurd counts within 16 bits are valid lines, but no gyro is at +-1638 degC: dropped and counted (each a
+        # level of two lines: the first, and the sequence's first line after it, the frame guard's jumps).
+        for line in (b'0 32767\r\n', b'0 -32768\r\n'):
+            inject_level(fake, line)
         listener.wait_status('temperature', lambda s: counter(s, 'frames_implausible_temperature') == 2
                              and counter(s, 'frames_outside_range') == 0, 'the absurd temperatures counted',
                              proc, output)
@@ -402,7 +439,7 @@ def test_ascii_line_faults_nan_and_absurd_temperatures(tmp_path: Path, loopback:
         inject_alone(fake, b'\x07garbage')
         wait_frames(listener, 5, proc, output)   # the lock back: the last frames sent are trusted
         wait_tail(listener, fake, proc, output)
-        wait_lost_held_back(listener, unlocked, 1, proc, output)
+        wait_lost_held_back(listener, unlocked, 1 + 2, proc, output)
         assert counter(listener.wait_status('link', lambda s: counter(s, 'rejected_malformed') > len(malformed),
                                             'the spoilt line counted', proc, output),
                        'rejected_malformed') == len(malformed) + 1
@@ -520,22 +557,34 @@ def test_clipped_and_jumping_rates_are_counted_not_published(tmp_path: Path, loo
         wait_frames(listener, 10, proc, output)
         wait_until(lambda: fake.last_sample[0] >= 32000 - 1, 'the fake turning near full scale')
         turning = len(listener.imu_since(0))
-        for raw_rate in clipped:   # temperatures outside the sequence code: any of them published would show
-            inject_alone(fake, encode_binary(raw_rate, TEMP_BASE + PERIOD + 5))
-        inject_alone(fake, encode_binary(32766, TEMP_BASE + PERIOD + 6))   # one count inside: a measurement
+        # The fake's temperature held outside the sequence code (its first frame the guard's temperature jump), so
+        # that frames injected at it show when published; injected once the link is OK again.
+        held = TEMP_BASE + PERIOD + 5
+        fake.simulator.raw_temp = held
+        wait_until(lambda: fake.last_sample[1] == held, 'the fake at the held temperature')
+        listener.wait_status('link', lambda s: counter(s, 'rejected_temperature_jump') == 1 and s['level'] == OK,
+                             'the link OK at the held temperature', proc, output)
+        for raw_rate in clipped:
+            inject_alone(fake, encode_binary(raw_rate, held))
+        inject_alone(fake, encode_binary(32766, held + 1))   # one count inside: a measurement
         link = listener.wait_status('link', lambda s: counter(s, 'dropped_clipped') == len(clipped),
                                     'the clipped frames counted', proc, output)
         assert link['level'] == ERROR and f'{len(clipped)} clipped' in link['message'], link
         assert counter(link, 'dropped') == len(clipped)
+        fake.simulator.raw_temp = None   # back to the sequence: its first frame the guard's temperature jump
+        wait_frames(listener, 10, proc, output)
         # A frame of the sequence comes with 47.6 deg/s in it (the turn's 97.6 less 2^14 counts).
         fake.simulator.spike = 32000 - (1 << 14)
         jumped = listener.wait_status('link', lambda s: counter(s, 'rejected_rate_jump') == 1,
                                       'the rate jump counted', proc, output)
-        assert counter(jumped, 'rejected') == counter(jumped, 'rejected_unlocked') + 1
+        assert counter(jumped, 'rejected_temperature_jump') == 2
+        assert counter(jumped, 'rejected') == counter(jumped, 'rejected_unlocked') + 1 + 2
         wait_tail(listener, fake, proc, output)
         extra = [c for c in counts(listener.temperatures()) if c >= TEMP_BASE + PERIOD]
-        assert extra == [TEMP_BASE + PERIOD + 6], extra
+        assert extra.count(held + 1) == 1 and set(extra) == {held, held + 1}, extra
         seq = residues(listener.temperatures())
-        assert gaps(seq) == lost(seq) == 1   # the corrupt frame's place, nothing else
+        # The held frames' place (those published, the first refused, the sequence's first after them refused),
+        # the corrupt frame's, nothing else.
+        assert gaps(seq) == 2 and lost(seq) == extra.count(held) + 2 + 1
         rates = np.array([m.angular_velocity.z for m in listener.imu_since(turning)])
         assert rates.size and np.all(rates > 1.0), rates.min()   # rad/s: the 0.83 (47.6 deg/s) not published

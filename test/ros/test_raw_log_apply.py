@@ -59,7 +59,8 @@ def test_apply_on_the_node_log_equals_what_the_node_published(tmp_path: Path, lo
             for raw_temp in (4000, -1400, 2599, -1199):   # 200, -70 degC: dropped; 129.95, -59.95 degC: kept
                 # At the rate the gyro turns at: a frame jumping from it is rejected_rate_jump, not this test's.
                 assert fake.last_sample is not None
-                fake.inject(encode_binary(int(fake.last_sample[0]), raw_temp))
+                # Twice: a level, trusted by the frame guard from its second frame (a lone one is a temperature jump).
+                fake.inject(encode_binary(int(fake.last_sample[0]), raw_temp) * 2)
                 sent = fake.sent
                 wait_until(lambda: fake.sent > sent + 20, 'frames after the injection')
             fake.stop()
