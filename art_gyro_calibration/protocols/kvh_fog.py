@@ -261,7 +261,7 @@ class StreamInterval:
     too), so the fit needs no assumption about the rate, and its error falls as the span grows.
     """
 
-    __slots__ = ('_k', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_c_tt', '_span_s')
+    __slots__ = ('_k', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_c_tt', '_span_s', '_last_n')
 
     def __init__(self) -> None:
         self.reset()
@@ -271,7 +271,7 @@ class StreamInterval:
         self._k = 0
         self._n0 = 0
         self._t0 = 0
-        self._mean_n = self._mean_t = self._c_nt = self._c_nn = self._c_tt = self._span_s = 0.0
+        self._mean_n = self._mean_t = self._c_nt = self._c_nn = self._c_tt = self._span_s = self._last_n = 0.0
 
     def add(self, number: int, arrival_ns: int) -> None:
         """Message ``number`` (intervals since the connection opened) arrived at ``arrival_ns`` (monotonic)."""
@@ -287,12 +287,19 @@ class StreamInterval:
         self._c_nt += dn * (t - self._mean_t)
         self._c_tt += dt * (t - self._mean_t)
         self._c_nn += dn * (n - self._mean_n)
-        self._span_s = t
+        self._span_s, self._last_n = t, n
 
-    def lateness(self, number: int, arrival_ns: int) -> float | None:
-        """Intervals by which message ``number`` arrived after the line so far, once it spans half STREAM_BASELINE_S."""
-        if self._span_s < STREAM_BASELINE_S * 0.5 or self._k < 3 or self._c_nt <= 0.0:
+    def lateness(self, number: int, arrival_ns: int, configured_s: float) -> float | None:
+        """Intervals by which message ``number`` arrived after the line so far; None before any message.
+
+        The fitted line once it spans half STREAM_BASELINE_S; before, the line of ``configured_s`` (the configured
+        interval) through the last message added: a gap in the first half second is counted too (a unit set to
+        another rate than configured is the diagnostics' rate error).
+        """
+        if not self._k:
             return None
+        if self._span_s < STREAM_BASELINE_S * 0.5 or self._k < 3 or self._c_nt <= 0.0:
+            return ((arrival_ns - self._t0) * 1e-9 - self._span_s) / configured_s - (number - self._n0 - self._last_n)
         slope = self._c_nt / self._c_nn
         return ((arrival_ns - self._t0) * 1e-9 - self._mean_t) / slope - (number - self._n0 - self._mean_n)
 
@@ -425,6 +432,7 @@ class KvhFogParser(ChunkParser):
         self._configured_hz = float(config.output_rate_hz)
         self.stream = StreamInterval()
         self._last_sequence: int | None = None
+        self._last_arrival_ns: int | None = None   # A and C: when the message of _last_sequence was read
         self._number = 0                    # intervals since the connection opened, by the sequence numbers
         self._bad_crc_since = 0             # bad CRCs since the last good message (those messages are not lost)
         self._temp_c: float | None = None   # Format C: the latest temperature
@@ -441,7 +449,7 @@ class KvhFogParser(ChunkParser):
         self._skip(len(self._buffer))
         self._buffer = b''
         self._in_garbage = False
-        self._last_sequence = None
+        self._last_sequence = self._last_arrival_ns = None
         self._number = 0
         self._bad_crc_since = 0
         self._temp_c = None
@@ -502,7 +510,8 @@ class KvhFogParser(ChunkParser):
                 continue
             self._in_garbage = False
             pos = end
-            sample, reason = self._decode(buf, start)
+            sample, reason = self._decode(buf, start, None if arrival_ns is None
+                                          else arrival_ns - (len(buf) - end) * self.byte_ns)
             last_end = end
             if sample is None:
                 reasons[reason] += 1
@@ -530,7 +539,7 @@ class KvhFogParser(ChunkParser):
         128 lost messages or more look like 0 to 127 by the sequence alone; arrivals that stay a
         whole number of wraps late for GAP_CONFIRM_S count them (the fit waits meanwhile).
         """
-        late = self.stream.lateness(self._number, arrival_ns)
+        late = self.stream.lateness(self._number, arrival_ns, 1.0 / self._configured_hz)
         wraps = 0 if late is None else round(late / KVH_SEQUENCE_MODULO) * KVH_SEQUENCE_MODULO
         if late is None or wraps <= 0 or abs(late - wraps) > KVH_SEQUENCE_MODULO / 4:
             self._gap = None
@@ -543,8 +552,8 @@ class KvhFogParser(ChunkParser):
             self.stats.lost_frames += wraps
             self.stream.add(self._number, arrival_ns)
 
-    def _decode(self, buf: bytes, start: int) -> tuple[RawSample | None, str]:
-        """The sample of a message whose CRC is good, or None and the reason it is rejected."""
+    def _decode(self, buf: bytes, start: int, arrival_ns: int | None) -> tuple[RawSample | None, str]:
+        """The sample of a message whose CRC is good (its end read at ``arrival_ns``), or None and the reason."""
         values = self._format.layout.unpack_from(buf, start + 4)
         config = self.config
         timestamp: int | None = None
@@ -560,12 +569,14 @@ class KvhFogParser(ChunkParser):
             steps = (sequence - last) % KVH_SEQUENCE_MODULO
             if timestamp is not None:
                 steps += self._clock_wraps(timestamp, steps)
+            elif not steps:
+                steps = self._arrival_wraps(arrival_ns)
             if not steps:
                 return None, REPEATED_SEQUENCE
             # A message rejected for its CRC was received (and counted) once: not also lost.
             self.stats.lost_frames += max(0, steps - 1 - self._bad_crc_since)
         self._bad_crc_since = 0
-        self._last_sequence = sequence
+        self._last_sequence, self._last_arrival_ns = sequence, arrival_ns
         self._number += steps
         interval_s = self._clock_interval(timestamp, steps) if self._clocked else self._stream_interval()
         if self._format.multiplexed:
@@ -604,6 +615,19 @@ class KvhFogParser(ChunkParser):
         if off <= RATE_CONFIRMED and off * interval <= RATE_CONFIRMED_SE * stream.interval_error_s:
             return 1.0 / self._configured_hz
         return interval
+
+    def _arrival_wraps(self, arrival_ns: int | None) -> int:
+        """A and C: the whole wraps since the last message, whose sequence number this one repeats (0 if unsure).
+
+        127 lost messages look like a repeat by the sequence alone: the time between the two reads over the interval
+        (measured, else configured) counts them, when it is a whole number of wraps within a quarter of one.
+        """
+        last = self._last_arrival_ns
+        if arrival_ns is None or last is None:
+            return 0
+        intervals = (arrival_ns - last) * 1e-9 / (self.stream.interval_s or 1.0 / self._configured_hz)
+        wraps = round(intervals / KVH_SEQUENCE_MODULO) * KVH_SEQUENCE_MODULO
+        return wraps if wraps > 0 and abs(intervals - wraps) <= KVH_SEQUENCE_MODULO / 4 else 0
 
     def _clock_wraps(self, timestamp: int, steps: int) -> int:
         """Format B: the whole wraps of the sequence the unit's clock says passed besides ``steps`` (0 if unsure).

@@ -39,6 +39,34 @@ def test_stream_gap_of_a_whole_wrap_is_counted_by_arrival_time(message_format, l
     assert parser.measured_rate_hz == pytest.approx(1000.0, rel=1e-3)
 
 
+@pytest.mark.parametrize('message_format', ['A', 'C'])
+@pytest.mark.parametrize('lost', [range(200, 330), range(100, 228)])
+def test_a_gap_in_the_first_half_second_is_counted_by_the_configured_interval(message_format, lost):
+    """Before the stream's interval is measured, the configured one tells the wraps a gap of 128 or more hides.
+
+    Before: 2 (130 lost) and 0 (128 lost) counted, and every rate after it off by 1 to 10 % (2,991 of 3,000).
+    """
+    config = KvhFogConfig(message_format=message_format)
+    parser = KvhFogParser(config)
+    samples = read_like_a_port(parser, stream(config, 1000.0, 4.0, lost))
+    assert parser.stats.lost_frames == len(lost)
+    assert [s.raw_rate for s in samples] == pytest.approx([30.0] * len(samples), rel=3e-3)
+
+
+@pytest.mark.parametrize('message_format', ['A', 'C'])
+@pytest.mark.parametrize('at', [200, 2500])
+def test_127_messages_lost_are_127_not_a_repeated_sequence(message_format, at):
+    """The message after 127 lost repeats the last one's sequence number: arrival time says 128 intervals passed.
+
+    Before: it was rejected as repeated_sequence and the gap counted 128 (0 in the first half second).
+    """
+    config = KvhFogConfig(message_format=message_format)
+    parser = KvhFogParser(config)
+    samples = read_like_a_port(parser, stream(config, 1000.0, 4.0, range(at, at + 127)))
+    assert parser.stats.lost_frames == 127 and parser.stats.rejected_by_reason['repeated_sequence'] == 0
+    assert [s.raw_rate for s in samples] == pytest.approx([30.0] * len(samples), rel=3e-3)
+
+
 @pytest.mark.parametrize('stall_s', [0.128, 0.3, 1.0])
 def test_a_stalled_read_is_not_a_gap(stall_s):
     """The host reads nothing for stall_s, then everything queued at once: no message lost, none counted."""
