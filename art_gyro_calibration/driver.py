@@ -326,7 +326,11 @@ class SerialGyroDriver:
                 or monotonic_ns - self._opened_ns < NO_FRAMES_WARNING_S * 1e9):
             return
         self._quiet_warned = True
-        if stats.bytes_skipped:
+        if startup := self._startup_rejections():   # messages that are right: the baud and protocol are
+            self._warn(f'no frame from {self.port} yet, {NO_FRAMES_WARNING_S:g} s after opening it: {startup} '
+                       f'valid messages came, held as a connection\'s first ({self._rejections()}), as a unit set '
+                       'to a slow output rate does')
+        elif stats.bytes_skipped:
             self._warn(f'no valid frame from {self.port} in {NO_FRAMES_WARNING_S:g} s after opening it; '
                        f'{stats.bytes_skipped} bytes skipped so far ({self._rejections()}): check the baud rate '
                        f'({self.baud}) and the protocol ({self.protocol}) against the gyro\'s settings')

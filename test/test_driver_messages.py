@@ -26,6 +26,26 @@ def test_a_kvh_units_start_up_rejections_are_no_baud_alarm() -> None:
     assert not [w for w in warnings if 'check the baud rate' in w], warnings
 
 
+def test_a_slow_kvh_units_first_frame_after_the_no_frames_warning_is_no_baud_alarm() -> None:
+    """A unit at 1 Hz: its first messages are held until the interval is measured (1 s), the first frame at 3 s.
+
+    Before: "no valid frame ... check the baud rate (921600) and the protocol (kvh_fog)".
+    """
+    warnings: list[str] = []
+    frames: list[object] = []
+    config = KvhFogConfig(output_rate_hz=1.0)
+    with FakeGyro('KVH_DSP1760_EXAMPLE', protocol='kvh_fog', rate_hz=1, kvh_fog=config) as fake:
+        driver = SerialGyroDriver(fake.path, 921600, 'kvh_fog', frames.append, kvh_fog=fake.kvh_fog,
+                                  on_warning=warnings.append)
+        driver.start()
+        try:
+            assert wait_for(lambda: frames, timeout_s=10.0)
+        finally:
+            driver.stop()
+    assert len(warnings) == 1 and 'valid messages came, held as a connection\'s first' in warnings[0], warnings
+    assert 'no_interval' in warnings[0] and 'baud' not in warnings[0], warnings
+
+
 def test_bytes_without_a_frame_say_so_not_empty_parentheses(tmp_path) -> None:
     warnings: list[str] = []
     silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
