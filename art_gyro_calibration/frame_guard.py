@@ -27,8 +27,8 @@ import math
 TEMPERATURE_JUMP_COUNTS = 2
 # g's least-squares fit forgets by this per frame (about ten frames): a vibration's frequency is followed.
 FIT_MEMORY = 0.9
-# The prediction error's mean square is averaged with this memory per frame (about 50 frames).
-ERROR_MEMORY = 0.98
+# The prediction error's mean square is averaged over about this many frames (the mean of the first ones).
+ERROR_FRAMES = 50
 # A frame is refused when its departure is one of corrupt_rate_steps to within ERROR_MARGIN rms errors (at
 # least FLOOR_COUNTS), and that step is more than STEP_MARGIN times that tolerance: a smaller one is noise, or a
 # motion's own departure (a turn's onset) as likely as a corruption.
@@ -54,7 +54,7 @@ class FrameGuard:
     """Decides frame by frame whether a frame is delivered; counts what it refuses in ``rejected_by_reason``."""
 
     __slots__ = ('_steps', '_jump', '_temp', '_refused_temp', '_rates', '_gain_uv', '_gain_vv', '_mean_square',
-                 '_trusted', '_steady', '_guessed', '_skipped', 'rejected_by_reason')
+                 '_trusted', '_steady', '_guessed', '_skipped', '_fitted', 'rejected_by_reason')
 
     def __init__(self, corrupt_rate_steps: tuple[int, ...], continuous_temperature: bool = False) -> None:
         """``corrupt_rate_steps``: the rate changes (counts, positive) the protocol's undetected corruptions make.
@@ -75,6 +75,7 @@ class FrameGuard:
         self._gain_vv = 0.0
         self._mean_square = 0.0
         self._trusted = 0
+        self._fitted = False   # g fitted on a frame at least
         self._steady = 0
         self._guessed = 0   # bits: which of the three rates the prediction filled in (frames lost or refused)
         self._skipped = 0   # frames lost or refused since the last delivered one
@@ -100,7 +101,7 @@ class FrameGuard:
         self._refused_temp = None if temp_ok else raw_temp
         self._skipped = skipped + 1   # until delivered
         rates = self._rates
-        if missed > MAX_BRIDGED:
+        if missed > MAX_BRIDGED or missed and len(rates) < 3:   # the rates must be consecutive: start again
             rates.clear()
             self._guessed = 0
         for _ in range(missed if len(rates) == 3 else 0):
@@ -109,6 +110,8 @@ class FrameGuard:
             self.rejected_by_reason[TEMPERATURE_JUMP] += 1
             if len(rates) == 3:
                 self._push(self._predict(), guess=True)
+            else:
+                rates.clear()   # the rates must be consecutive: start again
             return False
         if len(rates) < 3:
             rates.append(raw_rate)
@@ -124,13 +127,14 @@ class FrameGuard:
             self._guessed = 0
             return False
         if not guessed:   # a departure from a guess tells neither g nor the prediction's envelope
+            if self._fitted:   # the error of a prediction by a fitted g (the mean of the first ones, then recent)
+                self._trusted += 1
+                self._mean_square += (error * error - self._mean_square) / min(self._trusted, ERROR_FRAMES)
             x3, x2, x1 = rates
             u, v = raw_rate - x3, x1 - x2
             self._gain_uv = FIT_MEMORY * self._gain_uv + u * v
             self._gain_vv = FIT_MEMORY * self._gain_vv + v * v
-            square = error * error
-            self._mean_square += (1 - ERROR_MEMORY) * (square - self._mean_square) if self._trusted else square
-            self._trusted += 1
+            self._fitted = True
         self._push(raw_rate)
         self._temp, self._skipped = raw_temp, 0
         return True

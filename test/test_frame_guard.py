@@ -211,3 +211,28 @@ def test_the_frame_after_a_rate_jump_is_tested_against_the_temperature_two_frame
     assert not guard.passes(1 << 12, 540, 40 * period, period)
     assert guard.passes(0, 541, 41 * period, period)
     assert guard.rejected_by_reason == {RATE_JUMP: 1, TEMPERATURE_JUMP: 0}
+
+
+def vibration(rate_hz, frames, seed=3):
+    """Rate counts of 30 deg/s at 30 Hz, with 0.02 deg/s of noise."""
+    t = np.arange(frames) / rate_hz
+    return np.round((30 * np.sin(2 * np.pi * 30 * t + 0.3)
+                     + np.random.default_rng(seed).normal(0, 0.02, t.size)) / SCALE).astype(int)
+
+
+@pytest.mark.parametrize('lost', [{*range(200, 205), *range(206, 209)}, set()],
+                         ids=['a gap while the prediction starts again', 'the start'])
+def test_a_corrupt_frame_soon_after_the_prediction_starts_is_refused(lost):
+    """100 Hz, 30 deg/s at 30 Hz: a rate 2^11 counts (6.2 deg/s) off, 40 frames after a restart, is refused.
+
+    Before: passed. A frame lost while the prediction gathered its three rates again left them unevenly spaced
+    (their prediction 10,000 counts off); at the start, the first error (g not yet fitted) was the envelope's whole
+    mean square: either held 2^11 counts within the envelope for hundreds of frames.
+    """
+    rates = vibration(100.0, 400)
+    sent = rates.copy()
+    corrupt = max(lost, default=0) + 40
+    rates[corrupt] += 1 << 11
+    got, stats = deliver('binary', rates, np.full(rates.size, 500), 100.0, lost=lost)
+    assert [r for r, _ in got] == [r for i, r in enumerate(sent) if i not in lost and i != corrupt][LOCK_FRAMES - 1:]
+    assert stats.rejected_by_reason[RATE_JUMP] == 1
