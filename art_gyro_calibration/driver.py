@@ -70,12 +70,15 @@ class SerialGyroDriver:
                  clock_ns: Callable[[], int] = time.time_ns, reopen_period_s: float = 0.5,
                  on_link: Callable[[bool, str], None] | None = None, kvh_fog: KvhFogConfig | None = None,
                  on_warning: Callable[[str], None] | None = None,
-                 monotonic_ns: Callable[[], int] = time.monotonic_ns, rate_scale_dps: float | None = None) -> None:
+                 monotonic_ns: Callable[[], int] = time.monotonic_ns, rate_scale_dps: float | None = None,
+                 guard_look_ahead: bool = False) -> None:
         """``clock_ns`` is the stamps' clock; ``on_warning`` hears of clock steps and of no frames after an open.
 
         ``rate_scale_dps`` (deg/s per count, the calibration's rate_scale_factor) turns on the frame guard
         (:class:`~art_gyro_calibration.frame_guard.FrameGuard`) of the protocols whose description asks for it (the
-        RD2100's; kvh_fog is left to its CRC-32); None: no guard.
+        RD2100's; kvh_fog is left to its CRC-32); None: no guard. ``guard_look_ahead``: the guard also refuses
+        one-frame spikes, each frame delivered when the next one comes (a frame of latency; at a read that times
+        out, or a close, the frame held is delivered).
         """
         if not isinstance(port, str) or not port:
             raise ValueError(f'port must be a device path such as /dev/ttyUSB0, got {port!r}')
@@ -91,8 +94,10 @@ class SerialGyroDriver:
             raise ValueError(f'rate_scale_dps must be a positive number of deg/s per count, got {rate_scale_dps!r}')
         self._stamper = WireStamper(baud, self._parser.frame_bytes)
         description = self._parser.description
-        self._guard = (FrameGuard(description.corrupt_rate_steps, description.continuous_temperature)
+        self._guard = (FrameGuard(description.corrupt_rate_steps, description.continuous_temperature, guard_look_ahead)
                        if rate_scale_dps is not None and description.checks_rate_jumps else None)
+        self._look_ahead = guard_look_ahead and self._guard is not None
+        self._held: Frame | None = None   # with look-ahead: the last frame passed, until the next one says
         self.port = port
         self.baud = baud
         self.protocol = protocol
@@ -212,6 +217,7 @@ class SerialGyroDriver:
         return True
 
     def _close(self) -> None:
+        self._release()
         port, self._serial, self._identity = self._serial, None, None
         self._connected = False
         if port is not None:
@@ -255,10 +261,19 @@ class SerialGyroDriver:
                 self._lost(f'read from {self.port} failed: {e}')
             return
         if not data:
+            self._release()
             self._check_path()
             self._check_quiet(monotonic_ns)
             return
         self._on_data(data, now_ns, monotonic_ns)
+
+    def _release(self) -> None:
+        """Deliver the frame the look-ahead holds, if any, without its next one."""
+        held, self._held = self._held, None
+        if held is not None:
+            assert self._guard is not None
+            self._guard.release()
+            self._on_frame(held)
 
     def _on_data(self, data: bytes, now_ns: int, monotonic_ns: int) -> None:
         """One read's bytes, read at ``now_ns`` (stamps' clock) and ``monotonic_ns``: parsed, stamped, guarded."""
@@ -275,10 +290,21 @@ class SerialGyroDriver:
                        'stamps re-anchored to it')
         if self._unit_clock is not None and frames:
             stamps = self._unit_clock_stamps(frames, stamps, monotonic_ns, len(data))
-        guard, period_ns = self._guard, self._stamper.period_ns
+        guard, period_ns, on_frame = self._guard, self._stamper.period_ns, self._on_frame
         for (sample, _), (stamp, steady) in zip(frames, stamps):
-            if guard is None or guard.passes(sample.raw_rate, sample.raw_temp, steady, period_ns):
-                self._on_frame(Frame(sample, stamp, steady))
+            if guard is None:
+                on_frame(Frame(sample, stamp, steady))
+                continue
+            held = self._held
+            if held is not None:
+                self._held = None
+                if guard.confirm(sample.raw_rate, steady, period_ns):
+                    on_frame(held)
+            if guard.passes(sample.raw_rate, sample.raw_temp, steady, period_ns):
+                if self._look_ahead:
+                    self._held = Frame(sample, stamp, steady)
+                else:
+                    on_frame(Frame(sample, stamp, steady))
         if not frames:
             self._check_quiet(monotonic_ns)
 

@@ -40,9 +40,15 @@ WARMUP_FRAMES = 8
 # Frames the parser lost in a row that the prediction bridges; more, and it starts again.
 MAX_BRIDGED = 3
 INT16_SPAN = 65536
+# With look_ahead: a delivered frame whose departure is a corruption's step more than SPIKE_MARGIN tolerances is
+# held one frame, and refused if the next frame returns, to within SPIKE_RETURN tolerances, to what the frames
+# before it predict: a one-frame spike.
+SPIKE_MARGIN = 3.0
+SPIKE_RETURN = 1.0
 RATE_JUMP = 'rate_jump'
+RATE_SPIKE = 'rate_spike'
 TEMPERATURE_JUMP = 'temperature_jump'
-GUARD_REASONS = (RATE_JUMP, TEMPERATURE_JUMP)
+GUARD_REASONS = (RATE_JUMP, RATE_SPIKE, TEMPERATURE_JUMP)
 
 
 def _wrapped(counts: float) -> float:
@@ -54,15 +60,19 @@ class FrameGuard:
     """Decides frame by frame whether a frame is delivered; counts what it refuses in ``rejected_by_reason``."""
 
     __slots__ = ('_steps', '_jump', '_temp', '_refused_temp', '_rates', '_gain_uv', '_gain_vv', '_mean_square',
-                 '_trusted', '_steady', '_guessed', '_skipped', '_fitted', 'rejected_by_reason')
+                 '_trusted', '_steady', '_guessed', '_skipped', '_fitted', '_look_ahead', '_held',
+                 'rejected_by_reason')
 
-    def __init__(self, corrupt_rate_steps: tuple[int, ...], continuous_temperature: bool = False) -> None:
+    def __init__(self, corrupt_rate_steps: tuple[int, ...], continuous_temperature: bool = False,
+                 look_ahead: bool = False) -> None:
         """``corrupt_rate_steps``: the rate changes (counts, positive) the protocol's undetected corruptions make.
 
-        ``continuous_temperature``: a temperature jump is refused too.
+        ``continuous_temperature``: a temperature jump is refused too. ``look_ahead``: a frame that passes may be a
+        one-frame spike, which :meth:`confirm` tells with the next frame (the caller holds it until then).
         """
         self._steps = sorted(set(corrupt_rate_steps))
         self._jump = TEMPERATURE_JUMP_COUNTS if continuous_temperature else math.inf
+        self._look_ahead = look_ahead
         self.rejected_by_reason = dict.fromkeys(GUARD_REASONS, 0)
         self.reset()
 
@@ -78,6 +88,8 @@ class FrameGuard:
         self._fitted = False   # g fitted on a frame at least
         self._steady = 0
         self._guessed = 0   # bits: which of the three rates the prediction filled in (frames lost or refused)
+        # look_ahead: the last frame delivered, if a spike: (its prediction, tolerance, the fit and envelope before it)
+        self._held: tuple[float, float, float, float, float, int] | None = None
         self._skipped = 0   # frames lost or refused since the last delivered one
 
     @property
@@ -126,6 +138,8 @@ class FrameGuard:
             rates.clear()   # learnt anew from the next frames: a motion wrongly refused is not followed by a guess
             self._guessed = 0
             return False
+        if self._look_ahead and self._trusted >= WARMUP_FRAMES and self._corrupt(error, tolerance, SPIKE_MARGIN):
+            self._held = (predicted, tolerance, self._gain_uv, self._gain_vv, self._mean_square, self._trusted)
         if not guessed:   # a departure from a guess tells neither g nor the prediction's envelope
             if self._fitted:   # the error of a prediction by a fitted g (the mean of the first ones, then recent)
                 self._trusted += 1
@@ -139,6 +153,31 @@ class FrameGuard:
         self._temp, self._skipped = raw_temp, 0
         return True
 
+    def confirm(self, raw_rate: float, steady_ns: int, period_ns: float) -> bool:
+        """With ``look_ahead``, before :meth:`passes` of the next frame: whether the last frame delivered stays so.
+
+        It does unless its departure was a corruption's step (held by :meth:`passes`) and this frame, the next one,
+        is back on what the frames before it predict: then it is counted refused (RATE_SPIKE) and replaced by its
+        prediction, the fit and envelope as before it.
+        """
+        held, self._held = self._held, None
+        if held is None or period_ns <= 0 or round((steady_ns - self._steady) / period_ns) != 1:
+            return True
+        predicted, tolerance, gain_uv, gain_vv, mean_square, trusted = held
+        x3, x2, x1 = self._rates
+        gain = min(max(gain_uv / gain_vv, -1.0), 3.0) if gain_vv > 0 else 1.0
+        if abs(_wrapped(raw_rate - (x3 + gain * (predicted - x2)))) > SPIKE_RETURN * tolerance:
+            return True
+        self.rejected_by_reason[RATE_SPIKE] += 1
+        self._rates[-1] = predicted
+        self._guessed |= 1
+        self._gain_uv, self._gain_vv, self._mean_square, self._trusted = gain_uv, gain_vv, mean_square, trusted
+        return False
+
+    def release(self) -> None:
+        """With ``look_ahead``: the frame held is delivered without its next one (none came in time, or a close)."""
+        self._held = None
+
     def _predict(self) -> float:
         """The next rate from the last three: x[n-3] + g (x[n-1] - x[n-2]), g fitted and held to -1..3."""
         x3, x2, x1 = self._rates
@@ -151,11 +190,11 @@ class FrameGuard:
         rates.append(rate)
         self._guessed = (self._guessed << 1 | guess) & 0b111
 
-    def _corrupt(self, error: float, tolerance: float) -> bool:
-        """Whether ``error`` is, to within ``tolerance``, a corruption's step larger than STEP_MARGIN tolerances."""
+    def _corrupt(self, error: float, tolerance: float, margin: float = STEP_MARGIN) -> bool:
+        """Whether ``error`` is, to within ``tolerance``, a corruption's step larger than ``margin`` tolerances."""
         size = abs(_wrapped(error))
         if size <= tolerance:
             return False
         steps = self._steps
-        i = max(bisect.bisect_left(steps, size - tolerance), bisect.bisect_right(steps, STEP_MARGIN * tolerance))
+        i = max(bisect.bisect_left(steps, size - tolerance), bisect.bisect_right(steps, margin * tolerance))
         return i < len(steps) and steps[i] <= size + tolerance

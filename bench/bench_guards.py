@@ -1,6 +1,6 @@
 """The RD2100 frame guards measured: real motion they drop, and corrupt frames they let through.
 
-``python bench/bench_guards.py [--seconds 10] [--seed 1] [--mean] [--no-temperature-test]`` drives
+``python bench/bench_guards.py [--seconds 10] [--seed 1] [--mean] [--no-temperature-test] [--look-ahead]`` drives
 :class:`SerialGyroDriver`'s per-chunk path (parser, stream lock, stamper, guard) without a port: each encoded frame
 is one read, returned after its wire time and a random latency of up to 30 % of the period (stamp jitter). At 10,
 100 and 1000 Hz it reports:
@@ -16,7 +16,8 @@ is one read, returned after its wire time and a random latency of up to 30 % of 
   not), and the largest rate error passed.
 
 ``--no-temperature-test``: the guard does not refuse temperature jumps (``FrameGuard``'s option, which the RD2100
-protocols' descriptions turn on).
+protocols' descriptions turn on). ``--look-ahead``: the guard also refuses one-frame spikes, at a frame of latency
+(the driver's ``guard_look_ahead``).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ CORRUPT_SHARE = 0.05
 BUMP_OFFSETS = np.random.default_rng(7).uniform(0.0, 0.1, 10)
 CORRUPT_FRAMES = 100_000   # of each corrupt-frame run, at every rate
 CONTINUOUS_TEMPERATURE = [True]   # False: --no-temperature-test
+LOOK_AHEAD = [False]   # --look-ahead
 
 
 def vibration(freq_hz: float, amp_dps: float) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
@@ -80,15 +82,16 @@ def run(protocol: str, rate_hz: float, raw_rates: NDArray[np.int64], raw_temps: 
     frames: list[Frame] = []
     now = [0]
     driver = SerialGyroDriver('/dev/null', BAUD, protocol, frames.append, clock_ns=lambda: now[0],
-                              monotonic_ns=lambda: now[0], rate_scale_dps=SCALE)
+                              monotonic_ns=lambda: now[0], rate_scale_dps=SCALE, guard_look_ahead=LOOK_AHEAD[0])
     if not CONTINUOUS_TEMPERATURE[0]:
-        driver._guard = FrameGuard(driver._parser.description.corrupt_rate_steps, continuous_temperature=False)
+        driver._guard = FrameGuard(driver._parser.description.corrupt_rate_steps, False, LOOK_AHEAD[0])
     period_ns = 1e9 / rate_hz
     t0 = 1_000_000_000
     latency = rng.uniform(0, 0.3 * period_ns, len(wire))
     for i, chunk in enumerate(wire):
         now[0] = int(t0 + i * period_ns + len(chunk) * 1e10 / BAUD + latency[i])
         driver._on_data(chunk, now[0], now[0])   # the per-chunk path, without a device
+    driver._release()   # the last frame, held by the look-ahead
     index = np.array([round((f.steady_ns - t0) / period_ns) for f in frames], dtype=np.int64)
     return frames, index, driver
 
@@ -183,8 +186,11 @@ def main() -> None:
                         help='each frame the mean rate over its interval (a fiber gyro\'s), not a point sample')
     parser.add_argument('--no-temperature-test', action='store_true',
                         help='the guard does not refuse temperature jumps')
+    parser.add_argument('--look-ahead', action='store_true',
+                        help='the guard also refuses one-frame spikes (a frame of latency)')
     args = parser.parse_args()
     CONTINUOUS_TEMPERATURE[0] = not args.no_temperature_test
+    LOOK_AHEAD[0] = args.look_ahead
     start = time.perf_counter()
     totals: dict[str, dict[str, float]] = {}
     for protocol in ('binary', 'ascii'):

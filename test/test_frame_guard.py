@@ -13,7 +13,7 @@ import pytest
 from art_gyro_calibration.driver import SerialGyroDriver
 from art_gyro_calibration.fake_gyro import FakeGyro
 from art_gyro_calibration.frame import LOCK_FRAMES
-from art_gyro_calibration.frame_guard import RATE_JUMP, TEMPERATURE_JUMP, WARMUP_FRAMES, FrameGuard
+from art_gyro_calibration.frame_guard import RATE_JUMP, RATE_SPIKE, TEMPERATURE_JUMP, WARMUP_FRAMES, FrameGuard
 from art_gyro_calibration.protocols import describe, make_encoder
 from art_gyro_calibration.protocols.rd2100_ascii import CORRUPT_RATE_STEPS as ASCII_STEPS
 from art_gyro_calibration.protocols.rd2100_binary import CORRUPT_RATE_STEPS, BinaryFrameParser, encode_binary
@@ -22,15 +22,16 @@ SCALE = 0.00305   # deg/s per count
 BAUD = 115200
 
 
-def deliver(protocol, rates, temps, rate_hz, seed=0, lost=()):
+def deliver(protocol, rates, temps, rate_hz, seed=0, lost=(), look_ahead=False):
     """The (rate, temperature) counts the driver delivers of frames sent at ``rate_hz``, and its stats.
 
-    ``lost``: indices of frames never sent (lost on the wire).
+    ``lost``: indices of frames never sent (lost on the wire). ``look_ahead``: the driver's guard_look_ahead.
     """
     got = []
     now = [0]
     driver = SerialGyroDriver('/dev/null', BAUD, protocol, lambda f: got.append((f.sample.raw_rate, f.sample.raw_temp)),
-                              clock_ns=lambda: now[0], monotonic_ns=lambda: now[0], rate_scale_dps=SCALE)
+                              clock_ns=lambda: now[0], monotonic_ns=lambda: now[0], rate_scale_dps=SCALE,
+                              guard_look_ahead=look_ahead)
     encode = make_encoder(protocol)
     latency = np.random.default_rng(seed).uniform(0, 0.3e9 / rate_hz, len(rates))
     for i, (rate, temp) in enumerate(zip(rates, temps)):
@@ -39,6 +40,7 @@ def deliver(protocol, rates, temps, rate_hz, seed=0, lost=()):
         chunk = encode(int(rate), int(temp))
         now[0] = int(1e9 + i * 1e9 / rate_hz + len(chunk) * 1e10 / BAUD + latency[i])
         driver._on_data(chunk, now[0], now[0])   # the per-chunk path, without a device
+    driver._release()   # the last frame, if the look-ahead holds it
     return got, driver.stats
 
 
@@ -111,7 +113,7 @@ def test_the_rate_is_tested_only_once_its_error_is_measured_and_a_reset_learns_a
     assert not guard.passes(255 << 4, 500, next(steady), period)
     guard.reset()
     assert guard.passes(0, 900, next(steady), period)
-    assert guard.rejected_by_reason == {RATE_JUMP: 1, TEMPERATURE_JUMP: 0}
+    assert guard.rejected_by_reason == {RATE_JUMP: 1, RATE_SPIKE: 0, TEMPERATURE_JUMP: 0}
 
 
 def test_the_binary_steps_are_those_of_every_two_bit_error_that_passes_the_checksum():
@@ -210,7 +212,7 @@ def test_the_frame_after_a_rate_jump_is_tested_against_the_temperature_two_frame
     assert all(guard.passes(0, 500 + k, k * period, period) for k in range(1, 40))
     assert not guard.passes(1 << 12, 540, 40 * period, period)
     assert guard.passes(0, 541, 41 * period, period)
-    assert guard.rejected_by_reason == {RATE_JUMP: 1, TEMPERATURE_JUMP: 0}
+    assert guard.rejected_by_reason == {RATE_JUMP: 1, RATE_SPIKE: 0, TEMPERATURE_JUMP: 0}
 
 
 def vibration(rate_hz, frames, seed=3):
@@ -236,3 +238,19 @@ def test_a_corrupt_frame_soon_after_the_prediction_starts_is_refused(lost):
     got, stats = deliver('binary', rates, np.full(rates.size, 500), 100.0, lost=lost)
     assert [r for r, _ in got] == [r for i, r in enumerate(sent) if i not in lost and i != corrupt][LOCK_FRAMES - 1:]
     assert stats.rejected_by_reason[RATE_JUMP] == 1
+
+
+@pytest.mark.parametrize('look_ahead', [False, True])
+def test_with_look_ahead_a_one_frame_spike_of_a_small_step_is_refused_and_a_lasting_one_delivered(look_ahead):
+    """A still gyro at 100 Hz: 128 counts (0.39 deg/s) for one frame, then for good (a turn's onset).
+
+    Both depart by a corruption's step within 8 tolerances, which the guard cannot refuse as the frame comes: with
+    a frame of latency, the spike, back on the prediction at the next frame, is refused; the onset is delivered.
+    """
+    rates, temps = still(120)
+    rates[60] += 128
+    rates[90:] += 128
+    got, stats = deliver('binary', rates, temps, 100.0, look_ahead=look_ahead)
+    refused = [60] if look_ahead else []
+    assert [r for r, _ in got] == [r for i, r in enumerate(rates) if i not in refused][LOCK_FRAMES - 1:]
+    assert stats.rejected_by_reason[RATE_SPIKE] == len(refused) and stats.rejected_by_reason[RATE_JUMP] == 0
