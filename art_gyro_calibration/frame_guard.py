@@ -35,17 +35,17 @@ import math
 TEMPERATURE_JUMP_COUNTS = 2
 # g's least-squares fit forgets by this per frame (about ten frames): a vibration's frequency, or a bump's ringing,
 # is followed within a few cycles. 0.8 or 0.95 pass the same binary frames; 0.95 lost 2 real ascii frames at 100 Hz
-# and 0.8 passed 108 more ascii corruptions at 10 Hz.
+# and 0.8 passed 177 more ascii corruptions at 10 Hz.
 FIT_MEMORY = 0.9
 # The prediction error's mean square, the envelope, is the mean of about this many frames' (of the first ones at the
 # start): long enough to be a measure, short enough to widen within a bump. 20 lost a real binary frame at 100 Hz;
-# 100 lost 53 real ascii frames at 1 kHz.
+# 100 passed 525 more ascii corruptions at 10 Hz and lost one more real ascii frame at 1 kHz.
 ERROR_FRAMES = 50
 # A frame is refused when its departure is one of corrupt_rate_steps to within ERROR_MARGIN rms errors (at
 # least FLOOR_COUNTS), and that step is more than STEP_MARGIN times that tolerance: a smaller one is noise, or a
-# motion's own departure (a turn's onset) as likely as a corruption. ERROR_MARGIN 2.5 lost 1 and 2 real binary
-# frames at 100 Hz and 1 kHz (52 ascii at 1 kHz); 4 passed 2 or 3 more binary corruptions per rate. STEP_MARGIN 6
-# lost 1 and 3 real binary frames at 100 Hz and 1 kHz (154 ascii at 1 kHz) for none fewer passed; 10 passed 2 more.
+# motion's own departure (a turn's onset) as likely as a corruption. ERROR_MARGIN 2.5 lost a real binary frame at
+# 100 Hz; 4 passed 2 or 3 more binary corruptions per rate. STEP_MARGIN 6 lost a real binary frame at 100 Hz for
+# none fewer passed; 10 passed 2 more per rate.
 ERROR_MARGIN = 3.0
 STEP_MARGIN = 8.0
 # A quiet gyro (noise under a count) has no envelope to measure: at this floor the smallest step refused is over

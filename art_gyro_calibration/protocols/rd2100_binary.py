@@ -24,7 +24,8 @@ from art_gyro_calibration.frame import BinaryChunkParser, ProtocolDescription, R
 BAD_CHECKSUM = 'bad_checksum'   # well-framed 8 bytes whose checksum is wrong
 # A frame whose status m[1]:m[2] differs from the last delivered one's, unless the frame before was refused with the
 # same status (a new status that persists is trusted from its second frame): a unit's status holds for many
-# frames, and a third of the two-bit errors that pass the checksum flip a status bit with a rate or temperature bit.
+# frames, and more than a third of the two-bit errors that pass the checksum and change the rate or temperature
+# flip a status bit with it (134 of 346, all bit pairs of five frames).
 STATUS_CHANGE = 'status_change'
 # 0x80 and seven 0x00: its checksum passes, but it is what a line held low (a gyro at 9600 baud read at 115200,
 # a break) decodes to, not a gyro: dropped, even from a still gyro at exactly 0.00 degC reading 0 counts.

@@ -119,7 +119,7 @@ def test_random_bytes_publish_no_frame_once_locked():
 def test_a_status_that_changes_for_one_frame_is_refused_and_one_that_persists_is_trusted_from_its_second_frame():
     """Two flipped bits that pass the checksum: a status bit set and the rate's same bit cleared.
 
-    Before: delivered, the rate 64 counts off (a third of the two-bit errors that pass the checksum flip a status bit).
+    Before: delivered, the rate 64 counts off (such errors are more than a third of those that pass the checksum).
     """
     good = encode_binary(100, 500)   # m[6] = 0b1100100
     corrupt = encode_binary(36, 500, status=1 << 6)   # m[2] bit 6 set, m[6] bit 6 cleared: the same checksum
