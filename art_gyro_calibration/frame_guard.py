@@ -61,8 +61,9 @@ MAX_BRIDGED = 3
 INT16_SPAN = 65536
 # With look_ahead: a delivered frame whose departure is a corruption's step more than SPIKE_MARGIN tolerances is
 # held one frame, and refused if the next frame returns, to within SPIKE_RETURN tolerances, to what the frames
-# before it predict: a one-frame spike. 3 to 4 and 1 to 1.5 measure the same; a margin of 2 lost 2, 2 and 4 real
-# binary frames at 10 Hz, 100 Hz and 1 kHz (bumps, turns), a return of 2 lost 4 at 100 Hz.
+# before it predict: a one-frame spike. A margin of 4 passed 1 or 2 more binary corruptions per rate, one of 2 lost
+# 2, 2 and 4 real binary frames at 10 Hz, 100 Hz and 1 kHz (bumps, vibration, turns); a return of 1.5 passed one
+# fewer at 1 kHz, one of 2 lost 3 real bump frames at 100 Hz.
 SPIKE_MARGIN = 3.0
 SPIKE_RETURN = 1.0
 RATE_JUMP = 'rate_jump'

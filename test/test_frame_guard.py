@@ -133,12 +133,17 @@ def test_the_binary_steps_are_those_of_every_two_bit_error_that_passes_the_check
     assert describe('ascii').corrupt_rate_steps == ASCII_STEPS and 3000 in ASCII_STEPS
 
 
-def test_a_corrupt_frame_from_a_device_is_counted_not_delivered(tmp_path):
-    """On a pty, a still gyro's frames then one 49.8 deg/s off: counted as rate_jump, the others delivered."""
+@pytest.mark.parametrize('look_ahead', [False, True])
+def test_a_corrupt_frame_from_a_device_is_counted_not_delivered(tmp_path, look_ahead):
+    """On a pty, a still gyro's frames then one 49.8 deg/s off: counted as rate_jump, the others delivered.
+
+    With the look-ahead, the last frame too: the read that times out after it delivers it.
+    """
     got = []
     silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
     try:
-        driver = SerialGyroDriver(silent.path, BAUD, 'binary', got.append, rate_scale_dps=SCALE)
+        driver = SerialGyroDriver(silent.path, BAUD, 'binary', got.append, rate_scale_dps=SCALE,
+                                  guard_look_ahead=look_ahead)
         driver.start()
         try:
             deadline = time.monotonic() + 10
@@ -257,7 +262,7 @@ def test_with_look_ahead_a_one_frame_spike_of_a_small_step_is_refused_and_a_last
 
 
 def test_a_turns_ramp_after_a_hold_is_delivered_past_its_corner():
-    """ascii at 100 Hz: turns of 650 counts a frame for 20 frames, held 80, back, still 80 (repeated).
+    """On ascii at 100 Hz, turns of 650 counts a frame for 20 frames, held 80, back, still 80 (repeated).
 
     A corner's frame departs by one ramp increment, which may be a changed digit's step (600 or 700, to within the
     envelope): it may be refused. Before, the ramp after the hold lost every fourth frame (105, 109, 113, 117): g,

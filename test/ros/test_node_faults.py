@@ -162,8 +162,11 @@ def inject_alone(fake: FakeGyro, data: bytes) -> None:
 
 
 def inject_level(fake: FakeGyro, frame: bytes) -> None:
-    """Inject ``frame`` twice between two of the fake's: a temperature level the frame guard trusts from its second
-    frame (it refuses the first, and the sequence's first frame after it, as temperature jumps)."""
+    """Inject ``frame`` twice between two of the fake's: a temperature level.
+
+    The frame guard trusts it from its second frame (it refuses the first, and the sequence's first frame after
+    it, as temperature jumps).
+    """
     inject_alone(fake, frame + frame)
 
 
