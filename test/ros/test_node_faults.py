@@ -261,6 +261,9 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
         # level of two frames (a lone frame's temperature jump is the frame guard's).
         for raw_temp in (32767, -32768, 1200):
             inject_level(fake, encode_binary(0, raw_temp))
+        # Two bits flipped that pass the checksum, a status bit and a rate bit: the parser refuses a status that
+        # changes for one frame (its temperature outside the sequence code would show if published).
+        inject_alone(fake, encode_binary(-64, TEMP_BASE + PERIOD + 7, status=1 << 6))
         wait_frames(listener, 10, proc, output)
         received = counts(listener.temperatures(start))
         assert [c for c in received if not TEMP_BASE <= c < TEMP_BASE + PERIOD] == [1200]
@@ -295,6 +298,7 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
         assert fake.dropped == 0
         final = listener.wait_status('link', lambda s: True, 'a link status', proc, output)
         assert counter(final, 'dropped') == 2 and counter(final, 'rejected_rate_jump') == 0   # the absurd two
+        assert counter(final, 'rejected_status_change') == 1
 
 
 def test_link_faults_missing_port_wrong_baud_ten_replugs_and_sigterm(tmp_path: Path, loopback: None) -> None:
