@@ -10,13 +10,18 @@ of it, each run until the next starts) are replayed with each fold's fit exactly
 node applies it (static bias over the run's first rows, bias included); every row's
 error is the one of the fit that did not see it. The baseline is replayed as it is.
 
-A refit whose polynomial is not better than the baseline by the loop's materiality is
-not written: the file keeps the baseline polynomial, with the loop's terms fitted on top
-of it if, replayed the same way, they make the baseline better by the materiality (a term
-that stands in for another effect on a short log can help a little on it and harm a second run).
+The polynomial is what is judged, so both sides carry the loop's terms: the refit with
+its own, the baseline with the same shapes fitted on top of it (and a constant beside
+them), each fitted again without each fold. A refit whose polynomial is not better than
+the baseline with those terms by the loop's materiality is not written: the file keeps
+the baseline polynomial, with the terms on top of it if, held out the same way, they make
+the baseline better by the materiality (a term that stands in for another effect on a
+short log can help a little on it and harm a second run). Judged against the bare
+baseline instead, a refit would win by what its terms remove, and a polynomial fitted
+over the log's few degrees would replace the report's where nothing showed it wrong.
 A slow bias wander of a short log, or a polynomial order too low for the gyro, is what
-makes a refit worse than the baseline. The terms keep their fit on the
-whole log in both (a warm-up lives in the first block alone): the polynomial is judged.
+makes a refit worse than the baseline. The refit's terms keep their fit on the whole log
+(a warm-up lives in the first block alone).
 
 Where the robot will run (the operating range: by default the logged temperatures) decides
 where else it is judged. Held out on the log, the refit is judged only at the log's
@@ -438,40 +443,51 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     base_runs = held_out(log, runs, fold, [baseline], bias_samples, settle_s)
     refit_dph = field_score_dps(refit_runs) * DEG_PER_H_PER_DPS
     baseline_dph = field_score_dps(base_runs) * DEG_PER_H_PER_DPS
+    on_top_dph: float | None = None
+    base_error = ErrorModel(baseline.polynomial, (), baseline.temperature_range_c).error(result.signals)
+    if specs:
+        on_tops = [_on_top(result, baseline, base_error, specs, train) for train in trains]
+        on_top_dph = field_score_dps(held_out(log, runs, fold, on_tops, bias_samples, settle_s)) * DEG_PER_H_PER_DPS
     materiality = result.materiality_dph
     pairs = tuple(zip(runs, refit_runs, base_runs))
     operating = operating_c if operating_c is not None else written.temperature_range_c
     beyond = None if operating is None else beyond_log(written, baseline, result.segments.rate, operating)
     unknown = None if operating is None else unknown_beyond_log(written, baseline, result.segments.rate, operating)
     _check_comparable(source, refit_dph, baseline_dph, beyond, pairs)
+    if on_top_dph is not None and math.isnan(on_top_dph):
+        raise BaselineComparisonError(
+            f'the refit cannot be judged against the baseline {source}: the baseline with the terms '
+            f'{", ".join(s.signal for s in specs)} fitted on top of it scores {on_top_dph:.4g} deg/h held out: '
+            'nothing written; check the log (calibrate fit drops rows that are not finite) or give another --baseline')
+    # The baseline polynomial at its best: with the terms on top when they help it.
+    terms_help = on_top_dph is not None and on_top_dph + materiality < baseline_dph
+    bar_dph = on_top_dph if terms_help and on_top_dph is not None else baseline_dph
+    bar = (f'the baseline {source} with the terms {", ".join(s.signal for s in specs)} fitted on top of it'
+           if terms_help else f'the baseline {source}')
     worse_beyond = beyond is not None and beyond.worse_dph > materiality
-    if refit_dph + materiality < baseline_dph:
-        message = (f'the refit is better than the baseline {source} held out on this log: {refit_dph:.2f} against '
-                   f'{baseline_dph:.2f} deg/h (materiality {materiality:.2f} deg/h)')
+    if refit_dph + materiality < bar_dph:
+        message = (f'the refit is better than {bar} held out on this log: {refit_dph:.2f} against '
+                   f'{bar_dph:.2f} deg/h (materiality {materiality:.2f} deg/h)')
         if not worse_beyond:
-            return BaselineCheck(source, refit_dph, baseline_dph, None, materiality, REFIT, pairs, written,
+            return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, REFIT, pairs, written,
                                  message + '; the refit is written' + _unasked(baseline, operating_c, operating),
                                  beyond, operating, unknown)
         assert beyond is not None
         verdict = f'{message}, but {beyond.describe()}'
     else:
-        verdict = (f'the refit polynomial is not better than the baseline {source} by the materiality held out on '
-                   f'this log ({refit_dph:.2f} against {baseline_dph:.2f} deg/h; materiality {materiality:.2f} deg/h)')
-    on_top_dph = None
+        verdict = (f'the refit polynomial is not better than {bar} by the materiality held out on this log '
+                   f'({refit_dph:.2f} against {bar_dph:.2f} deg/h; materiality {materiality:.2f} deg/h)')
     calibration = replace(baseline, terms=(), filters=written.filters)
     kept_terms = ''
     if specs:
-        base_error = ErrorModel(baseline.polynomial, (), baseline.temperature_range_c).error(result.signals)
-        on_top = _on_top(result, baseline, base_error, specs, index)
-        on_top_dph = field_score_dps(held_out(log, runs, fold, [on_top], bias_samples, settle_s)) * DEG_PER_H_PER_DPS
-        # The bar the refit polynomial faces; the terms were fitted on these rows, so this score is not held out.
-        if on_top_dph + materiality < baseline_dph:
-            calibration = on_top
+        if terms_help:
+            calibration = _on_top(result, baseline, base_error, specs, index)
             kept_terms = f'; the terms {", ".join(s.signal for s in specs)} are fitted on top of it ' \
-                         f'({on_top_dph:.2f} deg/h on this log)'
+                         f'({on_top_dph:.2f} against {baseline_dph:.2f} deg/h without them, held out)'
         else:
             kept_terms = f'; the terms {", ".join(s.signal for s in specs)} fitted on top of it did not make it ' \
-                         f'better by the materiality ({on_top_dph:.2f} deg/h on this log) and are not written'
+                         f'better by the materiality ({on_top_dph:.2f} against {baseline_dph:.2f} deg/h, held out) ' \
+                         'and are not written'
     dropped = f' (its own terms {", ".join(t.signal for t in baseline.terms)} are not kept)' if baseline.terms else ''
     message = f'{verdict}: the written file keeps the baseline polynomial{dropped}{kept_terms}'
     return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, BASELINE, pairs,

@@ -7,6 +7,16 @@ so the solve runs on a scaled basis: ``u = (T - Tc) / Ts`` and ``v = r / Rs`` wi
 [-1, 1], term columns divided by their largest magnitude. The coefficients are then
 mapped back exactly (binomial expansion of ``(Tc + Ts u)**a``) into the report's form.
 
+A term on the temperature rate is fitted on the node's own causal estimate of it, whose noise
+(0.05 degC counts through a filter of tens of seconds) would bias a least-squares coefficient
+toward zero (errors in variables: the fitted Shupe coefficient about 6 % low, a mission-long
+error of several deg/h after a cold start). Those columns are instrumented
+by their own means over :data:`INSTRUMENT_BIN_S` of contiguous fitted rows: with ``X`` the
+design and ``Z`` the same with those columns so averaged, ``beta = (Z'X)^-1 Z'y``
+(instrumental variables; R. J. Bowden and D. A. Turkington, *Instrumental Variables*, 1984,
+ch. 2). The estimate's noise averages out of the means while the temperature's slow rate
+does not, and what the coefficient multiplies is the rate itself.
+
 Note on the constant: the log's error holds the run's turn-on bias and the Earth's
 rate, so the fitted constant (``T**0 r**0``) absorbs them; the static bias collection
 before every mission removes that constant again (``CalcStaticBiasDrift``), so only the
@@ -36,6 +46,11 @@ from art_gyro_calibration.terms import Term, term_basis
 MIN_TEMP_SPAN_PER_POWER_C = 1.0
 # Table rates closer than this (deg/s) are one rate.
 RATE_LEVEL_DPS = 1e-6
+# Signals whose term columns are instrumented by their means (see the module's docstring), and the span of those
+# means: the local quadratic estimate's noise stays correlated for about its 20 s; over 60 s means a coefficient
+# fitted on it over 0.1 degC/min chamber ramps and a self-heating came out 0.6 % low, against 6 % on every row.
+INSTRUMENTED_SIGNALS = ('temperature_rate',)
+INSTRUMENT_BIN_S = 60.0
 
 
 def check_coverage(temp_c: ArrayLike, table_rates: ArrayLike, rows: int, columns: int) -> None:
@@ -224,6 +239,25 @@ class Design:
             p += spec.width
         return out
 
+    @property
+    def instrumented(self) -> NDArray[np.int64]:
+        """The columns of the terms on :data:`INSTRUMENTED_SIGNALS`."""
+        p = self.rows * self.columns + self.offsets
+        out: list[int] = []
+        for spec in self.specs:
+            if spec.signal in INSTRUMENTED_SIGNALS:
+                out.extend(range(p, p + spec.width))
+            p += spec.width
+        return np.asarray(out, dtype=np.int64)
+
+    def instrument_bins(self) -> NDArray[np.int64]:
+        """Each selected row's bin: :data:`INSTRUMENT_BIN_S` of the clock within contiguous selected rows."""
+        if not len(self.index):
+            return np.zeros(0, dtype=np.int64)
+        cell = np.floor(self.signals.t[self.index] / INSTRUMENT_BIN_S)
+        change = (np.diff(self.index) != 1) | (np.diff(cell) != 0)
+        return np.concatenate(([0], np.cumsum(change))).astype(np.int64)
+
     def chunks(self) -> Iterator[tuple[Chunk, NDArray[np.float64]]]:
         """Each chunk of the log with its :meth:`matrix`."""
         for chunk in chunks(self.signals, self.index, self.chunk_rows):
@@ -251,6 +285,37 @@ class Design:
         return (0.0, *(float(c) for c in np.asarray(beta, dtype=float)[p:p + self.offsets]))
 
 
+class Instruments:
+    """The instrumented rows of ``Z'X`` and ``Z'y`` (the module's docstring), summed per bin over a design's chunks.
+
+    Per bin of :meth:`Design.instrument_bins` (a bin may span two chunks), the sums of the columns
+    and the error; then a bin's rows of ``Z'X`` are its instrumented columns' sums times its
+    columns' sums over its row count. Least squares keeps ``X'X`` on the other rows.
+    """
+
+    def __init__(self, design: Design) -> None:
+        self.columns = design.instrumented
+        self.bins = design.instrument_bins() if self.columns.size else np.zeros(0, dtype=np.int64)
+        self.sums = np.zeros((int(self.bins[-1]) + 1 if self.bins.size else 0, design.width + 1))
+        self.counts = np.bincount(self.bins, minlength=len(self.sums)).astype(float)
+
+    def add(self, chunk: Chunk, x: NDArray[np.float64], y: NDArray[np.float64]) -> None:
+        """Add a chunk's design rows ``x`` and error ``y`` (its selected rows) into their bins."""
+        if self.columns.size and len(y):
+            mine = self.bins[chunk.positions]
+            first = np.flatnonzero(np.diff(mine, prepend=-1))   # bins increase along the rows
+            self.sums[mine[first]] += np.add.reduceat(np.column_stack([x, y]), first, axis=0)
+
+    def rows(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Per bin, its instrumented rows of ``Z'X`` (bins, instrumented, width) and of ``Z'y`` (bins, instrumented)."""
+        means = self.sums[:, self.columns] / np.maximum(self.counts, 1.0)[:, None]
+        return means[:, :, None] * self.sums[:, None, :-1], means * self.sums[:, -1:]
+
+    def first_rows(self) -> NDArray[np.int64]:
+        """Each bin's first row among the selected rows (a position in the design's ``index``)."""
+        return np.flatnonzero(np.diff(self.bins, prepend=-1))
+
+
 def solve_normal(gram: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
     """Least-squares solution of normal equations on a scaled basis (minimum norm if rank-deficient)."""
     return np.asarray(np.linalg.lstsq(gram, rhs, rcond=1e-13)[0], dtype=np.float64)
@@ -272,7 +337,8 @@ def fit_model(signals: Signals, error: ArrayLike, rows: int, columns: int,
     """Fit the rows x columns polynomial and the terms ``specs`` jointly to ``error`` (deg/s, one per sample).
 
     ``index`` selects the rows to fit (increasing, e.g. the steady rows of a rate-table
-    log); the residual returned is over those rows. The normal equations are summed chunk
+    log); the residual returned is over those rows. Terms on the temperature rate are
+    instrumented (the module's docstring). The normal equations are summed chunk
     by chunk (:mod:`art_gyro_calibration.analysis.chunks`, ``chunk_rows`` rows each), so
     memory holds no matrix with a row per log row; ``ranges`` is :class:`Design`'s cache.
     """
@@ -282,11 +348,18 @@ def fit_model(signals: Signals, error: ArrayLike, rows: int, columns: int,
         raise ValueError(f'{idx.size} samples cannot determine a {rows} x {columns} polynomial '
                          f'and {len(specs)} extended terms')
     design = Design(signals, rows, columns, specs, idx, ranges, chunk_rows)
+    instruments = Instruments(design)
     gram = np.zeros((design.width, design.width))
     cross = np.zeros(design.width)
     for chunk, x in design.chunks():
+        y = e[chunk.start + chunk.rows]
         gram += x.T @ x
-        cross += x.T @ e[chunk.start + chunk.rows]
+        cross += x.T @ y
+        instruments.add(chunk, x, y)
+    if instruments.columns.size:
+        iv_gram, iv_cross = instruments.rows()
+        gram[instruments.columns] = iv_gram.sum(axis=0)
+        cross[instruments.columns] = iv_cross.sum(axis=0)
     beta = solve_normal(gram, cross)
     residual = np.empty(idx.size)
     for chunk, x in design.chunks():

@@ -2,8 +2,8 @@
 
 :func:`fit_log` reads a rate-table log (or several runs of the gyro, :mod:`.runs`), closes the
 loop on it (:func:`loop.close_loop`), judges the terms found on every run's start and on warm
-restarts of the runs themselves (:func:`replay.startup_check`)
-and, when asked, on other runs of the gyro (:func:`replay.validate`), and returns all of it
+restarts of the runs themselves (:func:`replay.startup_check`; asked again without a term that check
+dropped, :func:`_retraced`) and, when asked, on other runs of the gyro (:func:`replay.validate`), and returns all of it
 in one :class:`FitResult`: the report, the calibration to write and the comment it is
 written with. The command (:mod:`.cli`) parses its arguments into :class:`FitSettings`,
 calls it, and writes and prints what it returns.
@@ -30,8 +30,8 @@ from art_gyro_calibration.analysis.fit import check_coverage
 from art_gyro_calibration.analysis.loop import (DEFAULT_SERIAL, HEADING_SIGNALS, LoopOptions, LoopResult, close_loop,
                                                 not_written_reason)
 from art_gyro_calibration.analysis.metrics import steady_segments
-from art_gyro_calibration.analysis.replay import (OWN_RUNS_NAME, RESTARTS_NAME, Validation, judged_cold,
-                                                  startup_check, unjudged_warm_up, validate)
+from art_gyro_calibration.analysis.replay import (OWN_RUNS_NAME, RESTARTS_NAME, Validation, field_score_dps,
+                                                  judged_cold, startup_check, unjudged_warm_up, validate)
 from art_gyro_calibration.analysis.report import build_report, misfit_reason, validation_section
 from art_gyro_calibration.analysis.runs import Run, joined
 from art_gyro_calibration.analysis.window_cost import window_cost
@@ -128,9 +128,13 @@ def fit_log(log_path: str | Sequence[str], settings: FitSettings, calibration_pa
     paths = (log_path,) if isinstance(log_path, str) else tuple(log_path)
     log, runs, rows = _logs_to_fit(paths, settings, loop_options, warn)
     loop = close_loop(log, settings.rows, settings.columns, loop_options, runs)
+    result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
+    retrace = _retraced(log, runs, settings, loop_options, (loop, result, startup, restarts))
+    if retrace is not None:
+        (loop, result, startup, restarts), retraced = retrace
+        warn(retraced['message'])
     # The report and figures are the loop's; what the checks drop is in their sections.
     loop_report = build_report(log, loop, settings.bias_samples, source=', '.join(paths))
-    result, startup, restarts = startup_check(loop, log, settings.bias_samples, loop_options.settle_s)
     # The window terms' cost: a term whose implied mission bias exceeds what it removes is not written.
     window = window_cost(result, loop.runs, settings.bias_samples)
     result = window.result
@@ -170,6 +174,7 @@ def fit_log(log_path: str | Sequence[str], settings: FitSettings, calibration_pa
         **({} if still is None else {'still': still}),
         **({} if startup is None else {'startup_check': validation_section(startup, restarts)}),
         **({'window_terms': window.section()} if window.costs else {}),
+        **({'retraced': retraced} if retrace is not None else {}),
         **({} if validation is None else {'validation': validation_section(validation, list(settings.validate)),
                                           'validation_rows_dropped': validation_dropped}),
         'baseline': baseline.to_dict() if isinstance(baseline, BaselineCheck) else
@@ -181,6 +186,48 @@ def fit_log(log_path: str | Sequence[str], settings: FitSettings, calibration_pa
     }
     return FitResult(log, loop, startup, validation, calibration, comment, report,
                      baseline if isinstance(baseline, BaselineCheck) else None)
+
+
+_Pass = tuple[LoopResult, LoopResult, 'Validation | None', list[str]]   # loop, its result checked, check, run names
+
+
+def _startup_score_dph(check: Validation, stage: str | None = None) -> float:
+    """A calibration's score on the start-up check's runs (deg/h): ``stage``, or the one to write."""
+    stage = stage or ('validated' if check.dropped else 'extended')
+    return field_score_dps([run[stage] for run in check.runs]) * DEG_PER_H_PER_DPS
+
+
+def _retraced(log: GyroLog, runs: Sequence[Run], settings: FitSettings, options: LoopOptions,
+              first: _Pass) -> tuple[_Pass, dict[str, Any]] | None:
+    """The loop asked again without the terms the start-up check dropped, if that does better on the log's starts.
+
+    A stand-in dropped (a lagged temperature's eight columns fitted beside a warm-up) leaves what it stood in
+    for unmodelled, though the screen had found a simpler form of it that the stand-in outscored. Asked again
+    without it, the loop may find that form; it is kept if its written terms score lower on the start-up
+    check's runs (:func:`replay.field_score_dps`, the same runs) by more than the noise the first pass's model
+    leaves. None when nothing was dropped, or only terms on a column the node is fed (``--node-signal``: not the
+    loop's to exclude).
+    """
+    startup = first[2]
+    dropped = tuple(d.term.signal for d in startup.dropped if d.term.signal not in options.node_signals) \
+        if startup is not None else ()
+    if startup is None or not dropped:
+        return None
+    again = replace(options, exclude=(*options.exclude, *dropped))
+    loop2 = close_loop(log, settings.rows, settings.columns, again, runs)
+    result2, startup2, restarts2 = startup_check(loop2, log, settings.bias_samples, options.settle_s)
+    before = _startup_score_dph(startup)
+    # Without a term the second pass writes the polynomial alone, as the first check replayed it.
+    after = _startup_score_dph(startup, 'art') if startup2 is None else _startup_score_dph(startup2)
+    # Better by more than the noise the written model leaves (the start-up check weighs term sets the same way).
+    chance = first[1].residual_materiality_dph or first[1].materiality_dph
+    kept = after + chance < before
+    message = (f'the start-up check dropped {", ".join(dropped)}: asked again without it, the loop found '
+               f'{", ".join(e.signal for e in loop2.effects) or "nothing"} ({after:.2f} against {before:.2f} deg/h '
+               f'on the log\'s starts): the {"second" if kept else "first"} pass is written')
+    section = {'without': list(dropped), 'found': [e.signal for e in loop2.effects], 'first_dph': before,
+               'second_dph': after, 'kept': 'second' if kept else 'first', 'message': message}
+    return ((loop2, result2, startup2, restarts2) if kept else first), section
 
 
 def runs_section(log: GyroLog, loop: LoopResult) -> list[dict[str, Any]]:

@@ -201,6 +201,8 @@ def markdown_summary(report: dict[str, Any]) -> str:
             ('The fitted log from its power-on (the node told so) and ' if cold else 'The fitted log ')
             + 'restarted later, power-on unknown (a warm-up counts as decayed'
             + ('' if cold else ' and is kept') + '), each calibration applied as the node applies it')
+    if 'retraced' in report:
+        lines += ['', f'Asked again: {report["retraced"]["message"]}.']
     if 'window_terms' in report:
         lines += window_markdown(report['window_terms'], report['bias_samples'])
     if 'validation' in report:

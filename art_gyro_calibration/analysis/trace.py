@@ -781,7 +781,7 @@ def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[Candida
     :data:`STANDS_FOR_CORRELATION`, both ways; one way, the eight columns of a lagged
     temperature stood for a supply voltage over one chamber cycle); a richer form to a
     simpler one (fewer columns, or no time constant) that explains at least
-    :data:`SIMPLER_FIRST` of it: a lagged temperature's terms contain the Shupe term, a long
+    :data:`SIMPLER_FIRST` of its fitted effect: a lagged temperature's terms contain the Shupe term, a long
     decay looks like a drift (if the line also does nearly as well held out,
     :data:`SIMPLER_SHARE`). The simpler one is named (:attr:`TraceResult.best`), and the next
     round asks what the richer form adds beyond it.
@@ -791,6 +791,7 @@ def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[Candida
     for c in candidates:
         if c.significant:
             mine = screen.binned.candidate_means([c.spec])[:, 0, :]
+            effect = screen.beyond_base(mine) @ screen.fit_with(c.spec)[1]
             alike = []
             for d in found:
                 theirs = screen.binned.candidate_means([d.spec])[:, 0, :]
@@ -799,13 +800,14 @@ def _stand_ins(screen: Screen, candidates: list[CandidateScore]) -> list[Candida
                     # spans any slow column over one chamber cycle, and would take a supply voltage's place.
                     if _alike(screen, theirs, mine) < STANDS_FOR_CORRELATION:
                         continue
-                    needed = STANDS_FOR_CORRELATION
+                    needed, likeness = STANDS_FOR_CORRELATION, _alike(screen, mine, theirs)
                 elif d is not c and _complexity(d.spec) < _complexity(c.spec) \
                         and (d.spec.width < c.spec.width or d.improvement_dps2 >= SIMPLER_SHARE * c.improvement_dps2):
-                    needed = SIMPLER_FIRST
+                    # What the richer form fitted, not all its columns can span: one column never spans a lagged
+                    # temperature's eight, though it gives all of the Shupe effect they fit.
+                    needed, likeness = SIMPLER_FIRST, _alike(screen, effect[:, None], theirs)
                 else:
                     continue
-                likeness = _alike(screen, mine, theirs)
                 if likeness >= needed:
                     alike.append((likeness, d.signal))
             if alike:

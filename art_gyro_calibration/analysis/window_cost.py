@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.analysis.chunks import chunks
-from art_gyro_calibration.analysis.fit import Design, TermSpec, polynomial_basis, solve_normal
+from art_gyro_calibration.analysis.fit import Design, Instruments, TermSpec, polynomial_basis, solve_normal
 from art_gyro_calibration.analysis.loop import LoopResult
 from art_gyro_calibration.analysis.metrics import Segments, correlation_time_s
 from art_gyro_calibration.analysis.runs import Run, run_of_rows
@@ -161,6 +161,7 @@ class _Fit:
         width = self.design.width   # the polynomial's, each later run's constant (Design's), the terms'
         gram = np.zeros((len(keys), width, width))
         cross = np.zeros((len(keys), width))
+        instruments = Instruments(self.design)
         for chunk, x in self.design.chunks():
             rows = chunk.start + chunk.rows
             e = result.error[rows]
@@ -169,6 +170,16 @@ class _Fit:
             for low, high in zip(np.r_[0, cuts], np.r_[cuts, len(b)]) if len(b) else ():
                 gram[b[low]] += x[low:high].T @ x[low:high]
                 cross[b[low]] += x[low:high].T @ e[low:high]
+            instruments.add(chunk, x, e)
+        if instruments.columns.size:   # as fit_model solves it: each instrument bin's rows in its first row's bin
+            iv_gram, iv_cross = instruments.rows()
+            owner = bins[instruments.first_rows()]
+            own_gram = np.zeros((len(keys), *iv_gram.shape[1:]))
+            own_cross = np.zeros((len(keys), iv_cross.shape[1]))
+            np.add.at(own_gram, owner, iv_gram)
+            np.add.at(own_cross, owner, iv_cross)
+            gram[:, instruments.columns, :] = own_gram
+            cross[:, instruments.columns] = own_cross
         total, rhs = gram.sum(axis=0), cross.sum(axis=0)
         self.beta = solve_normal(total, rhs)
         # The constant column is 1 on every row: a bin's residual sum is its error's less its columns' sums times beta.

@@ -100,3 +100,23 @@ def test_each_run_has_its_own_turn_on_bias_and_the_polynomial_is_shared():
     one = fit_model(compute_signals(t, rate, temp), error, 2, 2)
     assert one.run_offsets_dps == ()
     assert abs(one.model.polynomial.coefficients[0, 1] - 2e-4) > 1e-4
+
+
+def test_a_shupe_coefficient_on_the_node_s_noisy_temperature_rate_is_not_biased_toward_zero():
+    """The causal temperature rate from 0.05 degC counts is noisy: least squares on every row read 2.4 as 2.26.
+
+    Its columns are instrumented by their 60 s means (the module's docstring): the coefficient is the true one.
+    """
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 6 * 3600.0, 0.1)
+    # Chamber ramps of 0.1 degC/min between holds, the gyro's temperature logged in 0.05 degC counts.
+    knots_t = np.cumsum([0.0, 1200.0, 6000.0, 1800.0, 6000.0, 1800.0, 6000.0])
+    knots_c = [20.0, 20.0, 30.0, 30.0, 20.0, 20.0, 30.0]
+    true_c = np.interp(t, knots_t, knots_c)
+    true_rate = np.gradient(true_c, t)
+    temp = np.round(true_c / 0.05) * 0.05
+    error = 2.4 * true_rate + 0.005 * rng.standard_normal(len(t))
+    signals = compute_signals(t, np.zeros(len(t)), temp)
+    spec = TermSpec('temperature_rate', 'power', (1,))
+    [term] = fit_model(signals, error, 1, 1, [spec]).model.terms
+    assert term.coefficients[0] == pytest.approx(2.4, rel=0.02)

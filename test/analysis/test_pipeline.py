@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from art_gyro_calibration.analysis.loop import DEFAULT_SERIAL, LoopOptions
@@ -43,15 +44,24 @@ def test_the_effect_found_is_the_one_written_and_the_report_says_so(fitted) -> N
     assert result.report['written'] == {'calibration': str(directory / 'CAL.yaml'), 'terms': ['temperature_rate']}
     assert [e['signal'] for e in result.report['effects']] == ['temperature_rate']
     assert result.report['findings_not_written'] == []
-    assert result.comment == (f'Fitted by calibrate fit from {directory / "LOG.csv"}: ART polynomial 3 x 2, '
-                              'effects beyond it: temperature_rate.')
-    assert warnings == []   # the model fits, and a log from power-on judges its own warm-up
+    assert result.comment == (f'Fitted by calibrate fit from {directory / "LOG.csv"}: the baseline\'s polynomial '
+                              f'({find_calibration_file("NAVC4058")}; the refit was not better held out), effects '
+                              'beyond it: temperature_rate.')
+    # The model fits and a log from power-on judges its own warm-up: only the baseline's verdict is said.
+    assert result.baseline is not None and warnings == [result.baseline.message]
 
 
 def test_the_refit_is_judged_against_the_packaged_calibration_and_on_restarts_of_the_log(fitted) -> None:
     _, result, _ = fitted
     baseline = result.report['baseline']
-    assert baseline['source'] == str(find_calibration_file('NAVC4058')) and baseline['verdict'] == 'refit'
+    # The simulated gyro's polynomial is its packaged one: the refit, with its Shupe term, is judged against the
+    # packaged polynomial with that term fitted on top (against the bare packaged file the term alone won it).
+    assert baseline['source'] == str(find_calibration_file('NAVC4058')) and baseline['verdict'] == 'baseline'
+    assert baseline['baseline_with_terms_field_dph'] + baseline['materiality_dph'] < baseline['baseline_field_dph']
+    assert not baseline['refit_field_dph'] + baseline['materiality_dph'] < baseline['baseline_with_terms_field_dph']
+    assert 'with the terms temperature_rate fitted on top of it' in baseline['message']
+    assert np.array_equal(result.calibration.polynomial.coefficients,
+                          load_packaged_calibration('NAVC4058').polynomial.coefficients)
     assert result.baseline is not None and result.baseline.source == baseline['source']
     assert result.startup is not None and result.report['startup_check']['runs']
     assert list(result.report['detection_limit_dph']) == [d.signal for d in result.loop.detection]

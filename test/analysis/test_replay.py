@@ -226,6 +226,10 @@ def test_a_lag_fitted_to_noise_is_dropped_by_restarts_of_its_own_log(tmp_path):
     report = json.loads(report_path.read_text())
     assert [e['signal'] for e in report['effects']] == ['temperature_lag']
     assert [d['signal'] for d in report['startup_check']['dropped']] == ['temperature_lag']
+    # Asked again without the lag, the loop finds nothing better by more than chance on the log's starts.
+    retraced = report['retraced']
+    assert retraced['without'] == ['temperature_lag'] and retraced['kept'] == 'first'
+    assert not retraced['second_dph'] + 0.5 < retraced['first_dph']
     assert load_calibration(out).terms == ()
     assert ("nothing (temperature_lag dropped: the fitted log's cold start and restarts were better without)"
             in out.read_text())
@@ -351,7 +355,7 @@ def test_fit_warns_of_a_warm_up_no_cold_run_judged(tmp_path, capsys):
     assert main(args) == 0
     assert [t.signal for t in load_calibration(tmp_path / 'CAL.yaml').terms] == [POWER_ON_SIGNAL]
     [warning] = json.loads((tmp_path / 'REPORT.json').read_text())['warnings']
-    assert warning.startswith("the warm-up term (68.5 deg/h at power-on; the log's bias instability is 2.89 deg/h) "
+    assert warning.startswith("the warm-up term (70.8 deg/h at power-on; the log's bias instability is 2.89 deg/h) "
                               'was judged on this log alone')
     assert f'calibrate fit: warning: {warning}' in capsys.readouterr().err
     assert f'**Warning:** {warning}.' in (tmp_path / 'REPORT.md').read_text()

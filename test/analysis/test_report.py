@@ -35,9 +35,9 @@ def test_the_summary_has_the_gyro_a_row_per_stage_the_effect_and_what_is_written
         assert f'{report["errors"][stage]["rms_dps"]:.5f}' in row
     assert any(line.startswith('- **temperature_rate**: ') for line in lines)
     written = report['written']['calibration']
-    assert f'Written: {written}, the ART polynomial refitted with temperature_rate beyond it.' in lines
+    assert f'Written: {written}, the baseline\'s polynomial with temperature_rate beyond it.' in lines
     assert '## Against the calibration the gyro has (baseline)' in lines
-    assert '**Verdict: the refit is written.**' in summary
+    assert '**Verdict: the baseline polynomial is kept.**' in summary
     assert 'Warning' not in summary and '**not written**' not in summary
 
 
