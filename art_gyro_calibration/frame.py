@@ -106,8 +106,10 @@ class ProtocolDescription:
     """What the driver, the node and the diagnostics need of a protocol beyond its frames; the RD2100's by default.
 
     ``hardware``: the diagnostics' hardware_id before the serial number. ``checks_rate_jumps``: samples
-    are counts behind a checksum weak enough that the driver refuses a rate that jumps beyond what the
-    gyro can turn. ``stamps_by_unit_clock``: stamp samples by their ``unit_time_us`` once mapped.
+    are counts behind a checksum weak enough (or none) that the driver's frame guard
+    (:mod:`art_gyro_calibration.frame_guard`) refuses a frame that departs from its neighbours by a step a
+    corruption makes (``corrupt_rate_steps``) or whose temperature jumps. ``stamps_by_unit_clock``: stamp
+    samples by their ``unit_time_us`` once mapped.
     ``imu_axes``: for the robot's x, y and z (REP 103), the unit's axis and its sign, when samples
     carry the whole IMU; empty otherwise. ``reports_rate``: the parser measures the unit's output
     rate (the diagnostics report it and :meth:`rate_error`). ``startup_rejections``: reasons the
