@@ -5,8 +5,8 @@
 of sequence-numbered frames), alternating the lean reader and the node (and each variant of
 ``bench_node.VARIANTS``); for each process, over the 1 kHz phase, the CPU (utime + stime from
 ``/proc/<pid>/task/<tid>/stat``) of each of its threads, grouped by thread name, as a share of one core.
-``--perf``: ``perf record`` of the process's user space at 2 kHz over the same phase, the samples split
-by shared object (libfastrtps, libpython's interpreter, librcl, ...): how much of the CPU is the DDS
+``--perf``: ``perf record`` of the process at 2 kHz over the same phase, the samples split by shared
+object (the kernel, libfastrtps, libpython's interpreter, librcl, ...): how much of the CPU is the DDS
 write and how much Python. ``--stages``: the node once more with its reader thread's CPU (``time.thread_time_ns``)
 summed per stage of a frame (:data:`STAGES`), printed per frame; the timing itself adds to it.
 """
@@ -97,7 +97,7 @@ class ThreadProbe(bench_node.Probe):
         self.perf: subprocess.Popen[bytes] | None = None
         if self.perf_dir is not None:
             self.perf_data = os.path.join(self.perf_dir, f'{pid}.data')
-            self.perf = subprocess.Popen(['perf', 'record', '-q', '-F', '2000', '-e', 'cpu-clock:u', '-p', str(pid),
+            self.perf = subprocess.Popen(['perf', 'record', '-q', '-F', '2000', '-e', 'cpu-clock', '-p', str(pid),
                                           '-o', self.perf_data], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         super().__init__(pid)
         ThreadProbe.last = self
@@ -120,7 +120,7 @@ def by_thread(probe: ThreadProbe, seconds: float) -> dict[str, float]:
 
 
 def by_library(data: str) -> dict[str, float]:
-    """Share of the perf samples per shared object (user space)."""
+    """Share of the perf samples per shared object."""
     report = subprocess.run(['perf', 'report', '-i', data, '--stdio', '--sort', 'dso', '-q'],
                             capture_output=True, text=True, check=True).stdout
     shares: dict[str, float] = {}
@@ -148,7 +148,7 @@ def main() -> int:
     parser.add_argument('--protocol', choices=('rd2100_binary', 'kvh_fog'), default='rd2100_binary')
     parser.add_argument('--serial', default='NAVC3545')
     parser.add_argument('--variants', nargs='+', default=[], choices=tuple(bench_node.VARIANTS))
-    parser.add_argument('--perf', action='store_true', help='perf record each process (user space)')
+    parser.add_argument('--perf', action='store_true', help='perf record each process')
     parser.add_argument('--stages', action='store_true', help="the node's reader thread's CPU per stage too")
     args = parser.parse_args()
     protocol = 'binary' if args.protocol == 'rd2100_binary' else 'kvh_fog'
