@@ -114,16 +114,32 @@ def levels() -> np.ndarray:
     return np.where(k < PERIOD // 2, 2 * k, 2 * (PERIOD - 1 - k) + 1) - PERIOD // 2
 
 
+def _read_every(seconds: float) -> str:
+    """A variant: after each read the reader waits ``seconds``, so that a read takes that long's frames at once."""
+    return ('from art_gyro_calibration.driver import SerialGyroDriver as D\n'
+            'read = D._read_once\n'
+            'def batched(self):\n'
+            '    read(self)\n'
+            f'    self._stop.wait({seconds!r})\n'
+            'D._read_once = batched\n')
+
+
 # Candidates measured and not shipped: gyro_node with one thing changed, patched in before its main().
-VARIANTS = {
-    # Batching: after each read the reader waits 5 ms, so that a read takes the frames of about 5 ms at once.
-    'read_every_5ms': 'from art_gyro_calibration.driver import SerialGyroDriver as D\n'
-                      'read = D._read_once\n'
-                      'def batched(self):\n'
-                      '    read(self)\n'
-                      '    self._stop.wait(0.005)\n'
-                      'D._read_once = batched\n',
-}
+VARIANTS = {'read_every_5ms': _read_every(0.005), 'read_every_2ms': _read_every(0.002),
+            # imu/temperature with every 10th frame only (100 Hz): what its publish costs the node.
+            'temperature_every_10th': 'from art_gyro_calibration.ros.node import GyroNode\n'
+                                      'init = GyroNode.__init__\n'
+                                      'class Every10th:\n'
+                                      '    def __init__(self, publisher):\n'
+                                      '        self.publisher, self.count = publisher, 0\n'
+                                      '    def publish(self, message):\n'
+                                      '        self.count += 1\n'
+                                      '        if self.count % 10 == 0:\n'
+                                      '            self.publisher.publish(message)\n'
+                                      'def every_10th(self, *args, **kwargs):\n'
+                                      '    init(self, *args, **kwargs)\n'
+                                      '    self._temp_pub = Every10th(self._temp_pub)\n'
+                                      'GyroNode.__init__ = every_10th\n'}
 
 
 def kvh_rates() -> np.ndarray:
@@ -159,10 +175,17 @@ def run_subscriber(out: str) -> int:
     ready = threading.Event()
 
     def on_imu(msg: Imu) -> None:
-        arrival.append(time.monotonic_ns())
-        rate.append(msg.angular_velocity.z)
-        rate_x.append(msg.angular_velocity.x)
-        stamp.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        # The messages queued behind this one are taken here too, each stamped as taken: the executor would take
+        # one per wait, and a burst of them (a node that publishes several frames at once) would wait on the
+        # subscriber's own overhead, not on the node.
+        while msg is not None:
+            arrival.append(time.monotonic_ns())
+            rate.append(msg.angular_velocity.z)
+            rate_x.append(msg.angular_velocity.x)
+            stamp.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+            with subscription.handle:
+                taken = subscription.handle.take_message(Imu, False)
+            msg = taken[0] if taken is not None else None
         if not ready.is_set():
             ready.set()
             print('ready', flush=True)
@@ -174,7 +197,7 @@ def run_subscriber(out: str) -> int:
                 link.update({kv.key: kv.value for kv in s.values}, message=s.message)
 
     reliable = qos_profile(1000, reliability=ReliabilityPolicy.RELIABLE)
-    node.create_subscription(Imu, 'imu/data_raw', on_imu, reliable)
+    subscription = node.create_subscription(Imu, 'imu/data_raw', on_imu, reliable)
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
