@@ -181,7 +181,8 @@ class GyroNode(Node):
         self.driver = SerialGyroDriver(self.settings.port, self.settings.baud, self.settings.protocol,
                                        self._on_frame, on_link=self._on_link, on_warning=self._on_driver_warning,
                                        clock_ns=lambda: self.get_clock().now().nanoseconds, kvh_fog=self.kvh_fog,
-                                       rate_scale_dps=self.calibration.rate_scale_factor)
+                                       rate_scale_dps=self.calibration.rate_scale_factor,
+                                       guard_look_ahead=self.settings.guard_look_ahead)
         self.driver.start()
 
     # --- per frame (driver reader thread) ------------------------------------------------

@@ -75,6 +75,9 @@ PARAMETERS: dict[str, tuple[Any, ...]] = {
                                    'safe on a warm restart) a warm-up term counts as decayed.'),
     'log_path': ('', 'If set, every received frame is appended as t,raw_rate,raw_temp: a file to create '
                      '(must not exist) or a directory, where <serial>_<UTC time>.csv is created.'),
+    'guard_look_ahead': (False, 'binary and ascii: the frame guard also refuses a one-frame spike of a corruption\'s '
+                                'size that the next frame returns from, at one frame of latency (each frame is '
+                                'published when the next one comes).'),
     'publish_uncalibrated': (False, 'Also publish imu/uncalibrated (sensor_msgs/Imu): the rate with only the scale '
                                     'factor applied, rad/s, at the same stamps: with imu/temperature, a recorded bag '
                                     'then holds what calibrate fit and calibrate allan need.'),
@@ -250,6 +253,7 @@ class Settings:
     powered_on_at_start: bool
     log_path: str
     publish_uncalibrated: bool = False
+    guard_look_ahead: bool = False
     parked_bias_enabled: bool = False
     parked_bias_topic: str = ''
     parked_bias_type: str = 'bool'

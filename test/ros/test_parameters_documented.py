@@ -31,7 +31,7 @@ SAMPLES: dict[str, Any] = {
     'calibration_file': str(REPO / 'config' / 'NAVC3545.yaml'), 'frame_id': 'gyro_test', 'bias_samples': 50,
     'static_bias_on_startup': False, 'static_bias_max_mean_dps': 0.2, 'static_bias_max_std_dps': 0.1,
     'yaw_rate_stddev': 0.002, 'powered_on_at_start': True, 'log_path': 'TMP',   # the test's directory
-    'publish_uncalibrated': True,
+    'publish_uncalibrated': True, 'guard_look_ahead': True,
     'parked_bias.enabled': True, 'parked_bias.topic': 'odom', 'parked_bias.type': 'odometry',
     'parked_bias.max_age_s': 2.0, 'parked_bias.max_linear_mps': 0.02, 'parked_bias.max_angular_dps': 0.05,
     'parked_bias.gyro_stillness': True, 'parked_bias.max_std_dps': 0.03, 'parked_bias.settle_s': 2.0,
