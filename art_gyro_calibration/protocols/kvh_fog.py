@@ -394,9 +394,10 @@ class KvhFogParser(ChunkParser):
     a message cut short and followed by a whole one loses only the cut one. Every message with a
     good CRC advances the sequence number; the numbers skipped since the message before, less the
     messages rejected for their CRC in between (each is one rejected frame, not also a lost one),
-    are added to ``stats.lost_frames`` (a gap of 128 or more: counted by Format B's clock, in A and
-    C by the arrival times; none is counted across :meth:`reset`, where the count is
-    unknown). A good message is still rejected, and counted by reason, when the status byte flags
+    are added to ``stats.lost_frames`` (a gap of 128 or more: counted by Format B's clock where the
+    arrivals show it, else a leap of the clock; in A and C by the arrival times; none is counted
+    across :meth:`reset`, where the count is unknown). A good message is still rejected, and
+    counted by reason, when the status byte flags
     the yaw gyro invalid, when it repeats the sequence number before it (a duplicate: publishing
     it would count the rotation twice), when a value is not finite, in Format C before the first temperature of the
     connection (the temperature comes every fourth message and is held until the next), and, for
@@ -568,7 +569,7 @@ class KvhFogParser(ChunkParser):
         if last is not None:
             steps = (sequence - last) % KVH_SEQUENCE_MODULO
             if timestamp is not None:
-                steps += self._clock_wraps(timestamp, steps)
+                steps += self._clock_wraps(timestamp, steps, arrival_ns)
             elif not steps:
                 steps = self._arrival_wraps(arrival_ns)
             if not steps:
@@ -629,17 +630,24 @@ class KvhFogParser(ChunkParser):
         wraps = round(intervals / KVH_SEQUENCE_MODULO) * KVH_SEQUENCE_MODULO
         return wraps if wraps > 0 and abs(intervals - wraps) <= KVH_SEQUENCE_MODULO / 4 else 0
 
-    def _clock_wraps(self, timestamp: int, steps: int) -> int:
+    def _clock_wraps(self, timestamp: int, steps: int, arrival_ns: int | None) -> int:
         """Format B: the whole wraps of the sequence the unit's clock says passed besides ``steps`` (0 if unsure).
 
         128 lost messages or more look like 0 to 127 by the sequence alone; the clock's elapsed time
-        over the mean interval counts them, when it is a whole number of intervals within half of one.
+        over the mean interval counts them, when it is a whole number of intervals within half of one
+        and the message (read at ``arrival_ns``) came at least half of them late on the stream's line:
+        one that came on time says no message was lost but the clock leapt by whole wraps (then
+        rejected as any leap is).
         """
         if self._last_time_us is None or not self._unit_steps:
             return 0
         intervals = (timestamp - self._last_time_us) % 2 ** 32 * self._unit_steps / self._unit_time_us
         wraps = round((intervals - steps) / KVH_SEQUENCE_MODULO) * KVH_SEQUENCE_MODULO
-        return wraps if wraps > 0 and abs(intervals - steps - wraps) <= 0.5 else 0
+        if wraps <= 0 or abs(intervals - steps - wraps) > 0.5:
+            return 0
+        late = None if arrival_ns is None else self.stream.lateness(self._number + steps, arrival_ns,
+                                                                    self._unit_time_us * 1e-6 / self._unit_steps)
+        return 0 if late is not None and late < wraps / 2 else wraps
 
     def _clock_interval(self, timestamp: int | None, steps: int) -> float | None:
         """Format B: seconds per message by the unit's clock; -1.0 if the clock went wrong; None before two messages.

@@ -26,6 +26,23 @@ def test_format_b_gap_of_a_whole_wrap_is_counted_by_the_units_clock():
         assert parser.stats.lost_frames == len(lost)
 
 
+@pytest.mark.parametrize('rate_hz', [1000.0, 200.0])
+@pytest.mark.parametrize('at', [100, 2000])
+@pytest.mark.parametrize('wraps', [1, 2])
+def test_format_b_whole_wraps_lost_while_arrivals_pause_are_lost_not_a_leap(rate_hz, at, wraps):
+    """128 or 256 messages really lost (arrivals pause as long): counted, whether read promptly or late."""
+    config = KvhFogConfig(message_format='B', output_rate_hz=rate_hz)
+    lost = range(at, at + 128 * wraps)
+    for chunk_s, jitter_s in ((0.004, 0.002), (0.016, 0.016)):
+        parser = KvhFogParser(config)
+        samples = read_like_a_port(parser, stream(config, rate_hz, 4000 / rate_hz, lost), chunk_s, jitter_s)
+        assert parser.stats.lost_frames == len(lost), (chunk_s, parser.stats.rejected_by_reason)
+        assert parser.stats.rejected_by_reason[BAD_TIMESTAMP] == 0 and len(samples) == 4000 - len(lost) - 1
+    parser = KvhFogParser(config)   # no arrival times to contradict it: the unit's clock says
+    parser.feed(b''.join(m for m, _ in stream(config, rate_hz, 4000 / rate_hz, lost)))
+    assert parser.stats.lost_frames == len(lost)
+
+
 @pytest.mark.parametrize('message_format', ['A', 'C'])
 @pytest.mark.parametrize('lost', [range(2500, 2630), range(2500, 2756), range(700, 830)])
 def test_stream_gap_of_a_whole_wrap_is_counted_by_arrival_time(message_format, lost):
@@ -104,13 +121,18 @@ def leapt_stream(leap_us, at=2000, glitch=False, seconds=4.0):
 
 
 @pytest.mark.parametrize('glitch', [False, True])
-@pytest.mark.parametrize('leap_us', [300_000, 2_000, 20, -300, 1_400_000])
+@pytest.mark.parametrize('leap_us', [300_000, 2_000, 20, -300, 1_400_000, 128_000, 256_000, 127_500])
 def test_format_b_clock_leap_the_sequence_contradicts_is_rejected_and_the_clock_followed(leap_us, glitch):
-    """A leap under MAX_INTERVAL_US (or one glitched stamp): one message rejected, no rate off, unit time continuous."""
+    """A leap under MAX_INTERVAL_US (or one glitched stamp): one message rejected, no rate off, unit time continuous.
+
+    A leap of whole sequence wraps (128 or 256 intervals) is one too: arrivals went on at the interval, so no
+    message was lost. Before: counted as 128 (256) lost, the message published and unit time 128 ms ahead.
+    """
     parser = KvhFogParser(KvhFogConfig(message_format='B'))
     samples = read_like_a_port(parser, leapt_stream(leap_us, glitch=glitch))
     rates = [s.raw_rate for s in samples]
     assert rates == pytest.approx([30.0] * len(rates), rel=1e-3), (min(rates), max(rates))
+    assert parser.stats.lost_frames == 0
     assert parser.stats.rejected_by_reason[BAD_TIMESTAMP] == 1
     assert parser.stats.clock_faults == (0 if glitch else 1)   # a leap: the driver maps the clock anew
     assert len(samples) == 4000 - 2
