@@ -139,7 +139,10 @@ def test_odometry_reporting_a_creep_is_not_parked(tmp_path: Path, loopback: None
 
 def test_a_collection_is_aborted_when_the_robot_moves_or_its_topic_falls_silent(
         tmp_path: Path, loopback: None) -> None:
-    with parked_node(tmp_path, 13, '-p', 'parked_bias.topic:=parked') as (fake, proc, listener, output):
+    # 8 s collections: the test sees "collecting" up to a diagnostics period late, and on a loaded machine a 2 s
+    # collection could end before the topic's silence (1 s) aborts it.
+    with parked_node(tmp_path, 13, '-p', 'parked_bias.topic:=parked', '-p', 'bias_samples:=400') \
+            as (fake, proc, listener, output):
         robot = Robot(listener, odometry=False)
         listener.wait_status('static bias', lambda s: s['state'] == 'ok', 'the start-up bias', proc, output)
         for n, (stop, reason) in enumerate(((False, 'moved'), (None, 'stale')), 1):
