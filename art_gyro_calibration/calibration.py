@@ -13,6 +13,10 @@ A file is ``/**: ros__parameters: {...}`` so that the node takes it with
   range a calibration is expected to hold, used only to warn and count outside it: the report's
   calibrations, whose range the report does not print and whose polynomial applies at every
   temperature exactly as the report's program applies it); not both,
+- optional, with ``temperature_range_c``: ``beyond_range.rows``, ``.columns``, ``.coefficients`` (a
+  polynomial as ``polynomial.*``), ``.temperature_range_c`` and ``.source``: beyond the calibrated
+  range the polynomial is held at the edge and continued by this one's temperature dependence
+  (``calibrate fit`` writes the baseline's; see :class:`~art_gyro_calibration.model.Continuation`),
 - optional ``filters.temperature_rate_tau_s``, ``filters.rate_change_tau_s`` and
   ``filters.temperature_rate_form`` (``local_quadratic``, which ``calibrate fit`` writes, or ``first_order``:
   a file that names no form was fitted with it, at 120 s unless it names a time constant;
@@ -47,7 +51,7 @@ import numpy as np
 import yaml
 
 from art_gyro_calibration.frame import INT16_MIN
-from art_gyro_calibration.model import ArtPolynomial, ErrorModel
+from art_gyro_calibration.model import ArtPolynomial, Continuation, ErrorModel
 from art_gyro_calibration.signals import (DERIVED_SIGNALS, FIRST_ORDER_TAU_S, LAGGED_SIGNAL, POWER_ON_SIGNAL, SIGNALS,
                                           Envelope, SignalFilters)
 from art_gyro_calibration.temperature_rate import FIRST_ORDER
@@ -111,6 +115,7 @@ class Calibration:
     temperature_warn_range_c: tuple[float, float] | None = None   # warned and counted outside, never clamped
     # Per signal from outside the gyro (a supply voltage): the range its term was fitted over (none: not known).
     signal_ranges: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    continuation: Continuation | None = None   # beyond temperature_range_c (none: held at its edge)
 
     def signal_limits(self, signal: str) -> tuple[float, float]:
         """Where a value of ``signal`` is taken as the fit's: its fitted range widened by SIGNAL_RANGE_MARGIN.
@@ -151,7 +156,15 @@ class Calibration:
     @property
     def model(self) -> ErrorModel:
         """The error model: polynomial and extended terms."""
-        return ErrorModel(self.polynomial, self.terms, self.temperature_range_c)
+        return ErrorModel(self.polynomial, self.terms, self.temperature_range_c, self.continuation)
+
+    @property
+    def beyond_range(self) -> str:
+        """What the model does beyond its calibrated range, in words."""
+        if self.continuation is None:
+            return 'compensated at its edge'
+        source = f' ({self.continuation.source})' if self.continuation.source else ''
+        return f'held at its edge and continued by the temperature dependence of the baseline{source}'
 
     def to_parameters(self) -> dict[str, Any]:
         """Flat dotted parameters, the inverse of :func:`from_parameters`."""
@@ -167,6 +180,14 @@ class Calibration:
                           ('temperature_warn_range_c', self.temperature_warn_range_c)):
             if span is not None:   # absent: no range known (the report prints none)
                 params[key] = [float(v) for v in span]
+        if self.continuation is not None:
+            beyond = self.continuation
+            params['beyond_range.rows'] = beyond.polynomial.rows
+            params['beyond_range.columns'] = beyond.polynomial.columns
+            params['beyond_range.coefficients'] = [float(c) for c in beyond.polynomial.coefficients.ravel()]
+            if beyond.temperature_range_c is not None:
+                params['beyond_range.temperature_range_c'] = [float(v) for v in beyond.temperature_range_c]
+            params['beyond_range.source'] = beyond.source
         params['filters.temperature_rate_tau_s'] = self.filters.temperature_rate_tau_s
         params['filters.rate_change_tau_s'] = self.filters.rate_change_tau_s
         params['filters.temperature_rate_form'] = self.filters.temperature_rate_form
@@ -199,7 +220,8 @@ def _key_sets() -> tuple[frozenset[str], frozenset[str]]:
                        coefficients=(0.0,) * Term.width(form, *shapes[form]), powers=shapes[form][0],
                        rate_powers=shapes[form][1], time_constant_s=1.0) for form in FORMS)
     sample = Calibration('SAMPLE', 1.0, ArtPolynomial([[0.0]]), (0.0, 1.0), terms=terms,
-                         temperature_warn_range_c=(0.0, 1.0), signal_ranges={terms[0].signal: (0.0, 1.0)})
+                         temperature_warn_range_c=(0.0, 1.0), signal_ranges={terms[0].signal: (0.0, 1.0)},
+                         continuation=Continuation(ArtPolynomial([[0.0]]), (0.0, 1.0)))
     fixed, fields = set(), set()
     for key in sample.to_parameters():
         parts = key.split('.', 2)
@@ -288,12 +310,7 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
         if not low <= value <= high:
             raise CalibrationError(f'{where}: {key} must be in {low:.6g}..{high:g}, got {value:g} ({what}): '
                                    'no gyro this package reads')
-    rows = _integer(_get(params, 'polynomial.rows', where), 'polynomial.rows', where)
-    columns = _integer(_get(params, 'polynomial.columns', where), 'polynomial.columns', where)
-    coefficients = _numbers(_get(params, 'polynomial.coefficients', where), 'polynomial.coefficients', where)
-    if len(coefficients) != rows * columns:
-        raise CalibrationError(f'{where}: polynomial.coefficients has {len(coefficients)} numbers, '
-                               f'rows x columns = {rows} x {columns} needs {rows * columns}')
+    polynomial = _polynomial(params, 'polynomial', where)
     temp_range = _range(params, 'temperature_range_c', where)
     warn_range = _range(params, 'temperature_warn_range_c', where)
     if temp_range is not None and warn_range is not None:
@@ -313,12 +330,40 @@ def from_parameters(params: Mapping[str, Any], where: str) -> Calibration:
         raise CalibrationError(f'{where}: {e}') from None
     terms = _terms(params, where)
     calibration = Calibration(
-        serial_number=serial, rate_scale_factor=rate_scale, temp_scale_factor=temp_scale,
-        polynomial=ArtPolynomial(np.reshape(coefficients, (rows, columns))),
+        serial_number=serial, rate_scale_factor=rate_scale, temp_scale_factor=temp_scale, polynomial=polynomial,
         temperature_range_c=temp_range, temperature_warn_range_c=warn_range,
-        terms=terms, filters=filters, signal_ranges=_signal_ranges(params, terms, where))
+        terms=terms, filters=filters, signal_ranges=_signal_ranges(params, terms, where),
+        continuation=_continuation(params, temp_range, where))
     check_envelope(calibration, where)
     return calibration
+
+
+def _polynomial(params: Mapping[str, Any], prefix: str, where: str) -> ArtPolynomial:
+    """``<prefix>.rows``, ``.columns`` and ``.coefficients`` (row-major) as a polynomial."""
+    rows = _integer(_get(params, f'{prefix}.rows', where), f'{prefix}.rows', where)
+    columns = _integer(_get(params, f'{prefix}.columns', where), f'{prefix}.columns', where)
+    key = f'{prefix}.coefficients'
+    coefficients = _numbers(_get(params, key, where), key, where)
+    if len(coefficients) != rows * columns:
+        raise CalibrationError(f'{where}: {key} has {len(coefficients)} numbers, '
+                               f'rows x columns = {rows} x {columns} needs {rows * columns}')
+    return ArtPolynomial(np.reshape(coefficients, (rows, columns)))
+
+
+def _continuation(params: Mapping[str, Any], temp_range: tuple[float, float] | None,
+                  where: str) -> Continuation | None:
+    """The ``beyond_range.*`` polynomial, which only a calibrated ``temperature_range_c`` has a beyond for."""
+    keys = [key for key in params if key.startswith('beyond_range.')]
+    if not keys:
+        return None
+    if temp_range is None:
+        raise CalibrationError(f'{where}: {keys[0]} continues the polynomial beyond temperature_range_c, which is '
+                               'not given: give the calibrated range or drop beyond_range')
+    source = params.get('beyond_range.source', '')
+    if not isinstance(source, str):
+        raise CalibrationError(f'{where}: beyond_range.source must be a string, got {source!r}')
+    return Continuation(_polynomial(params, 'beyond_range', where),
+                        _range(params, 'beyond_range.temperature_range_c', where), source)
 
 
 def _range(params: Mapping[str, Any], key: str, where: str) -> tuple[float, float] | None:
@@ -367,17 +412,22 @@ def check_envelope(calibration: Calibration, where: str) -> None:
     so a finite bound means a finite value everywhere inside.
     """
     low_c, high_c = calibration.envelope_range_c
-    temp_max = max(abs(low_c), abs(high_c))
     rate_max = FULL_SCALE_COUNTS * calibration.rate_scale_factor
-    poly = calibration.polynomial
-    with np.errstate(over='ignore', invalid='ignore'):
-        temp_powers = temp_max ** np.arange(poly.rows - 1, -1, -1, dtype=float)
-        rate_powers = rate_max ** np.arange(poly.columns - 1, -1, -1, dtype=float)
-        bound = float(np.sum(np.abs(poly.coefficients) * np.outer(temp_powers, rate_powers)))
-    if not math.isfinite(bound):
-        raise CalibrationError(f'{where}: polynomial.coefficients: the polynomial overflows within the envelope '
-                               f'({low_c:g}..{high_c:g} degC, +-{rate_max:g} deg/s full scale)')
-    _check_correction(calibration, where)
+    polynomials = [('polynomial', calibration.polynomial, calibration.envelope_range_c)]
+    if calibration.continuation is not None:
+        beyond = calibration.continuation
+        polynomials.append(('beyond_range', beyond.polynomial,
+                            beyond.temperature_range_c or PLAUSIBLE_TEMPERATURE_C))
+    for key, poly, (low, high) in polynomials:
+        temp_max = max(abs(low), abs(high))
+        with np.errstate(over='ignore', invalid='ignore'):
+            temp_powers = temp_max ** np.arange(poly.rows - 1, -1, -1, dtype=float)
+            rate_powers = rate_max ** np.arange(poly.columns - 1, -1, -1, dtype=float)
+            bound = float(np.sum(np.abs(poly.coefficients) * np.outer(temp_powers, rate_powers)))
+        if not math.isfinite(bound):
+            raise CalibrationError(f'{where}: {key}.coefficients: the polynomial overflows within the envelope '
+                                   f'({low:g}..{high:g} degC, +-{rate_max:g} deg/s full scale)')
+        _check_correction(poly, key, (low, high), calibration.rate_range_dps, where)
     for term in calibration.terms:
         envelope = signal_envelope(calibration, term.signal)
         if envelope is None:
@@ -399,23 +449,22 @@ def check_envelope(calibration: Calibration, where: str) -> None:
                                    f'degC, +-{rate_max:g} deg/s, {TIME_HORIZON_S / 86400:g} days)')
 
 
-def _check_correction(calibration: Calibration, where: str) -> None:
-    """Refuse a polynomial whose correction exceeds the unit's range somewhere in the calibrated envelope.
+def _check_correction(poly: ArtPolynomial, key: str, range_c: tuple[float, float], span: float,
+                      where: str) -> None:
+    """Refuse a polynomial whose correction exceeds the unit's range (+-``span``) somewhere in its envelope.
 
-    Over a grid of the temperatures the model is evaluated at (:attr:`Calibration.envelope_range_c`:
-    the clamp's range, else every plausible temperature) and rates (the unit's range): a
-    correction larger than every rate the unit can read (a 1e300 coefficient) turns any reading
-    into nonsense, published as a plausible value.
+    Over a grid of the temperatures it is evaluated at (``range_c``: the clamp's range, else
+    every plausible temperature) and rates (the unit's range): a correction larger than
+    every rate the unit can read (a 1e300 coefficient) turns any reading into nonsense,
+    published as a plausible value.
     """
-    low_c, high_c = calibration.envelope_range_c
-    span = calibration.rate_range_dps
-    temps = np.linspace(low_c, high_c, ENVELOPE_GRID[0])
+    temps = np.linspace(*range_c, ENVELOPE_GRID[0])
     rates = np.linspace(-span, span, ENVELOPE_GRID[1])
     # Finite: check_envelope bounded every monomial first.
-    size = np.abs(calibration.polynomial.error(rates[np.newaxis, :], temps[:, np.newaxis]))
+    size = np.abs(poly.error(rates[np.newaxis, :], temps[:, np.newaxis]))
     t, r = np.unravel_index(int(np.argmax(size)), size.shape)
     if not size[t, r] <= span:
-        raise CalibrationError(f'{where}: polynomial.coefficients: a correction of {size[t, r]:.4g} deg/s (at '
+        raise CalibrationError(f'{where}: {key}.coefficients: a correction of {size[t, r]:.4g} deg/s (at '
                                f'{temps[t]:g} degC, {rates[r]:g} deg/s) exceeds the unit\'s range of +-{span:g} '
                                'deg/s within the calibrated envelope: not a calibration of this gyro')
 

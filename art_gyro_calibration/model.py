@@ -72,6 +72,37 @@ class ArtPolynomial:
         return f'ArtPolynomial(rows={self.rows}, columns={self.columns})'
 
 
+@dataclass(frozen=True)
+class Continuation:
+    """Beyond a calibrated range, another polynomial's temperature dependence (the baseline's), continued from the edge.
+
+    A refit fitted over a log's few degrees is held at the log's edge; the gyro's previous
+    calibration (the report's polynomial, fitted on a rate table over the whole chamber
+    range) knows how the error moves beyond it. Outside the range the error is the refit's
+    at the edge plus how much ``polynomial`` moves from the edge to the temperature:
+    ``comp(rate, edge) + B(rate, T) - B(rate, edge)``, with ``B`` itself held at the edge of
+    ``temperature_range_c`` when it has one. Inside the range nothing changes.
+    """
+
+    polynomial: ArtPolynomial
+    temperature_range_c: tuple[float, float] | None = None
+    source: str = ''
+
+    def step(self, rate: NDArray[np.float64], temp: NDArray[np.float64],
+             edge: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``B(rate, temp) - B(rate, edge)`` for arrays (0 where ``temp`` is ``edge``)."""
+        if self.temperature_range_c is not None:
+            temp, edge = np.clip(temp, *self.temperature_range_c), np.clip(edge, *self.temperature_range_c)
+        return self.polynomial.error(rate, temp) - self.polynomial.error(rate, edge)
+
+    def step_one(self, rate: float, temp: float, edge: float) -> float:
+        """:meth:`step` for one sample."""
+        if self.temperature_range_c is not None:
+            low, high = self.temperature_range_c
+            temp, edge = min(max(temp, low), high), min(max(edge, low), high)
+        return self.polynomial.error_one(rate, temp) - self.polynomial.error_one(rate, edge)
+
+
 # Signals that are temperatures: clamped to the calibrated range with the polynomial's.
 _TEMPERATURES = tuple(name for name, signal in SIGNALS.items() if signal.temperature)
 # The terms a static bias taken while the temperature-rate filter still starts up gets wrong.
@@ -86,12 +117,14 @@ class ErrorModel:
     clamp their thermal calibrations: outside the calibrated range a polynomial
     extrapolates wildly, its value at the edge is the better guess. Without it (the
     report's calibrations, whose range the report does not give) the model is evaluated at
-    every temperature, exactly as the report's program does.
+    every temperature, exactly as the report's program does. With ``continuation`` the
+    polynomial is held at the edge and continued beyond it (:class:`Continuation`).
     """
 
     polynomial: ArtPolynomial
     terms: tuple[Term, ...] = ()
     temperature_range_c: tuple[float, float] | None = None
+    continuation: Continuation | None = None
 
     @property
     def lags(self) -> tuple[float, ...]:
@@ -117,16 +150,28 @@ class ErrorModel:
         x = signals.for_term(term)
         return term.evaluate(self._clamp(x) if term.signal in _TEMPERATURES else x, signals.rate)
 
+    def polynomial_error(self, rate_dps: ArrayLike, temp_c: ArrayLike) -> NDArray[np.float64]:
+        """The polynomial's part of the error, as the model applies it: clamped, and continued beyond the edge."""
+        rate, temp = np.asarray(rate_dps, dtype=float), np.asarray(temp_c, dtype=float)
+        edge = self._clamp(temp)
+        comp = self.polynomial.error(rate, edge)
+        if self.continuation is not None:
+            comp += self.continuation.step(rate, temp, edge)
+        return comp
+
     def error(self, signals: Signals) -> NDArray[np.float64]:
         """Modelled error in deg/s of every sample of a log."""
-        comp = self.polynomial.error(signals.rate, self._clamp(signals.temperature))
+        comp = self.polynomial_error(signals.rate, signals.temperature)
         for term in self.terms:
             comp += self.term_error(term, signals)
         return comp
 
     def error_one(self, tracker: SignalTracker) -> float:
         """Modelled error of the sample ``tracker`` was last updated with."""
-        comp = self.polynomial.error_one(tracker.rate, self._clamp_one(tracker.temperature))
+        edge = self._clamp_one(tracker.temperature)
+        comp = self.polynomial.error_one(tracker.rate, edge)
+        if self.continuation is not None and edge != tracker.temperature:
+            comp += self.continuation.step_one(tracker.rate, tracker.temperature, edge)
         for term in self.terms:
             x = tracker.for_term(term)
             comp += term.evaluate_one(self._clamp_one(x) if term.signal in _TEMPERATURES else x, tracker.rate)

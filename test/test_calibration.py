@@ -1,5 +1,6 @@
 """Calibration files: the report's digits, loading, round trips and refusals."""
 
+import dataclasses
 import os
 import re
 import threading
@@ -12,6 +13,7 @@ import yaml
 from art_gyro_calibration.calibration import (Calibration, CalibrationError, dump_calibration, find_calibration_file,
                                               flatten, from_parameters, load_calibration, load_packaged_calibration,
                                               write_calibration)
+from art_gyro_calibration.model import Continuation
 from art_gyro_calibration.terms import Term
 
 REPO = Path(__file__).resolve().parent.parent
@@ -392,3 +394,33 @@ def test_every_packaged_calibration_is_within_its_units_range(serial: str) -> No
     cal = load_packaged_calibration(serial)
     assert cal.rate_range_dps == pytest.approx(32768 * cal.rate_scale_factor)
     assert load_calibration(REPO / 'config' / 'KVH_DSP1760_EXAMPLE.yaml').rate_range_dps == 490.0
+
+
+def test_a_continuation_beyond_the_calibrated_range_round_trips_and_is_checked(tmp_path: Path) -> None:
+    report = load_packaged_calibration('NAVC3545')
+    cal = dataclasses.replace(report, temperature_range_c=(19.0, 46.0), temperature_warn_range_c=None,
+                              continuation=Continuation(report.polynomial, None, 'config/NAVC3545.yaml'))
+    path = tmp_path / 'cal.yaml'
+    write_calibration(path, cal)
+    again = load_calibration(path, expected_serial='NAVC3545')
+    assert again.continuation is not None and again.model.continuation is again.continuation
+    np.testing.assert_array_equal(again.continuation.polynomial.coefficients, report.polynomial.coefficients)
+    assert (again.continuation.temperature_range_c, again.continuation.source) == (None, 'config/NAVC3545.yaml')
+    assert 'continued by the temperature dependence of the baseline (config/NAVC3545.yaml)' in again.beyond_range
+    params = cal.to_parameters()
+    assert params['beyond_range.rows'] == 3 and 'beyond_range.temperature_range_c' not in params
+    # Only a calibrated range has a beyond.
+    no_range = {k: v for k, v in params.items() if k != 'temperature_range_c'}
+    with pytest.raises(CalibrationError, match=r"^x.yaml: beyond_range.rows continues the polynomial beyond "
+                                               r"temperature_range_c, which is not given"):
+        from_parameters(no_range, 'x.yaml')
+    # Checked as the polynomial is, over every plausible temperature (it is applied beyond the range).
+    for change, message in (({'beyond_range.coefficients': [1.0] * 11}, 'beyond_range.coefficients has 11 numbers'),
+                            ({'beyond_range.coefficients': [0.0] * 8 + [1e-3, 0.0, 0.0, 0.0]},
+                             'beyond_range.coefficients: a correction of 998.3 deg/s'),
+                            ({'beyond_range.source': 3}, 'beyond_range.source must be a string'),
+                            ({'beyond_range.temperature_range_c': [40.0, 10.0]},
+                             r'beyond_range.temperature_range_c must be \[min, max\]'),
+                            ({'beyond_range.colums': 4}, "unknown key 'beyond_range.colums'")):
+        with pytest.raises(CalibrationError, match='^x.yaml: ' + message):
+            from_parameters({**params, **change}, 'x.yaml')

@@ -11,7 +11,8 @@ from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.compensation import Compensator, apply_calibration
 from art_gyro_calibration.gyro_physics import measured_from_true
 from art_gyro_calibration.log import GyroLog
-from art_gyro_calibration.model import ArtPolynomial
+from art_gyro_calibration.model import ArtPolynomial, Continuation, ErrorModel
+from art_gyro_calibration.signals import SignalTracker, compute_signals
 
 RATES = np.linspace(-100.0, 100.0, 41)     # the RD2100's full scale, deg/s
 TEMPS = np.linspace(-10.0, 60.0, 15)       # beyond the calibrated range on both sides, degC
@@ -143,3 +144,31 @@ def test_comp_rate_matches_the_compiled_c_program(serial: str, c_reference: Path
     comp.bias = applied.bias
     per_sample = [comp.correct(r, e) for r, e in zip(log.rate_dps, errors)]
     np.testing.assert_allclose(per_sample, applied.corrected_dps, rtol=0, atol=1e-9)
+
+
+def test_beyond_its_range_the_polynomial_is_continued_by_another_s_temperature_dependence() -> None:
+    """A refit over 20..32 degC, held at its edges and carried on beyond them as the report's polynomial moves."""
+    refit = ArtPolynomial([[1e-6, 2e-4], [3e-3, -0.01]])
+    report = load_packaged_calibration('NAVC3545').polynomial
+    model = ErrorModel(refit, (), (20.0, 32.0), Continuation(report))
+    temp = np.linspace(0.0, 60.0, 121)
+    rate = np.linspace(-100.0, 100.0, 121)
+    edge = np.clip(temp, 20.0, 32.0)
+    expected = refit.error(rate, edge) + report.error(rate, temp) - report.error(rate, edge)
+    np.testing.assert_allclose(model.polynomial_error(rate, temp), expected, rtol=0, atol=1e-12)
+    inside = (temp >= 20.0) & (temp <= 32.0)
+    np.testing.assert_array_equal(model.polynomial_error(rate, temp)[inside], refit.error(rate, temp)[inside])
+    # Its own calibrated range holds the continuing polynomial at that range's edge in turn.
+    bounded = ErrorModel(refit, (), (20.0, 32.0), Continuation(report, (10.0, 40.0)))
+    assert bounded.polynomial_error(50.0, 55.0) == pytest.approx(
+        refit.error_one(50.0, 32.0) + report.error_one(50.0, 40.0) - report.error_one(50.0, 32.0), abs=1e-12)
+    # The node's per-sample path gives the same.
+    t = np.arange(temp.size) * 0.1
+    signals = compute_signals(t, rate, temp)
+    for model_ in (model, bounded):
+        tracker = SignalTracker(powered_on_at_start=True)
+        one = []
+        for k in range(t.size):
+            tracker.update(t[k], rate[k], temp[k])
+            one.append(model_.error_one(tracker))
+        np.testing.assert_allclose(one, model_.error(signals), rtol=0, atol=1e-12)

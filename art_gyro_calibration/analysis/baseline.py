@@ -25,14 +25,17 @@ makes a refit worse than the baseline. The refit's terms keep their fit on the w
 
 Where the robot will run (the operating range: by default the logged temperatures) decides
 where else it is judged. Held out on the log, the refit is judged only at the log's
-temperatures. Beyond them it holds its value at the log's edge (its ``temperature_range_c``),
-and over the operating range's part where the baseline was calibrated (its
-``temperature_range_c``) it is judged against the baseline there (:func:`beyond_log`): a
-polynomial fitted over a narrow span of temperatures can be far off outside it, where the
-baseline holds. A refit that is worse there than the baseline by the materiality is not
-written either. Where neither the log nor the baseline's calibration reaches (a
-``temperature_warn_range_c`` is an assumption, not a calibration) nothing was measured: how
-far the two disagree there is said (:func:`unknown_beyond_log`), never judged.
+temperatures. Beyond them a polynomial fitted over a narrow span can be far off, so the
+written refit holds its value at the log's edge (its ``temperature_range_c``) and is
+continued from there by the baseline's temperature dependence (:func:`continued`): the
+correction the log measured at its edge, carried on the way the baseline, calibrated on a
+rate table over the whole chamber range, says the error moves. Held at the edge instead, a
+refit loses beyond it all the baseline moves there, and can be worse than a stale baseline.
+Beyond the log nothing was
+measured, so nothing there is judged: over the operating range's part where the baseline
+was calibrated (its ``temperature_range_c``) the report says how far the written file and
+the baseline differ (:func:`beyond_log`), and over the rest (a ``temperature_warn_range_c``
+is an assumption, not a calibration) how far they disagree (:func:`unknown_beyond_log`).
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ from art_gyro_calibration.analysis.replay import RESTART_FRACTIONS, field_score_
 from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibration, CalibrationError
 from art_gyro_calibration.compensation import RunStart
 from art_gyro_calibration.log import GyroLog
-from art_gyro_calibration.model import ArtPolynomial, ErrorModel
+from art_gyro_calibration.model import ArtPolynomial, Continuation, ErrorModel
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
@@ -70,46 +73,43 @@ Span = tuple[float, float]
 
 @dataclass(frozen=True)
 class BeyondLog:
-    """The refit against the baseline where the robot will run, the baseline is calibrated and the log is not.
+    """The refit as written against the baseline where the robot runs, the baseline is calibrated and the log is not.
 
-    Beyond the log's temperatures the refit holds its value at the log's edge. Taking the
-    correction the log measured (refit less baseline at the edge) as holding on beyond it,
-    which is what the refit's clamp assumes, the refit errs there by how far the baseline
-    moves from the edge and the baseline by that correction. ``worse_dph`` is the most the
-    first exceeds the second over the logged table rates and ``judged_c`` (the operating
-    range beyond the log, within the baseline's calibrated range; deg/h; at most 0: the
-    refit is nowhere worse there), at ``at_temperature_c`` and ``at_rate_dps``.
+    ``differ_dph``: the most the two differ there over the logged table rates and
+    ``judged_c`` (the operating range beyond the log, within the baseline's calibrated
+    range; deg/h), at ``at_temperature_c`` and ``at_rate_dps``. Continued by the baseline,
+    the refit differs from it there by the correction the log measured at its edge.
     """
 
     log_range_c: Span
     baseline_range_c: Span
     judged_c: tuple[Span, ...]
-    worse_dph: float
+    differ_dph: float
     at_temperature_c: float
     at_rate_dps: float
 
     def to_dict(self) -> dict[str, Any]:
         """REPORT.json's ``baseline.beyond_log``."""
         return {'log_range_c': list(self.log_range_c), 'baseline_range_c': list(self.baseline_range_c),
-                'judged_c': [list(span) for span in self.judged_c], 'refit_worse_dph': self.worse_dph,
+                'judged_c': [list(span) for span in self.judged_c], 'differ_dph': self.differ_dph,
                 'at_temperature_c': self.at_temperature_c, 'at_rate_dps': self.at_rate_dps}
 
     def describe(self) -> str:
         """One clause for the verdict's message."""
         (low, high), (b_low, b_high) = self.log_range_c, self.baseline_range_c
-        return (f'the log covers {low:g}..{high:g} degC, and beyond it over {_spans(self.judged_c)} degC of the '
-                f'operating range, where the baseline is calibrated ({b_low:g}..{b_high:g} degC), the refit, held at '
-                f'the log\'s edge, is worse than the baseline by up to {self.worse_dph:.2f} deg/h '
-                f'(at {self.at_temperature_c:g} degC and {self.at_rate_dps:g} deg/s)')
+        return (f'the log covers {low:g}..{high:g} degC; beyond it over {_spans(self.judged_c)} degC of the '
+                f'operating range, where the baseline is calibrated ({b_low:g}..{b_high:g} degC), the written file '
+                f'differs from the baseline by up to {self.differ_dph:.2f} deg/h (at {self.at_temperature_c:g} degC '
+                f'and {self.at_rate_dps:g} deg/s), the correction the log measured at its edge')
 
 
 @dataclass(frozen=True)
 class UnknownBeyondLog:
     """The operating range that no log covers and the baseline was never calibrated over: nothing measured there.
 
-    There the refit holds its value at the log's edge and the baseline is applied as the node
-    applies it (held at its calibrated range's edge, or its polynomial as it is when it has
-    none); neither is known to hold. ``disagree_dph``: the most the two differ over the logged
+    There both are applied as the node applies them (the refit as written, the baseline held
+    at its calibrated range's edge, or its polynomial as it is when it has none); neither is
+    known to hold. ``disagree_dph``: the most the two differ over the logged
     table rates and ``ranges_c`` (deg/h), at ``at_temperature_c`` and ``at_rate_dps``: what a
     run there would have to settle, not a verdict.
     """
@@ -134,7 +134,7 @@ class UnknownBeyondLog:
         calibrated = ('it has no calibrated temperature_range_c' if self.baseline_range_c is None else
                       'it was calibrated over {:g}..{:g} degC'.format(*self.baseline_range_c))
         return (f'no log covers {_spans(self.ranges_c)} degC of the operating range and the baseline was never '
-                f'calibrated there ({calibrated}), so neither is judged there; the refit, held at the log\'s edge, and '
+                f'calibrated there ({calibrated}), so neither is judged there; the refit as written and '
                 f'the baseline differ there by up to {self.disagree_dph:.2f} deg/h (at {self.at_temperature_c:g} degC '
                 f'and {self.at_rate_dps:g} deg/s), which only a log over it can settle')
 
@@ -226,9 +226,19 @@ def _grid(spans: Sequence[Span], rates_dps: NDArray[np.float64]) -> tuple[NDArra
     return temp, rate
 
 
+def continued(refit: Calibration, baseline: Calibration, source: str) -> Calibration:
+    """``refit``, clamped to the log's temperatures, continued beyond them by ``baseline``'s polynomial.
+
+    A refit with no clamp, or a baseline whose polynomial does not move with temperature, is returned as it is.
+    """
+    if refit.temperature_range_c is None or baseline.polynomial.rows < 2:
+        return refit
+    return replace(refit, continuation=Continuation(baseline.polynomial, baseline.temperature_range_c, source))
+
+
 def beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64],
                operating_c: Span) -> BeyondLog | None:
-    """The refit (clamped to the log's temperatures) against the baseline beyond them, at ``rates_dps`` and at rest.
+    """The refit (as written) against the baseline beyond the log's temperatures, at ``rates_dps`` and at rest.
 
     Judged over ``operating_c`` beyond the log, where the baseline is calibrated (its
     ``temperature_range_c``). None where there is no such place: the refit is not clamped,
@@ -242,13 +252,10 @@ def beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.
     if not judged:
         return None
     temp, rate = _grid(judged, rates_dps)
-    edge = np.clip(temp, *log_range)
-    at_edge = baseline.polynomial.error(rate, edge)
-    moves = np.abs(baseline.polynomial.error(rate, temp) - at_edge)
-    correction = np.abs(refit.polynomial.error(rate, edge) - at_edge)
-    worse = (moves - correction) * DEG_PER_H_PER_DPS
-    i = np.unravel_index(int(np.argmax(worse)), worse.shape)
-    return BeyondLog(log_range, baseline_range, tuple(judged), float(worse[i]), float(temp[i]), float(rate[i]))
+    differ = np.abs(refit.model.polynomial_error(rate, temp)
+                    - baseline.model.polynomial_error(rate, temp)) * DEG_PER_H_PER_DPS
+    i = np.unravel_index(int(np.argmax(differ)), differ.shape)
+    return BeyondLog(log_range, baseline_range, tuple(judged), float(differ[i]), float(temp[i]), float(rate[i]))
 
 
 def unknown_beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64],
@@ -265,25 +272,26 @@ def unknown_beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDA
     if not unknown:
         return None
     temp, rate = _grid(unknown, rates_dps)
-    applied = temp if baseline_range is None else np.clip(temp, *baseline_range)
-    disagree = np.abs(refit.polynomial.error(rate, np.clip(temp, *log_range))
-                      - baseline.polynomial.error(rate, applied)) * DEG_PER_H_PER_DPS
+    disagree = np.abs(refit.model.polynomial_error(rate, temp)
+                      - baseline.model.polynomial_error(rate, temp)) * DEG_PER_H_PER_DPS
     i = np.unravel_index(int(np.argmax(disagree)), disagree.shape)
     return UnknownBeyondLog(log_range, baseline_range, tuple(unknown), float(disagree[i]), float(temp[i]),
                             float(rate[i]))
 
 
-def _unasked(baseline: Calibration, operating_c: Span | None, operating: Span | None) -> str:
+def _unasked(written: Calibration, baseline: Calibration, operating_c: Span | None,
+             operating: Span | None) -> str:
     """A clause for a refit written where no operating range was given and the baseline was calibrated wider.
 
-    The refit holds its value beyond the log; over the rest of the baseline's calibrated
-    range it is judged only when the robot is said to run there.
+    How far the written file and the baseline differ over the rest of the baseline's calibrated
+    range is said only when the robot is said to run there.
     """
     calibrated = baseline.temperature_range_c
     if operating_c is not None or operating is None or calibrated is None or not _outside(calibrated, operating):
         return ''
-    return (f', held at the log\'s edge beyond it; the baseline was calibrated over {calibrated[0]:g}..'
-            f'{calibrated[1]:g} degC: give --operating-range if the robot runs beyond the log, to judge it there')
+    return (f', beyond the log {written.beyond_range}; the baseline was calibrated over {calibrated[0]:g}..'
+            f'{calibrated[1]:g} degC: give --operating-range if the robot runs beyond the log, to see how far the '
+            'two differ there')
 
 
 def check_baseline(baseline: Calibration, source: str, log_rate_scale: float, log_temp_scale: float) -> None:
@@ -397,14 +405,14 @@ class BaselineComparisonError(ValueError):
     """The refit cannot be judged against the baseline: neither is chosen (nothing is written)."""
 
 
-def _check_comparable(source: str, refit_dph: float, baseline_dph: float, beyond: BeyondLog | None,
+def _check_comparable(source: str, refit_dph: float, baseline_dph: float,
                       pairs: Sequence[tuple[Run, FieldErrors, FieldErrors]]) -> None:
     """Refuse scores no verdict can rest on: one not a number, or both infinite (both refused a static bias).
 
     A comparison with NaN is false whichever way it is asked, so it would keep whichever side the code
     falls back to, however wrong: the reason is said instead.
     """
-    scores = (refit_dph, baseline_dph, *(() if beyond is None else (beyond.worse_dph,)))
+    scores = (refit_dph, baseline_dph)
     if not any(math.isnan(x) for x in scores) and not (math.isinf(refit_dph) and math.isinf(baseline_dph)):
         return
     runs = '; '.join(f'{run.name}: refit {refit.systematic_rms_dps * DEG_PER_H_PER_DPS:.4g}, baseline '
@@ -451,9 +459,10 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     materiality = result.materiality_dph
     pairs = tuple(zip(runs, refit_runs, base_runs))
     operating = operating_c if operating_c is not None else written.temperature_range_c
+    written = continued(written, baseline, source)
     beyond = None if operating is None else beyond_log(written, baseline, result.segments.rate, operating)
     unknown = None if operating is None else unknown_beyond_log(written, baseline, result.segments.rate, operating)
-    _check_comparable(source, refit_dph, baseline_dph, beyond, pairs)
+    _check_comparable(source, refit_dph, baseline_dph, pairs)
     if on_top_dph is not None and math.isnan(on_top_dph):
         raise BaselineComparisonError(
             f'the refit cannot be judged against the baseline {source}: the baseline with the terms '
@@ -464,19 +473,15 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     bar_dph = on_top_dph if terms_help and on_top_dph is not None else baseline_dph
     bar = (f'the baseline {source} with the terms {", ".join(s.signal for s in specs)} fitted on top of it'
            if terms_help else f'the baseline {source}')
-    worse_beyond = beyond is not None and beyond.worse_dph > materiality
     if refit_dph + materiality < bar_dph:
-        message = (f'the refit is better than {bar} held out on this log: {refit_dph:.2f} against '
-                   f'{bar_dph:.2f} deg/h (materiality {materiality:.2f} deg/h)')
-        if not worse_beyond:
-            return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, REFIT, pairs, written,
-                                 message + '; the refit is written' + _unasked(baseline, operating_c, operating),
-                                 beyond, operating, unknown)
-        assert beyond is not None
-        verdict = f'{message}, but {beyond.describe()}'
-    else:
-        verdict = (f'the refit polynomial is not better than {bar} by the materiality held out on this log '
-                   f'({refit_dph:.2f} against {bar_dph:.2f} deg/h; materiality {materiality:.2f} deg/h)')
+        beyond_words = '' if beyond is None else f'; {beyond.describe()}'
+        return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, REFIT, pairs, written,
+                             f'the refit is better than {bar} held out on this log: {refit_dph:.2f} against '
+                             f'{bar_dph:.2f} deg/h (materiality {materiality:.2f} deg/h); the refit is written'
+                             + _unasked(written, baseline, operating_c, operating) + beyond_words,
+                             beyond, operating, unknown)
+    verdict = (f'the refit polynomial is not better than {bar} by the materiality held out on this log '
+               f'({refit_dph:.2f} against {bar_dph:.2f} deg/h; materiality {materiality:.2f} deg/h)')
     calibration = replace(baseline, terms=(), filters=written.filters)
     kept_terms = ''
     if specs:

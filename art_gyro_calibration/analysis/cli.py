@@ -91,7 +91,7 @@ def _outside(calibration: Calibration, rows: int) -> str:
     """The summary's words on the rows outside the calibration's range, and what was done with them."""
     if calibration.temperature_range_c is not None:
         low, high = calibration.temperature_range_c
-        return f'{rows} outside the calibrated range {low:g}..{high:g} degC, compensated at its edge; '
+        return f'{rows} outside the calibrated range {low:g}..{high:g} degC, {calibration.beyond_range}; '
     if calibration.temperature_warn_range_c is not None:
         low, high = calibration.temperature_warn_range_c
         return (f'{rows} outside the calibrated range {low:g}..{high:g} degC (temperature_warn_range_c, assumed: '

@@ -25,7 +25,7 @@ from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.bags import BagTopics, read_any_log
-from art_gyro_calibration.analysis.baseline import BASELINE, BaselineCheck, check_baseline, compare_with_baseline
+from art_gyro_calibration.analysis.baseline import BASELINE, REFIT, BaselineCheck, check_baseline, compare_with_baseline
 from art_gyro_calibration.analysis.fit import check_coverage
 from art_gyro_calibration.analysis.loop import (DEFAULT_SERIAL, HEADING_SIGNALS, LoopOptions, LoopResult, close_loop,
                                                 not_written_reason)
@@ -150,6 +150,8 @@ def fit_log(log_path: str | Sequence[str], settings: FitSettings, calibration_pa
         warn(kept.message)
     if isinstance(baseline, BaselineCheck) and baseline.unknown is not None:
         warn(baseline.unknown.describe())
+    if isinstance(baseline, BaselineCheck) and baseline.verdict == REFIT:
+        refit = baseline.calibration   # continued beyond the log by the baseline
     choice = _choose(result, startup, restarts, validation, refit, kept, settings)
     calibration = _with_fitted_ranges(choice.calibration, log)
     # A warm-up fitted on two power-ons or more, or judged on another cold run, is not this log's alone.
@@ -182,6 +184,9 @@ def fit_log(log_path: str | Sequence[str], settings: FitSettings, calibration_pa
         **({'warnings': [warning]} if warning else {}),
         # The effects above are the loop's; the checks may have dropped some: what the file holds.
         'written': {'calibration': calibration_path, 'terms': [t.signal for t in calibration.terms],
+                    **({} if calibration.temperature_range_c is None else
+                       {'temperature_range_c': list(calibration.temperature_range_c),
+                        'beyond_range': calibration.beyond_range}),
                     **({'node_parameters': needed} if needed else {})},
     }
     return FitResult(log, loop, startup, validation, calibration, comment, report,

@@ -215,6 +215,9 @@ def markdown_summary(report: dict[str, Any]) -> str:
                       else 'the ART polynomial refitted')
         lines += ['', f'Written: {written["calibration"]}, {polynomial} with '
                       f'{", ".join(written["terms"]) or "no term"} beyond it.']
+        if 'temperature_range_c' in written:
+            low, high = written['temperature_range_c']
+            lines[-1] += f' Outside {low:g}..{high:g} degC (the fitted logs\' range) it is {written["beyond_range"]}.'
         needed = written.get('node_parameters', {})
         if needed:
             lines += ['', 'gyro_node refuses this calibration unless these parameters are set:', '']

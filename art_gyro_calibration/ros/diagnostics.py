@@ -296,7 +296,7 @@ class Diagnostics:
         low, high = calibration.expected_range_c or (-math.inf, math.inf)
         # A calibrated range is clamped to; the report's (temperature_warn_range_c) only warned about.
         clamped = calibration.temperature_range_c is not None
-        effect = ('compensated at its edge' if clamped else
+        effect = (calibration.beyond_range if clamped else
                   'temperature_warn_range_c, assumed: the polynomial applied as the report does, not clamped')
         outside = node.corrector.compensator.outside_range
         recent = self._outside_range.take(outside)

@@ -124,7 +124,7 @@ class GyroNode(Node):
         self.last_temp_c = math.nan   # of the last frame published
         # Outside it the console warns (at most every minute); no range known: never.
         self._temp_range = self.calibration.expected_range_c or (-math.inf, math.inf)
-        self._outside_range_effect = ('compensated as at the nearest end of it'
+        self._outside_range_effect = (self.calibration.beyond_range
                                       if self.calibration.temperature_range_c is not None else
                                       'compensated by the polynomial as the report\'s program does (not clamped: '
                                       'temperature_warn_range_c is an assumed range)')
