@@ -23,6 +23,14 @@ A slow bias wander of a short log, or a polynomial order too low for the gyro, i
 makes a refit worse than the baseline. The refit's terms keep their fit on the whole log
 (a warm-up lives in the first block alone).
 
+Between the two stands the baseline with its bias column refitted (:func:`rebiased`): the
+report's rate terms (scale factor, non-linearity: fixed by the unit's coil and
+electronics) kept, its bias's temperature dependence (which moves as a fibre coil ages)
+fitted again with the terms on top. Its few coefficients a log pins where the whole
+polynomial's twelve follow the log's wander. The simpler file is written unless the
+richer one is better held out by the materiality: the baseline (with or without the
+terms), the rebiased baseline, the refit.
+
 Where the robot will run (the operating range: by default the logged temperatures) decides
 where else it is judged. Held out on the log, the refit is judged only at the log's
 temperatures. Beyond them a polynomial fitted over a narrow span can be far off, so the
@@ -63,7 +71,7 @@ from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 # Folds of held-out blocks: each fit sees three quarters of the log.
 FOLDS = 4
 # Verdicts.
-REFIT, BASELINE = 'refit', 'baseline'
+REFIT, BASELINE, REBIASED = 'refit', 'baseline', 'baseline_bias_refitted'
 # Temperature step (degC) of the grid on which a refit is judged beyond the log's temperatures.
 BEYOND_STEP_C = 0.5
 
@@ -175,6 +183,7 @@ class BaselineCheck:
     beyond: BeyondLog | None = None
     operating_c: Span | None = None
     unknown: UnknownBeyondLog | None = None
+    rebiased_dph: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """REPORT.json's ``baseline``."""
@@ -185,6 +194,7 @@ class BaselineCheck:
             'refit_field_dph': finite(self.refit_dph),
             'baseline_field_dph': finite(self.baseline_dph),
             'baseline_with_terms_field_dph': finite(self.on_top_dph),
+            'baseline_bias_refitted_field_dph': finite(self.rebiased_dph),
             'materiality_dph': self.materiality_dph,
             'verdict': self.verdict,
             'written_polynomial': self.verdict,
@@ -363,6 +373,25 @@ def _on_top(result: LoopResult, baseline: Calibration, base_error: NDArray[np.fl
     return replace(baseline, terms=fit.model.terms, filters=result.art.filters)
 
 
+def rebiased(result: LoopResult, baseline: Calibration, base_error: NDArray[np.float64],
+             specs: Sequence[TermSpec], train: NDArray[np.int64], log_range_c: Span | None,
+             source: str) -> Calibration:
+    """The baseline with its bias column (rate**0) fitted again on the rows ``train``, and ``specs`` on top of it.
+
+    Like a refit, clamped to the log's temperatures (``log_range_c``) and continued beyond them by the baseline.
+    """
+    p = baseline.polynomial
+    fit = fit_model(result.signals, result.error - base_error, p.rows, 1, specs, train)
+    coefficients = p.coefficients.copy()
+    coefficients[:, -1] += fit.model.polynomial.coefficients[:, 0]
+    calibration = replace(baseline, polynomial=ArtPolynomial(coefficients), terms=fit.model.terms,
+                          filters=result.art.filters)
+    if log_range_c is None:
+        return calibration
+    return continued(replace(calibration, temperature_range_c=log_range_c, temperature_warn_range_c=None,
+                             continuation=None), baseline, source)
+
+
 def _replay_run(log: GyroLog, calibration: Calibration, bias_samples: int, settle_s: float,
                 start: RunStart) -> tuple[NDArray[np.float64], NDArray[np.bool_], bool]:
     """Per-row error (NaN where the node drops the row), kept rows and whether the node refused the static bias."""
@@ -456,32 +485,57 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     if specs:
         on_tops = [_on_top(result, baseline, base_error, specs, train) for train in trains]
         on_top_dph = field_score_dps(held_out(log, runs, fold, on_tops, bias_samples, settle_s)) * DEG_PER_H_PER_DPS
+    rebiased_dph: float | None = None
+    if baseline.polynomial.rows > 1:   # a bias with no temperature dependence is all the static bias's
+        rebiaseds = [rebiased(result, baseline, base_error, specs, train, written.temperature_range_c, source)
+                     for train in trains]
+        rebiased_dph = field_score_dps(held_out(log, runs, fold, rebiaseds, bias_samples, settle_s)) \
+            * DEG_PER_H_PER_DPS
     materiality = result.materiality_dph
     pairs = tuple(zip(runs, refit_runs, base_runs))
     operating = operating_c if operating_c is not None else written.temperature_range_c
-    written = continued(written, baseline, source)
-    beyond = None if operating is None else beyond_log(written, baseline, result.segments.rate, operating)
-    unknown = None if operating is None else unknown_beyond_log(written, baseline, result.segments.rate, operating)
     _check_comparable(source, refit_dph, baseline_dph, pairs)
-    if on_top_dph is not None and math.isnan(on_top_dph):
-        raise BaselineComparisonError(
-            f'the refit cannot be judged against the baseline {source}: the baseline with the terms '
-            f'{", ".join(s.signal for s in specs)} fitted on top of it scores {on_top_dph:.4g} deg/h held out: '
-            'nothing written; check the log (calibrate fit drops rows that are not finite) or give another --baseline')
-    # The baseline polynomial at its best: with the terms on top when they help it.
+    for what, score in ((f'with the terms {", ".join(s.signal for s in specs)} fitted on top of it', on_top_dph),
+                        ('with its bias column refitted', rebiased_dph)):
+        if score is not None and math.isnan(score):
+            raise BaselineComparisonError(
+                f'the refit cannot be judged against the baseline {source}: the baseline {what} scores {score:.4g} '
+                'deg/h held out: nothing written; check the log (calibrate fit drops rows that are not finite) or '
+                'give another --baseline')
+
+    def check(verdict: str, calibration: Calibration, message: str) -> BaselineCheck:
+        # Beyond the log: how far the file written and the baseline differ (none for the baseline itself).
+        beyond = None if operating is None else beyond_log(calibration, baseline, result.segments.rate, operating)
+        unknown = None if operating is None else unknown_beyond_log(calibration, baseline, result.segments.rate,
+                                                                    operating)
+        if verdict != BASELINE:
+            message += _unasked(calibration, baseline, operating_c, operating) + \
+                ('' if beyond is None else f'; {beyond.describe()}')
+        return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, verdict, pairs, calibration,
+                             message, beyond, operating, unknown, rebiased_dph)
+
+    # The baseline polynomial at its best: with the terms on top when they help it, its bias refitted when that helps.
     terms_help = on_top_dph is not None and on_top_dph + materiality < baseline_dph
     bar_dph = on_top_dph if terms_help and on_top_dph is not None else baseline_dph
-    bar = (f'the baseline {source} with the terms {", ".join(s.signal for s in specs)} fitted on top of it'
-           if terms_help else f'the baseline {source}')
+    unchanged_dph = bar_dph
+    with_terms = f' with the terms {", ".join(s.signal for s in specs)}' if specs else ''
+    bar = f'the baseline {source}{with_terms} fitted on top of it' if terms_help else f'the baseline {source}'
+    rebias_helps = rebiased_dph is not None and rebiased_dph + materiality < bar_dph
+    if rebias_helps and rebiased_dph is not None:
+        bar_dph, bar = rebiased_dph, f'the baseline {source} with its bias column refitted{with_terms}'
     if refit_dph + materiality < bar_dph:
-        beyond_words = '' if beyond is None else f'; {beyond.describe()}'
-        return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, REFIT, pairs, written,
-                             f'the refit is better than {bar} held out on this log: {refit_dph:.2f} against '
-                             f'{bar_dph:.2f} deg/h (materiality {materiality:.2f} deg/h); the refit is written'
-                             + _unasked(written, baseline, operating_c, operating) + beyond_words,
-                             beyond, operating, unknown)
+        return check(REFIT, continued(written, baseline, source),
+                     f'the refit is better than {bar} held out on this log: {refit_dph:.2f} against {bar_dph:.2f} '
+                     f'deg/h (materiality {materiality:.2f} deg/h); the refit is written')
     verdict = (f'the refit polynomial is not better than {bar} by the materiality held out on this log '
                f'({refit_dph:.2f} against {bar_dph:.2f} deg/h; materiality {materiality:.2f} deg/h)')
+    dropped = f' (its own terms {", ".join(t.signal for t in baseline.terms)} are not kept)' if baseline.terms else ''
+    if rebias_helps:
+        return check(REBIASED, rebiased(result, baseline, base_error, specs, index, written.temperature_range_c,
+                                        source),
+                     f'{verdict}: the written file keeps the baseline\'s rate terms{dropped} and refits its bias '
+                     f'column{with_terms} ({bar_dph:.2f} against {unchanged_dph:.2f} deg/h with the bias unchanged, '
+                     'held out)')
     calibration = replace(baseline, terms=(), filters=written.filters)
     kept_terms = ''
     if specs:
@@ -493,7 +547,5 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
             kept_terms = f'; the terms {", ".join(s.signal for s in specs)} fitted on top of it did not make it ' \
                          f'better by the materiality ({on_top_dph:.2f} against {baseline_dph:.2f} deg/h, held out) ' \
                          'and are not written'
-    dropped = f' (its own terms {", ".join(t.signal for t in baseline.terms)} are not kept)' if baseline.terms else ''
-    message = f'{verdict}: the written file keeps the baseline polynomial{dropped}{kept_terms}'
-    return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, BASELINE, pairs,
-                         calibration, message, beyond, operating, unknown)
+    return check(BASELINE, calibration,
+                 f'{verdict}: the written file keeps the baseline polynomial{dropped}{kept_terms}')

@@ -25,7 +25,7 @@ from art_gyro_calibration.log import GyroLog, LogError
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 from art_gyro_calibration.analysis.bags import BagTopics, read_any_log
-from art_gyro_calibration.analysis.baseline import BASELINE, REFIT, BaselineCheck, check_baseline, compare_with_baseline
+from art_gyro_calibration.analysis.baseline import REBIASED, REFIT, BaselineCheck, check_baseline, compare_with_baseline
 from art_gyro_calibration.analysis.fit import check_coverage
 from art_gyro_calibration.analysis.loop import (DEFAULT_SERIAL, HEADING_SIGNALS, LoopOptions, LoopResult, close_loop,
                                                 not_written_reason)
@@ -145,14 +145,12 @@ def fit_log(log_path: str | Sequence[str], settings: FitSettings, calibration_pa
     validation, validation_dropped = _validate(result, settings, warn) if settings.validate else (None, {})
     refit = result.extended if validation is None else validation.calibration
     baseline = _baseline(log, result, refit, settings)
-    kept = baseline if isinstance(baseline, BaselineCheck) and baseline.verdict == BASELINE else None
-    if kept is not None:
-        warn(kept.message)
-    if isinstance(baseline, BaselineCheck) and baseline.unknown is not None:
-        warn(baseline.unknown.describe())
-    if isinstance(baseline, BaselineCheck) and baseline.verdict == REFIT:
-        refit = baseline.calibration   # continued beyond the log by the baseline
-    choice = _choose(result, startup, restarts, validation, refit, kept, settings)
+    check = baseline if isinstance(baseline, BaselineCheck) else None
+    if check is not None and check.verdict != REFIT:
+        warn(check.message)
+    if check is not None and check.unknown is not None:
+        warn(check.unknown.describe())
+    choice = _choose(result, startup, restarts, validation, refit, check, settings)
     calibration = _with_fitted_ranges(choice.calibration, log)
     # A warm-up fitted on two power-ons or more, or judged on another cold run, is not this log's alone.
     judged = (settings.validate and settings.validate_powered_on_at_start) or \
@@ -403,23 +401,26 @@ class _Choice:
 
 
 def _choose(result: LoopResult, startup: Validation | None, restarts: list[str], validation: Validation | None,
-            refit: Calibration, kept: BaselineCheck | None, settings: FitSettings) -> _Choice:
+            refit: Calibration, check: BaselineCheck | None, settings: FitSettings) -> _Choice:
     """The calibration to write: ``refit`` (the loop's after the start-up check and the ``--validate`` runs).
 
-    Or ``kept``'s, a baseline whose polynomial the refit did not beat held out: its calibration
-    holds the terms fitted on top of it that made it better.
+    Or, judged against a baseline, ``check``'s: the refit continued beyond the log by the
+    baseline, or the baseline whose polynomial the refit did not beat held out (its bias
+    column refitted when that was better), with the terms fitted on top of it that made it better.
     """
     found = ', '.join(e.signal for e in result.effects) or 'nothing'
     if startup is not None:
         found += _dropped(startup, OWN_RUNS_NAME if judged_cold(restarts) else RESTARTS_NAME)
     if validation is not None and validation.dropped:
         found = (', '.join(t.signal for t in refit.terms) or 'nothing') + _dropped(validation, 'the validation runs')
-    if kept is None:
-        return _Choice(refit, f'ART polynomial {settings.rows} x {settings.columns}', found)
-    if len(kept.calibration.terms) < len(refit.terms):
+    if check is None or check.verdict == REFIT:
+        written = refit if check is None else check.calibration
+        return _Choice(written, f'ART polynomial {settings.rows} x {settings.columns}', found)
+    if len(check.calibration.terms) < len(refit.terms):
         found += ' (not written: they made the baseline worse)'
-    return _Choice(kept.calibration, f'the baseline\'s polynomial ({kept.source}; the refit was not better held out)',
-                   found)
+    bias = ', its bias column refitted' if check.verdict == REBIASED else ''
+    return _Choice(check.calibration, f'the baseline\'s polynomial ({check.source}{bias}; the refit was not better '
+                   'held out)', found)
 
 
 def _baseline(log: GyroLog, result: LoopResult, calibration: Calibration,

@@ -211,8 +211,9 @@ def markdown_summary(report: dict[str, Any]) -> str:
         lines += baseline_markdown(report['baseline'])
     if 'written' in report:
         written = report['written']
-        polynomial = ('the baseline\'s polynomial' if report.get('baseline', {}).get('verdict') == 'baseline'
-                      else 'the ART polynomial refitted')
+        polynomial = {'baseline': 'the baseline\'s polynomial',
+                      'baseline_bias_refitted': 'the baseline\'s polynomial with its bias column refitted'}.get(
+            report.get('baseline', {}).get('verdict'), 'the ART polynomial refitted')
         lines += ['', f'Written: {written["calibration"]}, {polynomial} with '
                       f'{", ".join(written["terms"]) or "no term"} beyond it.']
         if 'temperature_range_c' in written:
@@ -327,8 +328,9 @@ def baseline_markdown(baseline: dict[str, Any]) -> list[str]:
               'run\'s first rows, bias included), each row with the fit that did not see it; the baseline as it is.',
               '']
     lines += field_table([(run['run'], name, run[name]) for run in baseline['runs'] for name in ('refit', 'baseline')])
-    verdict = '**Verdict: the refit is written.**' if baseline['verdict'] == 'refit' else \
-        '**Verdict: the baseline polynomial is kept.**'
+    verdict = {'refit': '**Verdict: the refit is written.**',
+               'baseline_bias_refitted': '**Verdict: the baseline\'s rate terms are kept, its bias column refitted.**'
+               }.get(baseline['verdict'], '**Verdict: the baseline polynomial is kept.**')
     lines += ['', f'{verdict} {baseline["message"][0].upper() + baseline["message"][1:]}.']
     operating, unknown = baseline.get('operating_range_c'), baseline.get('unknown_beyond_log')
     if operating is not None:

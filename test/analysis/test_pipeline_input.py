@@ -99,12 +99,22 @@ def test_a_column_mostly_not_finite_is_refused(tmp_path, logged, capsys):
 def test_a_comparison_that_cannot_be_computed_stops_the_fit(tmp_path, logged, capsys, monkeypatch):
     """Whatever made a score NaN, the fit says so and writes nothing, rather than keeping the baseline."""
     log, wrong = logged
-    scores = iter([np.nan, 1000.0 / 3600.0])   # the refit's, then the baseline's (deg/s)
+    scores = iter([np.nan, 1000.0 / 3600.0, 900.0 / 3600.0])   # the refit's, the baseline's, its bias refitted's
     monkeypatch.setattr(baseline_module, 'field_score_dps', lambda runs: next(scores))
     assert _fit(tmp_path, log, wrong) == 1
     err = capsys.readouterr().err
     assert f'calibrate fit: error: the refit cannot be judged against the baseline {wrong} (nan against 1000 deg/h ' \
            'held out: a score is not a number; from the log\'s start' in err, err
+    assert not (tmp_path / 'CAL.yaml').exists()
+
+
+def test_a_bias_refitted_baseline_that_cannot_be_scored_stops_the_fit(tmp_path, logged, capsys, monkeypatch):
+    log, wrong = logged
+    scores = iter([500.0 / 3600.0, 1000.0 / 3600.0, np.nan])   # the refit's, the baseline's, its bias refitted's
+    monkeypatch.setattr(baseline_module, 'field_score_dps', lambda runs: next(scores))
+    assert _fit(tmp_path, log, wrong) == 1
+    assert f'the refit cannot be judged against the baseline {wrong}: the baseline with its bias column refitted ' \
+        'scores nan deg/h held out: nothing written' in capsys.readouterr().err
     assert not (tmp_path / 'CAL.yaml').exists()
 
 
