@@ -39,11 +39,12 @@ continued from there by the baseline's temperature dependence (:func:`continued`
 correction the log measured at its edge, carried on the way the baseline, calibrated on a
 rate table over the whole chamber range, says the error moves. Held at the edge instead, a
 refit loses beyond it all the baseline moves there, and can be worse than a stale baseline.
-Beyond the log nothing was
-measured, so nothing there is judged: over the operating range's part where the baseline
-was calibrated (its ``temperature_range_c``) the report says how far the written file and
-the baseline differ (:func:`beyond_log`), and over the rest (a ``temperature_warn_range_c``
-is an assumption, not a calibration) how far they disagree (:func:`unknown_beyond_log`).
+The bias-refitted baseline is clamped and continued the same way. Beyond the log nothing
+was measured, so nothing there is judged: over the operating range's part where the
+baseline was calibrated (its ``temperature_range_c``) the report says how far the written
+file and the baseline differ (:func:`beyond_log`), and over the rest (a
+``temperature_warn_range_c`` is an assumption, not a calibration) how far they disagree
+(:func:`unknown_beyond_log`).
 """
 
 from __future__ import annotations
@@ -72,7 +73,7 @@ from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 FOLDS = 4
 # Verdicts.
 REFIT, BASELINE, REBIASED = 'refit', 'baseline', 'baseline_bias_refitted'
-# Temperature step (degC) of the grid on which a refit is judged beyond the log's temperatures.
+# Temperature step (degC) of the grid on which the written file is compared with the baseline beyond the log.
 BEYOND_STEP_C = 0.5
 
 
@@ -81,12 +82,12 @@ Span = tuple[float, float]
 
 @dataclass(frozen=True)
 class BeyondLog:
-    """The refit as written against the baseline where the robot runs, the baseline is calibrated and the log is not.
+    """The file written against the baseline where the robot runs, the baseline is calibrated and the log is not.
 
     ``differ_dph``: the most the two differ there over the logged table rates and
     ``judged_c`` (the operating range beyond the log, within the baseline's calibrated
     range; deg/h), at ``at_temperature_c`` and ``at_rate_dps``. Continued by the baseline,
-    the refit differs from it there by the correction the log measured at its edge.
+    the file differs from it there by the correction the log measured at its edge.
     """
 
     log_range_c: Span
@@ -115,7 +116,7 @@ class BeyondLog:
 class UnknownBeyondLog:
     """The operating range that no log covers and the baseline was never calibrated over: nothing measured there.
 
-    There both are applied as the node applies them (the refit as written, the baseline held
+    There both are applied as the node applies them (the file as written, the baseline held
     at its calibrated range's edge, or its polynomial as it is when it has none); neither is
     known to hold. ``disagree_dph``: the most the two differ over the logged
     table rates and ``ranges_c`` (deg/h), at ``at_temperature_c`` and ``at_rate_dps``: what a
@@ -142,7 +143,7 @@ class UnknownBeyondLog:
         calibrated = ('it has no calibrated temperature_range_c' if self.baseline_range_c is None else
                       'it was calibrated over {:g}..{:g} degC'.format(*self.baseline_range_c))
         return (f'no log covers {_spans(self.ranges_c)} degC of the operating range and the baseline was never '
-                f'calibrated there ({calibrated}), so neither is judged there; the refit as written and '
+                f'calibrated there ({calibrated}), so neither is judged there; the file written and '
                 f'the baseline differ there by up to {self.disagree_dph:.2f} deg/h (at {self.at_temperature_c:g} degC '
                 f'and {self.at_rate_dps:g} deg/s), which only a log over it can settle')
 
@@ -246,15 +247,15 @@ def continued(refit: Calibration, baseline: Calibration, source: str) -> Calibra
     return replace(refit, continuation=Continuation(baseline.polynomial, baseline.temperature_range_c, source))
 
 
-def beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64],
+def beyond_log(written: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64],
                operating_c: Span) -> BeyondLog | None:
-    """The refit (as written) against the baseline beyond the log's temperatures, at ``rates_dps`` and at rest.
+    """The file written against the baseline beyond the log's temperatures, at ``rates_dps`` and at rest.
 
-    Judged over ``operating_c`` beyond the log, where the baseline is calibrated (its
-    ``temperature_range_c``). None where there is no such place: the refit is not clamped,
+    Compared over ``operating_c`` beyond the log, where the baseline is calibrated (its
+    ``temperature_range_c``). None where there is no such place: the file is not clamped,
     the baseline was calibrated nowhere, or the log covers the operating range there.
     """
-    log_range, baseline_range = refit.temperature_range_c, baseline.temperature_range_c
+    log_range, baseline_range = written.temperature_range_c, baseline.temperature_range_c
     if log_range is None or baseline_range is None:
         return None
     span = (max(operating_c[0], baseline_range[0]), min(operating_c[1], baseline_range[1]))
@@ -262,27 +263,27 @@ def beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.
     if not judged:
         return None
     temp, rate = _grid(judged, rates_dps)
-    differ = np.abs(refit.model.polynomial_error(rate, temp)
+    differ = np.abs(written.model.polynomial_error(rate, temp)
                     - baseline.model.polynomial_error(rate, temp)) * DEG_PER_H_PER_DPS
     i = np.unravel_index(int(np.argmax(differ)), differ.shape)
     return BeyondLog(log_range, baseline_range, tuple(judged), float(differ[i]), float(temp[i]), float(rate[i]))
 
 
-def unknown_beyond_log(refit: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64],
+def unknown_beyond_log(written: Calibration, baseline: Calibration, rates_dps: NDArray[np.float64],
                        operating_c: Span) -> UnknownBeyondLog | None:
-    """How far the refit and the baseline, as the node applies them, disagree where nothing was measured.
+    """How far the file written and the baseline, as the node applies them, disagree where nothing was measured.
 
     That is ``operating_c`` beyond both the log and the baseline's calibrated range. None where
-    there is no such place, or the refit is not clamped to a log's range.
+    there is no such place, or the file is not clamped to a log's range.
     """
-    log_range, baseline_range = refit.temperature_range_c, baseline.temperature_range_c
+    log_range, baseline_range = written.temperature_range_c, baseline.temperature_range_c
     if log_range is None:
         return None
     unknown = [part for beyond in _outside(operating_c, log_range) for part in _outside(beyond, baseline_range)]
     if not unknown:
         return None
     temp, rate = _grid(unknown, rates_dps)
-    disagree = np.abs(refit.model.polynomial_error(rate, temp)
+    disagree = np.abs(written.model.polynomial_error(rate, temp)
                       - baseline.model.polynomial_error(rate, temp)) * DEG_PER_H_PER_DPS
     i = np.unravel_index(int(np.argmax(disagree)), disagree.shape)
     return UnknownBeyondLog(log_range, baseline_range, tuple(unknown), float(disagree[i]), float(temp[i]),
