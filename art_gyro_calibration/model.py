@@ -72,6 +72,19 @@ class ArtPolynomial:
         return f'ArtPolynomial(rows={self.rows}, columns={self.columns})'
 
 
+def _clamped(temp: NDArray[np.float64], span: tuple[float, float] | None) -> NDArray[np.float64]:
+    """``temp`` held within ``span`` (as it is without one)."""
+    return temp if span is None else np.clip(temp, *span)
+
+
+def _clamped_one(temp: float, span: tuple[float, float] | None) -> float:
+    """:func:`_clamped` for one sample, on floats."""
+    if span is None:
+        return temp
+    low, high = span
+    return low if temp < low else high if temp > high else temp
+
+
 @dataclass(frozen=True)
 class Continuation:
     """Beyond a calibrated range, another polynomial's temperature dependence (the baseline's), continued from the edge.
@@ -91,16 +104,14 @@ class Continuation:
     def step(self, rate: NDArray[np.float64], temp: NDArray[np.float64],
              edge: NDArray[np.float64]) -> NDArray[np.float64]:
         """``B(rate, temp) - B(rate, edge)`` for arrays (0 where ``temp`` is ``edge``)."""
-        if self.temperature_range_c is not None:
-            temp, edge = np.clip(temp, *self.temperature_range_c), np.clip(edge, *self.temperature_range_c)
-        return self.polynomial.error(rate, temp) - self.polynomial.error(rate, edge)
+        span = self.temperature_range_c
+        return self.polynomial.error(rate, _clamped(temp, span)) - self.polynomial.error(rate, _clamped(edge, span))
 
     def step_one(self, rate: float, temp: float, edge: float) -> float:
         """:meth:`step` for one sample."""
-        if self.temperature_range_c is not None:
-            low, high = self.temperature_range_c
-            temp, edge = min(max(temp, low), high), min(max(edge, low), high)
-        return self.polynomial.error_one(rate, temp) - self.polynomial.error_one(rate, edge)
+        span = self.temperature_range_c
+        return self.polynomial.error_one(rate, _clamped_one(temp, span)) - \
+            self.polynomial.error_one(rate, _clamped_one(edge, span))
 
 
 # Signals that are temperatures: clamped to the calibrated range with the polynomial's.
@@ -136,24 +147,15 @@ class ErrorModel:
         """The terms on the temperature rate, which a static bias refinement re-evaluates."""
         return tuple(t for t in self.terms if t.signal == _REFINABLE)
 
-    def _clamp(self, temp: NDArray[np.float64]) -> NDArray[np.float64]:
-        return temp if self.temperature_range_c is None else np.clip(temp, *self.temperature_range_c)
-
-    def _clamp_one(self, temp: float) -> float:
-        if self.temperature_range_c is None:
-            return temp
-        low, high = self.temperature_range_c
-        return low if temp < low else high if temp > high else temp
-
     def term_error(self, term: Term, signals: Signals) -> NDArray[np.float64]:
         """One term's modelled error over a log."""
         x = signals.for_term(term)
-        return term.evaluate(self._clamp(x) if term.signal in _TEMPERATURES else x, signals.rate)
+        return term.evaluate(_clamped(x, self.temperature_range_c) if term.signal in _TEMPERATURES else x, signals.rate)
 
     def polynomial_error(self, rate_dps: ArrayLike, temp_c: ArrayLike) -> NDArray[np.float64]:
         """The polynomial's part of the error, as the model applies it: clamped, and continued beyond the edge."""
         rate, temp = np.asarray(rate_dps, dtype=float), np.asarray(temp_c, dtype=float)
-        edge = self._clamp(temp)
+        edge = _clamped(temp, self.temperature_range_c)
         comp = self.polynomial.error(rate, edge)
         if self.continuation is not None:
             comp += self.continuation.step(rate, temp, edge)
@@ -168,13 +170,14 @@ class ErrorModel:
 
     def error_one(self, tracker: SignalTracker) -> float:
         """Modelled error of the sample ``tracker`` was last updated with."""
-        edge = self._clamp_one(tracker.temperature)
+        edge = _clamped_one(tracker.temperature, self.temperature_range_c)
         comp = self.polynomial.error_one(tracker.rate, edge)
         if self.continuation is not None and edge != tracker.temperature:
             comp += self.continuation.step_one(tracker.rate, tracker.temperature, edge)
+        span = self.temperature_range_c
         for term in self.terms:
             x = tracker.for_term(term)
-            comp += term.evaluate_one(self._clamp_one(x) if term.signal in _TEMPERATURES else x, tracker.rate)
+            comp += term.evaluate_one(_clamped_one(x, span) if term.signal in _TEMPERATURES else x, tracker.rate)
         return comp
 
     def refinable_error_one(self, tracker: SignalTracker) -> float:
