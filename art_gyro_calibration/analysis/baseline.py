@@ -482,7 +482,7 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     refit_dph = field_score_dps(refit_runs) * DEG_PER_H_PER_DPS
     baseline_dph = field_score_dps(base_runs) * DEG_PER_H_PER_DPS
     on_top_dph: float | None = None
-    base_error = ErrorModel(baseline.polynomial, (), baseline.temperature_range_c).error(result.signals)
+    base_error = baseline.model.polynomial_error(result.signals.rate, result.signals.temperature)
     if specs:
         on_tops = [_on_top(result, baseline, base_error, specs, train) for train in trains]
         on_top_dph = field_score_dps(held_out(log, runs, fold, on_tops, bias_samples, settle_s)) * DEG_PER_H_PER_DPS
@@ -505,11 +505,12 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
                 'give another --baseline')
 
     def check(verdict: str, calibration: Calibration, message: str) -> BaselineCheck:
-        # Beyond the log: how far the file written and the baseline differ (none for the baseline itself).
-        beyond = None if operating is None else beyond_log(calibration, baseline, result.segments.rate, operating)
-        unknown = None if operating is None else unknown_beyond_log(calibration, baseline, result.segments.rate,
-                                                                    operating)
+        # Beyond the log: how far the file written and the baseline differ (nothing for the baseline itself).
+        beyond = unknown = None
         if verdict != BASELINE:
+            if operating is not None:
+                beyond = beyond_log(calibration, baseline, result.segments.rate, operating)
+                unknown = unknown_beyond_log(calibration, baseline, result.segments.rate, operating)
             message += _unasked(calibration, baseline, operating_c, operating) + \
                 ('' if beyond is None else f'; {beyond.describe()}')
         return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, verdict, pairs, calibration,

@@ -193,3 +193,18 @@ def test_an_aged_bias_slope_refits_the_bias_column_and_keeps_the_report_s_rate_t
     dph = {name: _field_dph(second, cal) for name, cal in
            (('written', written), ('truth', load_calibration(aged)), ('packaged', packaged))}
     assert dph['written'] < 1.25 * dph['truth'] and dph['written'] + 1.0 < dph['packaged'], dph
+
+
+def test_a_kept_baseline_reports_nothing_beyond_the_log(tmp_path):
+    # The written file is the calibration the gyro has: no part of the operating range is new to it, and it
+    # differs from itself nowhere. Reported before as "no log covers -10..0 degC ... the file written and the
+    # baseline differ there by up to 0.00 deg/h", with the baseline's 0..60 degC given as the log's range.
+    calibrated = tmp_path / 'calibrated.yaml'
+    write_calibration(calibrated, dataclasses.replace(load_packaged_calibration(SERIAL),
+                                                      temperature_range_c=(0.0, 60.0), temperature_warn_range_c=None))
+    settings = SimulationSettings(hours=2.0, seed=3, wander_dps=3.6 / DEG_PER_H_PER_DPS, wander_tau_s=3600.0)
+    _, report, _ = _fit(tmp_path, settings, '--rows', '3', '--columns', '4', '--baseline', str(calibrated),
+                        '--operating-range', '-10', '60')
+    section = report['baseline']
+    assert section['verdict'] == 'baseline', section['message']
+    assert section['beyond_log'] is None and section['unknown_beyond_log'] is None
