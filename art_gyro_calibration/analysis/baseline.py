@@ -12,7 +12,8 @@ error is the one of the fit that did not see it. The baseline is replayed as it 
 
 The polynomial is what is judged, so both sides carry the loop's terms: the refit with
 its own, the baseline with the same shapes fitted on top of it (and a constant beside
-them), each fitted again without each fold. A refit whose polynomial is not better than
+them; their time constants fitted again against it: :func:`retuned_on_baseline`), each
+fitted again without each fold. A refit whose polynomial is not better than
 the baseline with those terms by the loop's materiality is not written: the file keeps
 the baseline polynomial, with the terms on top of it if, held out the same way, they make
 the baseline better by the materiality (a term that stands in for another effect on a
@@ -57,8 +58,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from art_gyro_calibration.analysis import trace
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
-from art_gyro_calibration.analysis.loop import LoopResult
+from art_gyro_calibration.analysis.loop import LoopResult, retuned
 from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, field_errors, steady_segments
 from art_gyro_calibration.analysis.replay import RESTART_FRACTIONS, field_score_dps, own_restarts, replay_anyway
 from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibration, CalibrationError
@@ -364,6 +366,20 @@ def _refit(result: LoopResult, written: Calibration, terms_error: NDArray[np.flo
     return replace(written, polynomial=fit.model.polynomial)
 
 
+def retuned_on_baseline(result: LoopResult, base_error: NDArray[np.float64],
+                        specs: Sequence[TermSpec]) -> list[TermSpec]:
+    """``specs`` with their time constants (a warm-up's, a lag's) fitted again on top of the baseline polynomial.
+
+    The loop tuned them beside its own polynomial, whose share of a slow effect moved them (a warm-up and the
+    self-heating's temperature rate decay together after power-on). Held there, an amplitude fitted on top of the
+    baseline trades for the time constant and misses the term's value at power-on, which the node's static bias
+    then carries for the whole mission.
+    """
+    if not any(s.time_constant_s > 0.0 for s in specs):
+        return list(specs)
+    return retuned(trace.Binned(result.signals, result.error - base_error, result.segments, 1, 1), list(specs))
+
+
 def _on_top(result: LoopResult, baseline: Calibration, base_error: NDArray[np.float64],
             specs: Sequence[TermSpec], train: NDArray[np.int64]) -> Calibration:
     """The baseline polynomial with ``specs`` fitted on top of it on the rows ``train`` (a constant beside them).
@@ -474,6 +490,8 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     index = result.segments.rows()
     trains = [index[fold[index] != k] for k in range(folds)]
     specs = _specs(written.terms)
+    base_error = baseline.model.polynomial_error(result.signals.rate, result.signals.temperature)
+    on_top = retuned_on_baseline(result, base_error, specs)
     no_polynomial = ArtPolynomial(np.zeros((1, 1)))
     terms_error = ErrorModel(no_polynomial, written.terms, written.temperature_range_c).error(result.signals)
     refits = [_refit(result, written, terms_error, train) for train in trains]
@@ -482,13 +500,12 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     refit_dph = field_score_dps(refit_runs) * DEG_PER_H_PER_DPS
     baseline_dph = field_score_dps(base_runs) * DEG_PER_H_PER_DPS
     on_top_dph: float | None = None
-    base_error = baseline.model.polynomial_error(result.signals.rate, result.signals.temperature)
     if specs:
-        on_tops = [_on_top(result, baseline, base_error, specs, train) for train in trains]
+        on_tops = [_on_top(result, baseline, base_error, on_top, train) for train in trains]
         on_top_dph = field_score_dps(held_out(log, runs, fold, on_tops, bias_samples, settle_s)) * DEG_PER_H_PER_DPS
     rebiased_dph: float | None = None
     if baseline.polynomial.rows > 1:   # a bias with no temperature dependence is all the static bias's
-        rebiaseds = [rebiased(result, baseline, base_error, specs, train, written.temperature_range_c, source)
+        rebiaseds = [rebiased(result, baseline, base_error, on_top, train, written.temperature_range_c, source)
                      for train in trains]
         rebiased_dph = field_score_dps(held_out(log, runs, fold, rebiaseds, bias_samples, settle_s)) \
             * DEG_PER_H_PER_DPS
@@ -533,7 +550,7 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
                f'({refit_dph:.2f} against {bar_dph:.2f} deg/h; materiality {materiality:.2f} deg/h)')
     dropped = f' (its own terms {", ".join(t.signal for t in baseline.terms)} are not kept)' if baseline.terms else ''
     if rebias_helps:
-        return check(REBIASED, rebiased(result, baseline, base_error, specs, index, written.temperature_range_c,
+        return check(REBIASED, rebiased(result, baseline, base_error, on_top, index, written.temperature_range_c,
                                         source),
                      f'{verdict}: the written file keeps the baseline\'s rate terms{dropped} and refits its bias '
                      f'column{with_terms} ({bar_dph:.2f} against {unchanged_dph:.2f} deg/h with the bias unchanged, '
@@ -542,7 +559,7 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     kept_terms = ''
     if specs:
         if terms_help:
-            calibration = _on_top(result, baseline, base_error, specs, index)
+            calibration = _on_top(result, baseline, base_error, on_top, index)
             kept_terms = f'; the terms {", ".join(s.signal for s in specs)} are fitted on top of it ' \
                          f'({on_top_dph:.2f} against {baseline_dph:.2f} deg/h without them, held out)'
         else:
