@@ -208,29 +208,47 @@ def _retraced(log: GyroLog, runs: Sequence[Run], settings: FitSettings, options:
     for unmodelled, though the screen had found a simpler form of it that the stand-in outscored. Asked again
     without it, the loop may find that form; it is kept if its written terms score lower on the start-up
     check's runs (:func:`replay.field_score_dps`, the same runs) by more than the noise the first pass's model
-    leaves. None when nothing was dropped, or only terms on a column the node is fed (``--node-signal``: not the
-    loop's to exclude).
+    leaves. The dropped term may instead be the true one, spoilt by a companion of several coefficients that
+    took its part at the starts (a lag's eight beside a warm-up it pushed to a time constant longer than the
+    restarts): the loop is asked again without each such companion too, and the best pass on the log's
+    starts is the second. None when nothing was dropped, or only terms on a column the node is fed
+    (``--node-signal``: not the loop's to exclude).
     """
     startup = first[2]
     dropped = tuple(d.term.signal for d in startup.dropped if d.term.signal not in options.node_signals) \
         if startup is not None else ()
     if startup is None or not dropped:
         return None
-    again = replace(options, exclude=(*options.exclude, *dropped))
-    loop2 = close_loop(log, settings.rows, settings.columns, again, runs)
-    result2, startup2, restarts2 = startup_check(loop2, log, settings.bias_samples, options.settle_s)
+    companions = [t.signal for t in first[0].extended.terms
+                  if t.signal not in dropped and t.signal not in options.node_signals and len(t.coefficients) > 1]
+    tried = []
+    for without in (dropped, *((c,) for c in companions)):
+        loop2 = close_loop(log, settings.rows, settings.columns,
+                           replace(options, exclude=(*options.exclude, *without)), runs)
+        result2, startup2, restarts2 = startup_check(loop2, log, settings.bias_samples, options.settle_s)
+        # Without a term the second pass writes the polynomial alone, as the first check replayed it.
+        after = _startup_score_dph(startup, 'art') if startup2 is None else _startup_score_dph(startup2)
+        tried.append((after, without, (loop2, result2, startup2, restarts2)))
+    after, without, second = min(tried, key=lambda pass_: pass_[0])
     before = _startup_score_dph(startup)
-    # Without a term the second pass writes the polynomial alone, as the first check replayed it.
-    after = _startup_score_dph(startup, 'art') if startup2 is None else _startup_score_dph(startup2)
     # Better by more than the noise the written model leaves (the start-up check weighs term sets the same way).
     chance = first[1].residual_materiality_dph or first[1].materiality_dph
+
+    def found(loop: LoopResult) -> str:
+        return ", ".join(e.signal for e in loop.effects) or "nothing"
+
     kept = after + chance < before
-    message = (f'the start-up check dropped {", ".join(dropped)}: asked again without it, the loop found '
-               f'{", ".join(e.signal for e in loop2.effects) or "nothing"} ({after:.2f} against {before:.2f} deg/h '
-               f'on the log\'s starts): the {"second" if kept else "first"} pass is written')
-    section = {'without': list(dropped), 'found': [e.signal for e in loop2.effects], 'first_dph': before,
-               'second_dph': after, 'kept': 'second' if kept else 'first', 'message': message}
-    return ((loop2, result2, startup2, restarts2) if kept else first), section
+    others = ''.join(f'; without {", ".join(w)}, {found(p[0])} ({dph:.2f} deg/h)'
+                     for dph, w, p in tried if w != without)
+    message = (f'the start-up check dropped {", ".join(dropped)}: asked again without '
+               f'{"it" if without == dropped else ", ".join(without)}, the loop found {found(second[0])} '
+               f'({after:.2f} against {before:.2f} deg/h on the log\'s starts{others}): the '
+               f'{"second" if kept else "first"} pass is written')
+    section = {'without': list(without), 'found': [e.signal for e in second[0].effects], 'first_dph': before,
+               'second_dph': after, 'kept': 'second' if kept else 'first', 'message': message,
+               'tried': [{'without': list(w), 'found': [e.signal for e in p[0].effects], 'dph': dph}
+                         for dph, w, p in tried]}
+    return (second if kept else first), section
 
 
 def runs_section(log: GyroLog, loop: LoopResult) -> list[dict[str, Any]]:
