@@ -200,6 +200,11 @@ def _startup_score_dph(check: Validation, stage: str | None = None) -> float:
     return field_score_dps([run[stage] for run in check.runs]) * DEG_PER_H_PER_DPS
 
 
+def _found(loop: LoopResult) -> str:
+    """What the loop found, for a person: its effects' signals, or "nothing"."""
+    return ', '.join(e.signal for e in loop.effects) or 'nothing'
+
+
 def _retraced(log: GyroLog, runs: Sequence[Run], settings: FitSettings, options: LoopOptions,
               first: _Pass) -> tuple[_Pass, dict[str, Any]] | None:
     """The loop asked again without the terms the start-up check dropped, if that does better on the log's starts.
@@ -233,15 +238,11 @@ def _retraced(log: GyroLog, runs: Sequence[Run], settings: FitSettings, options:
     before = _startup_score_dph(startup)
     # Better by more than the noise the written model leaves (the start-up check weighs term sets the same way).
     chance = first[1].residual_materiality_dph or first[1].materiality_dph
-
-    def found(loop: LoopResult) -> str:
-        return ", ".join(e.signal for e in loop.effects) or "nothing"
-
     kept = after + chance < before
-    others = ''.join(f'; without {", ".join(w)}, {found(p[0])} ({dph:.2f} deg/h)'
+    others = ''.join(f'; without {", ".join(w)}, {_found(p[0])} ({dph:.2f} deg/h)'
                      for dph, w, p in tried if w != without)
     message = (f'the start-up check dropped {", ".join(dropped)}: asked again without '
-               f'{"it" if without == dropped else ", ".join(without)}, the loop found {found(second[0])} '
+               f'{"it" if without == dropped else ", ".join(without)}, the loop found {_found(second[0])} '
                f'({after:.2f} against {before:.2f} deg/h on the log\'s starts{others}): the '
                f'{"second" if kept else "first"} pass is written')
     section = {'without': list(without), 'found': [e.signal for e in second[0].effects], 'first_dph': before,
@@ -426,7 +427,7 @@ def _choose(result: LoopResult, startup: Validation | None, restarts: list[str],
     baseline, or the baseline whose polynomial the refit did not beat held out (its bias
     column refitted when that was better), with the terms fitted on top of it that made it better.
     """
-    found = ', '.join(e.signal for e in result.effects) or 'nothing'
+    found = _found(result)
     if startup is not None:
         found += _dropped(startup, OWN_RUNS_NAME if judged_cold(restarts) else RESTARTS_NAME)
     if validation is not None and validation.dropped:
