@@ -19,6 +19,7 @@ from typing import Protocol, cast
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from art_gyro_calibration.static_bias import refined_temperature_rate
 from art_gyro_calibration.temperature_rate import (FIRST_ORDER, FORMS, LOCAL_QUADRATIC, SPAN_FACTOR, LocalQuadraticRate,
                                                    local_quadratic_rate)
 
@@ -204,6 +205,10 @@ class Signals:
     # the first at row 0; () for one run (``powered_on_at_start`` says how it began). Every causal recursion,
     # ``time`` and ``time_since_power_on`` restart at a run's first row (:meth:`runs`).
     run_starts: tuple[tuple[int, bool], ...] = ()
+    # The fit's signals (``calibrate fit``), not the node's: over a run's first minutes the temperature rate is the
+    # slope a node's static bias refinement takes there (:func:`static_bias.refined_temperature_rate`), not the
+    # filter's rise from 0 (the node's refined bias never applies that rise).
+    refined_start: bool = False
     _lags: dict[float, NDArray[np.float64]] = field(default_factory=dict, compare=False, repr=False)
     _levels: dict[str, float | None] = field(default_factory=dict, compare=False, repr=False)
     # States at the ends of chunks of the log (by chunk size), lags aside: :mod:`analysis.chunks` makes
@@ -217,7 +222,8 @@ class Signals:
         stops = [first for first, _ in self.run_starts[1:]] + [len(self.t)]
         return [(a, Signals(t=self.t[a:b], rate=self.rate[a:b], temperature=self.temperature[a:b],
                             extras={k: v[a:b] for k, v in self.extras.items()}, filters=self.filters,
-                            powered_on_at_start=cold, angle_correction=self.angle_correction))
+                            powered_on_at_start=cold, angle_correction=self.angle_correction,
+                            refined_start=self.refined_start))
                 for (a, cold), b in zip(self.run_starts, stops)]
 
     def _joined(self, signal: Callable[[Signals], NDArray[np.float64]]) -> NDArray[np.float64]:
@@ -226,9 +232,23 @@ class Signals:
 
     @cached_property
     def temperature_rate(self) -> NDArray[np.float64]:
-        """Filtered temperature rate of change, degC/s (:attr:`SignalFilters.temperature_rate_form`)."""
+        """Filtered temperature rate of change, degC/s (:attr:`SignalFilters.temperature_rate_form`).
+
+        With :attr:`refined_start`, a run's first minutes hold the refinement's slope instead.
+        """
         if self.run_starts:
             return self._joined(lambda run: run.temperature_rate)
+        rate = self._filtered_temperature_rate()
+        refined = refined_temperature_rate(self.t, self.temperature, self.filters.refinement_scale_s) \
+            if self.refined_start and self.previous is None else None
+        if refined is None:
+            return rate
+        out = rate.copy()
+        out[:len(refined)] = refined
+        return out
+
+    def _filtered_temperature_rate(self) -> NDArray[np.float64]:
+        """The temperature rate filter's output, as the node's per-sample filter gives it."""
         tau_s = self.filters.temperature_rate_tau_s
         if self.filters.temperature_rate_form == FIRST_ORDER:
             return self._derivative(self.temperature, 'temperature_level', tau_s)
@@ -466,19 +486,22 @@ def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64],
 def compute_signals(t: ArrayLike, rate_dps: ArrayLike, temp_c: ArrayLike,
                     extras: Mapping[str, ArrayLike] | None = None,
                     filters: SignalFilters = SignalFilters(), state: SignalState | None = None,
-                    powered_on_at_start: bool = True, run_starts: tuple[tuple[int, bool], ...] = ()) -> Signals:
+                    powered_on_at_start: bool = True, run_starts: tuple[tuple[int, bool], ...] = (),
+                    refined_start: bool = False) -> Signals:
     """Signals of a log, each computed causally (a sample sees only the past).
 
     For a log read in chunks, ``state`` is the previous chunk's :meth:`Signals.end_state`
     (None for the first chunk); the chunks' signals then equal the whole log's. ``run_starts``:
-    the log is several runs, one after another (:attr:`Signals.run_starts`).
+    the log is several runs, one after another (:attr:`Signals.run_starts`). ``refined_start``: the
+    fit's signals (:attr:`Signals.refined_start`).
     """
     if run_starts and (state is not None or run_starts[0][0] != 0):
         raise ValueError('several runs start afresh at row 0: no state to continue from')
     return Signals(t=np.asarray(t, dtype=float), rate=np.asarray(rate_dps, dtype=float),
                    temperature=np.asarray(temp_c, dtype=float),
                    extras={k: np.asarray(v, dtype=float) for k, v in (extras or {}).items()}, filters=filters,
-                   previous=state, powered_on_at_start=powered_on_at_start, run_starts=run_starts)
+                   previous=state, powered_on_at_start=powered_on_at_start, run_starts=run_starts,
+                   refined_start=refined_start)
 
 
 class _Derivative:

@@ -205,24 +205,17 @@ class Refinement:
         window = bias.window
         self.bias = bias
         self.terms = tuple(terms)
-        self.span_s = REFINE_SPAN_TAUS * tau_s
+        self.span_s = refinement_span_s(tau_s)
         self.center = 0.5 * float(window.t[0] + window.t[-1])
         self.ready_at = float(window.t[0]) + self.span_s
         self.provisional_from = float(window.t[0]) + PROVISIONAL_TAUS * tau_s
         # Sums of u^0..u^2d and T u^0..u^d, u = (t - center) / span: the normal equations of the polynomial.
-        self.sums = self._columns(window.t, window.temp_c).sum(axis=0)
+        self.sums = _columns(window.t, window.temp_c, self.center, self.span_s).sum(axis=0)
         # The provisional fit: the step it was last solved in (-1: not yet), its slope's coefficients in u
         # (degC/s) and the terms' mean over the window on that slope.
         self.tick = -1
         self.slope: NDArray[np.float64] | None = None
         self.window_terms_dps = 0.0
-
-    def _columns(self, t: NDArray[np.float64], temp_c: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Per sample, what it adds to :attr:`sums`."""
-        u = (np.asarray(t, dtype=float) - self.center) / self.span_s
-        powers = u[:, None] ** np.arange(2 * REFINE_DEGREE + 1)
-        return np.concatenate((powers, np.asarray(temp_c, dtype=float)[:, None] * powers[:, :REFINE_DEGREE + 1]),
-                              axis=1)
 
     def error_one(self, t: float, temp_c: float, rate_dps: float, others_dps: float) -> float:
         """Add one sample (before :attr:`ready_at`); the modelled error: ``others_dps`` (the other terms') and these.
@@ -259,7 +252,7 @@ class Refinement:
         """:meth:`error_one` over arrays of samples (all before :attr:`ready_at`), as the node does them in turn."""
         window = self.bias.window
         assert window is not None
-        sums = self.sums + np.cumsum(self._columns(t, temp_c), axis=0)
+        sums = self.sums + np.cumsum(_columns(t, temp_c, self.center, self.span_s), axis=0)
         tick = np.where(t >= self.provisional_from, np.floor((t - self.provisional_from) / PROVISIONAL_STEP_S), -1)
         # Solved again where the step differs from the last solved one (a sample before provisional_from keeps it).
         counted = np.flatnonzero(tick >= 0)
@@ -293,18 +286,9 @@ class Refinement:
 
     def _provisional(self, sums: NDArray[np.float64]) -> None:
         """Solve the fit for the samples summed in ``sums``; if it is not determined, keep the last."""
-        slope = self._slope(sums)
+        slope = _slope(sums, self.span_s)
         if slope is not None:
             self.slope, self.window_terms_dps = slope, self._window_terms(slope)
-
-    def _slope(self, sums: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        """The fitted polynomial's derivative in time (coefficients in u, degC/s); None if not determined."""
-        d = REFINE_DEGREE
-        normal = np.array([[sums[i + j] for j in range(d + 1)] for i in range(d + 1)])
-        if sums[0] < d + 1 or not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
-            return None
-        coefficients = np.linalg.solve(normal, sums[2 * d + 1:])
-        return np.asarray(np.polynomial.polynomial.polyder(coefficients), dtype=np.float64) / self.span_s
 
     def _window_terms(self, slope: NDArray[np.float64]) -> float:
         """The terms' mean over the window with the temperature rate of ``slope`` at each window sample."""
@@ -316,7 +300,7 @@ class Refinement:
 
     def refined(self) -> StaticBias:
         """The static bias with ``CalcStaticBiasDrift`` recomputed; unchanged if the fit is not determined."""
-        slope = self._slope(self.sums)
+        slope = _slope(self.sums, self.span_s)
         if slope is None:
             return replace(self.bias, window=None)
         window = self.bias.window
@@ -324,6 +308,50 @@ class Refinement:
         delta = self._window_terms(slope) - window.causal_dps
         return replace(self.bias, calc_static_bias_drift_dps=self.bias.calc_static_bias_drift_dps + delta,
                        window=None, refined_dps=delta)
+
+
+def refinement_span_s(tau_s: float) -> float:
+    """How long a refinement fits the temperature from the window's start (``tau_s``: the filters' refinement scale)."""
+    return REFINE_SPAN_TAUS * tau_s
+
+
+def _columns(t: NDArray[np.float64], temp_c: NDArray[np.float64], center: float, span_s: float) -> NDArray[np.float64]:
+    """Per sample, what it adds to the sums of a refinement's normal equations (u = (t - center) / span_s)."""
+    u = (np.asarray(t, dtype=float) - center) / span_s
+    powers = u[:, None] ** np.arange(2 * REFINE_DEGREE + 1)
+    return np.concatenate((powers, np.asarray(temp_c, dtype=float)[:, None] * powers[:, :REFINE_DEGREE + 1]), axis=1)
+
+
+def _slope(sums: NDArray[np.float64], span_s: float) -> NDArray[np.float64] | None:
+    """The derivative in time of the polynomial the sums fit (coefficients in u, degC/s); None if not determined."""
+    d = REFINE_DEGREE
+    normal = np.array([[sums[i + j] for j in range(d + 1)] for i in range(d + 1)])
+    if sums[0] < d + 1 or not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
+        return None
+    coefficients = np.linalg.solve(normal, sums[2 * d + 1:])
+    return np.asarray(np.polynomial.polynomial.polyder(coefficients), dtype=np.float64) / span_s
+
+
+def refined_temperature_rate(t: NDArray[np.float64], temp_c: NDArray[np.float64],
+                             tau_s: float) -> NDArray[np.float64] | None:
+    """The temperature rate a node's refinement takes at a run's samples before it is ready (degC/s); None if none.
+
+    The slope of the polynomial :class:`Refinement` fits to the run's temperatures from its first
+    sample until it is ready (``tau_s``: the filters'
+    :attr:`~art_gyro_calibration.signals.SignalFilters.refinement_scale_s`). The node's refined
+    static bias takes the temperature-rate terms on that slope over its window, not on the
+    filter's rise from 0; a fit that read the filter there would fit that rise as an effect
+    (a 30 s warm-up) the node never sees. Its provisional slopes between window and refinement
+    are this one on fewer samples.
+    """
+    span_s = refinement_span_s(tau_s)
+    if not len(t):
+        return None
+    k = int(np.searchsorted(t, t[0] + span_s, side='left'))
+    slope = _slope(_columns(t[:k], temp_c[:k], float(t[0]), span_s).sum(axis=0), span_s)
+    if slope is None:
+        return None
+    return np.asarray(np.polynomial.polynomial.polyval((t[:k] - t[0]) / span_s, slope), dtype=np.float64)
 
 
 def _checked(mean: float, mean_error: float, std: float, n: int,

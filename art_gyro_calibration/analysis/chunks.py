@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from art_gyro_calibration.signals import Signals, SignalState
+from art_gyro_calibration.static_bias import refinement_span_s
 
 # Rows per chunk of the fit's and the screen's design columns: a matrix of a dozen columns over a chunk is
 # 25 MiB. The sums add chunk by chunk: the value sets their rounding (results agree to about 1e-9, not bit for bit).
@@ -43,8 +44,7 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
     known = signals.chunk_states.get(size)
     ends: list[SignalState] = []
     low = 0
-    spans = [(first, run, start, min(len(run), start + size))
-             for first, run in signals.runs() for start in range(0, len(run), size)]
+    spans = [(first, run, start, stop) for first, run in signals.runs() for start, stop in _bounds(run, size)]
     state: SignalState | None = None
     for k, (first, run, start, stop) in enumerate(spans):
         if start == 0:   # a run's first chunk
@@ -52,7 +52,7 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
         part = Signals(t=run.t[start:stop], rate=run.rate[start:stop], temperature=run.temperature[start:stop],
                        extras={k: v[start:stop] for k, v in run.extras.items()}, filters=run.filters,
                        previous=state, powered_on_at_start=run.powered_on_at_start,
-                       angle_correction=run.angle_correction)
+                       angle_correction=run.angle_correction, refined_start=run.refined_start)
         start, stop = first + start, first + stop   # rows of the log
         high = low + int(np.searchsorted(index[low:], stop, side='left'))
         if np.any(np.diff(index[low:high]) <= 0) or (low < index.size and index[low] < start):
@@ -68,3 +68,14 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
         low = high
     if known is None and len(ends) == len(spans):
         signals.chunk_states[size] = [replace(end, lag_levels=()) for end in ends]
+
+
+def _bounds(run: Signals, size: int) -> list[tuple[int, int]]:
+    """(start, stop) of a run's chunks of ``size`` rows; with :attr:`Signals.refined_start` the first holds the
+    refinement's span (its slope is fitted on all of it)."""
+    first = size
+    if run.refined_start and len(run):
+        span_s = refinement_span_s(run.filters.refinement_scale_s)
+        first = max(size, int(np.searchsorted(run.t, run.t[0] + span_s, side='left')))
+    starts = [0, *range(first, len(run), size)] if len(run) else []
+    return [(a, min(len(run), b)) for a, b in zip(starts, [*starts[1:], len(run)])]

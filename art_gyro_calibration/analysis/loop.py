@@ -220,7 +220,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
                          '(analysis.runs.joined)')
     signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters,
                               powered_on_at_start=any(r.powered_on_at_start for r in runs),
-                              run_starts=run_starts(runs))
+                              run_starts=run_starts(runs), refined_start=True)
     error = log.rate_dps - log.ref_rate
     segments = steady_segments(log.t, log.ref_rate, settle_s, breaks=[r.first_row for r in runs])
     index = segments.rows()

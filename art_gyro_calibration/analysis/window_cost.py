@@ -44,7 +44,7 @@ from art_gyro_calibration.compensation import RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ArtPolynomial
 from art_gyro_calibration.signals import LAGGED_SIGNAL, POWER_ON_SIGNAL
-from art_gyro_calibration.static_bias import REFINE_SPAN_TAUS
+from art_gyro_calibration.static_bias import refinement_span_s
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 
@@ -247,7 +247,7 @@ def node_window(result: LoopResult, spec: TermSpec, run: Run, bias_samples: int)
     """
     signals = result.signals
     t, a = signals.t, run.first_row
-    span_s = REFINE_SPAN_TAUS * result.extended.filters.temperature_rate_tau_s
+    span_s = refinement_span_s(result.extended.filters.refinement_scale_s)
     stop = min(run.stop, max(a + bias_samples, int(np.searchsorted(t, t[a] + span_s)) + 2))
     part = slice(a, stop)
     log = GyroLog(t[part], signals.rate[part], signals.temperature[part], None,

@@ -14,6 +14,7 @@ from art_gyro_calibration.analysis.report import build_report
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.signals import compute_signals
+from art_gyro_calibration.static_bias import refined_temperature_rate, refinement_span_s
 
 SERIAL = 'NAVC3545'
 
@@ -160,3 +161,24 @@ def test_no_chunk_crosses_a_run_and_each_run_starts_afresh():
             values.append(chunk.signals.get(name)[chunk.rows])
     for name, values in got.items():
         np.testing.assert_allclose(np.concatenate(values), whole.get(name)[index], rtol=1e-12, atol=1e-12)
+
+
+def test_the_fit_s_refined_start_is_whole_in_every_run_s_first_chunk():
+    """The fit's temperature rate over a run's first minutes (the refinement's slope) is fitted on all of them."""
+    cal = load_packaged_calibration(SERIAL)
+    log = simulate_run(cal, SimulationSettings(hours=1.0, rate_hz=2.0, seed=3, self_heating_c=4.0)).log(cal)
+    starts = ((0, True), (3000, False))
+    whole = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, run_starts=starts, refined_start=True)
+    filtered = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, run_starts=starts).temperature_rate
+    span = int(refinement_span_s(whole.filters.refinement_scale_s) * 2.0)   # rows at 2 Hz
+    for first, _ in starts:
+        rows = slice(first, first + span)
+        np.testing.assert_array_equal(whole.temperature_rate[rows],
+                                      refined_temperature_rate(log.t[first:], log.temp_c[first:],
+                                                               whole.filters.refinement_scale_s))
+        assert not np.allclose(whole.temperature_rate[rows], filtered[rows])
+        after = slice(first + span, first + 2 * span)
+        np.testing.assert_array_equal(whole.temperature_rate[after], filtered[after])
+    index = np.arange(len(log))
+    got = [chunk.signals.temperature_rate for chunk in chunks.chunks(whole, index, 300)]
+    np.testing.assert_allclose(np.concatenate(got), whole.temperature_rate, rtol=1e-12, atol=1e-12)

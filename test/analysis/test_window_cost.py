@@ -1,5 +1,6 @@
 """What a term active in the static-bias window will cost a mission: written only when it removes more."""
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,8 +14,12 @@ from art_gyro_calibration.analysis.report import markdown_summary, window_markdo
 from art_gyro_calibration.analysis.runs import Run, joined
 from art_gyro_calibration.analysis.simulate import (SimulationSettings, same_gyro, simulate_run, warm_restart,
                                                     write_run)
-from art_gyro_calibration.analysis.window_cost import window_cost
+from art_gyro_calibration.analysis.fit import TermSpec
+from art_gyro_calibration.analysis.window_cost import node_window, window_cost
 from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration.compensation import RunStart, apply_calibration
+from art_gyro_calibration.log import GyroLog
+from art_gyro_calibration.model import ArtPolynomial
 from art_gyro_calibration.terms import Term
 
 BASE = load_packaged_calibration('NAVC4058')
@@ -79,9 +84,9 @@ def test_a_warm_up_one_run_cannot_tell_from_its_wander_is_not_written() -> None:
 
 
 def test_a_stand_in_beside_the_term_that_does_the_work_gives_way_to_it() -> None:
-    # A Shupe gyro self-heating at power-on; a warm-up written beside the temperature rate corrects nothing the
-    # temperature rate alone does not: the single term is written.
-    result = _loop(SimulationSettings(hours=1.5, effects=('shupe',), seed=2, self_heating_c=4.0,
+    # A Shupe gyro (on its true temperature rate) self-heating at power-on; a warm-up written beside the
+    # temperature rate corrects nothing the temperature rate alone does not: the single term is written.
+    result = _loop(SimulationSettings(hours=1.5, effects=('shupe_true_rate',), seed=2, self_heating_c=4.0,
                                       self_heating_tau_s=600.0))
     assert [t.signal for t in result.extended.terms] == ['temperature_rate']
     warm_up = Term('time_since_power_on', 'exp_decay', (0.001,), (), 40.0)
@@ -124,3 +129,22 @@ def test_of_the_single_terms_as_good_as_the_set_one_that_will_be_written_replace
     assert cost.stand_ins.startswith('temperature_rate alone corrects what temperature_rate, temperature_lag')
     assert [t.signal for t in cost.result.extended.terms] == ['temperature_rate']
     assert [(c.signal, c.written) for c in cost.costs] == [('temperature_rate', True)]
+
+
+def test_a_temperature_rate_s_window_is_taken_as_the_node_refines_it() -> None:
+    # The node refines its static bias once the temperature has been followed for 6 min (3 x the filters'
+    # refinement scale, 120 s); cut at 3 x the filter's own 20 s, the window's run ended before the refinement
+    # and the temperature rate's window value was what the filter had risen to over the window, from 0.
+    result = _loop(SimulationSettings(hours=1.0, effects=('shupe_true_rate',), seed=2, self_heating_c=4.0,
+                                      self_heating_tau_s=600.0))
+    [term] = result.extended.terms
+    assert term.signal == 'temperature_rate'
+    unit = replace(term, coefficients=(1.0,))
+    spec = TermSpec(unit.signal, unit.form, unit.powers, unit.time_constant_s, unit.rate_powers)
+    [window] = node_window(result, spec, _one_run(result)[0], 100)
+    s = result.signals
+    node = apply_calibration(GyroLog(s.t, s.rate, s.temperature, None),
+                             replace(result.extended, polynomial=ArtPolynomial(np.zeros((1, 1))), terms=(unit,)), 100,
+                             math.inf, math.inf, start=RunStart(powered_on_at_start=True))
+    assert node.bias.refined_dps is not None and node.bias.refined_dps > 0.0
+    assert window == pytest.approx(node.bias.calc_static_bias_drift_dps, rel=1e-9)
