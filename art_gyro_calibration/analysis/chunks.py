@@ -71,8 +71,10 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
 
 
 def _bounds(run: Signals, size: int) -> list[tuple[int, int]]:
-    """(start, stop) of a run's chunks of ``size`` rows; with :attr:`Signals.refined_start` the first holds the
-    refinement's span (its slope is fitted on all of it)."""
+    """(start, stop) of a run's chunks of ``size`` rows.
+
+    With :attr:`Signals.refined_start` the first holds the refinement's span: its slope is fitted on all of it.
+    """
     first = size
     if run.refined_start and len(run):
         span_s = refinement_span_s(run.filters.refinement_scale_s)

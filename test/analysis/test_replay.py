@@ -294,8 +294,10 @@ def test_a_warm_up_the_cold_start_needs_is_kept_beside_the_temperature_rate():
 
 
 def _lab_protocol(truth, seed: int) -> list[tuple[str, GyroLog, bool]]:
-    """Two cold starts (3 h) and a warm restart (2 h) of a Shupe gyro (1.0 on the true temperature rate, 4 degC of
-    self-heating in 15 min, 0.3 degC/min ramps, 1.5 deg/h of wander): (name, log, began at power-on) each."""
+    """Two cold starts (3 h) and a warm restart (2 h) of a Shupe gyro: (name, log, began at power-on) each.
+
+    Shupe 1.0 on the true temperature rate, 4 degC of self-heating in 15 min, 0.3 degC/min ramps, 1.5 deg/h of wander.
+    """
     def gyro(seed: int, hours: float) -> SimulationSettings:
         return SimulationSettings(hours=hours, rate_hz=10.0, seed=seed, wander_dps=1.5 / 3600.0, wander_tau_s=3600.0,
                                   rate_random_walk_dph_rthr=0.5, effects=('shupe_true_rate',),
