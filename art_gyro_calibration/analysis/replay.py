@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields, replace
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -251,20 +252,18 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
         options = [_refit(result, current.terms[:i] + current.terms[i + 1:]) for i in judged]
         options_errors = [field(c) for c in options]
         gains = [_gain_without(current_errors, errors, cold, margin_dps) for errors in options_errors]
-        best = int(np.argmax([gain for gain, _ in gains]))
-        gain, cold_alone = gains[best]
-        if not gain > margin_dps:
+        best = int(np.argmax([g.dps for g in gains]))
+        gain = gains[best]
+        if not gain.dps > margin_dps:
             break
         term = current.terms[judged[best]]
-        judging = [c or not cold_alone for c in cold]
-        score = field_score_dps([e for e, j in zip(current_errors, judging) if j])
-        without = field_score_dps([e for e, j in zip(options_errors[best], judging) if j])
-        with_it = ('the node refuses a static bias with it (the still gyro reads as turning)' if math.isinf(score)
-                   else f'systematic rms with the bias {score * DEG_PER_H_PER_DPS:.2f} deg/h with it')
+        with_it = ('the node refuses a static bias with it (the still gyro reads as turning)'
+                   if math.isinf(gain.with_it_dps)
+                   else f'systematic rms with the bias {gain.with_it_dps * DEG_PER_H_PER_DPS:.2f} deg/h with it')
         needed = f' (a drop needs more than {margin_dps * DEG_PER_H_PER_DPS:.2f} deg/h)' if margin_dps else ''
-        where = ' on their cold starts (the others not worse by more)' if cold_alone else ''
+        where = ' on their cold starts (the others not worse by more)' if gain.cold_alone else ''
         dropped.append(Dropped(term, f'{runs_name} are better without it{where}: {with_it}, '
-                                     f'{without * DEG_PER_H_PER_DPS:.2f} deg/h without{needed}'))
+                                     f'{gain.without_dps * DEG_PER_H_PER_DPS:.2f} deg/h without{needed}'))
         current, current_errors = options[best], options_errors[best]
     if simplest_margin_dps is not None:
         current, current_errors, dropped = _simplest(result, current, current_errors, dropped, field, kept_signals,
@@ -278,25 +277,34 @@ def validate(result: LoopResult, logs: Sequence[GyroLog], bias_samples: int = DE
     return Validation(current, tuple(runs), tuple(dropped))
 
 
+class _Gain(NamedTuple):
+    """How much better the judged runs are without a term (``dps``, -inf: not), and their scores (deg/s)."""
+
+    dps: float
+    cold_alone: bool        # judged on the cold starts alone
+    with_it_dps: float
+    without_dps: float
+
+
 def _gain_without(with_it: Sequence[FieldErrors], without: Sequence[FieldErrors], cold: Sequence[bool],
-                  margin_dps: float) -> tuple[float, bool]:
-    """How much better (deg/s, -inf: not) the runs are without a term, and whether the cold starts alone say so.
+                  margin_dps: float) -> _Gain:
+    """How much better the runs are without a term, and whether the cold starts alone say so.
 
     A term acting at power-on (a warm-up, a fast lag of the self-heating) moves the static bias of
     the cold starts alone; pooled with the restarts, two a run, its harm there is diluted below the
     margin, and a lab's several runs dilute it no less. So the cold starts are judged apart too,
     when the other runs are not worse without the term by more than ``margin_dps``.
     """
-    def gain(runs: Sequence[bool]) -> float:
+    def gain(runs: tuple[bool, ...]) -> _Gain:
         now = field_score_dps([e for e, c in zip(with_it, cold) if c in runs])
         then = field_score_dps([e for e, c in zip(without, cold) if c in runs])
-        return -math.inf if math.isnan(now - then) else now - then
+        return _Gain(-math.inf if math.isnan(now - then) else now - then, runs == (True,), now, then)
 
     pooled = gain((True, False))
-    if all(cold) or not any(cold) or -gain((False,)) > margin_dps:
-        return pooled, False
+    if all(cold) or not any(cold) or -gain((False,)).dps > margin_dps:
+        return pooled
     alone = gain((True,))
-    return (alone, True) if alone > pooled else (pooled, False)
+    return alone if alone.dps > pooled.dps else pooled
 
 
 def _coefficients(calibration: Calibration) -> int:
