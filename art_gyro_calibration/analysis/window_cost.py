@@ -18,6 +18,8 @@ counts as such, not as white noise. Not a jackknife over blocks of the one run: 
 rests on the first block, and a refit without it carries the written shape back from hours later (it
 read several times the error the written warm-up then made on a second cold run, and dropped warm-ups
 that helped). A term with a time constant is spread with it held and free (:func:`_uncertainty`).
+Either is a lower bound: a wander that outlasts the correlation of what the fit leaves, or a few runs'
+refits that agree by chance, leave the coefficient further off than it says.
 
 A term whose implied bias exceeds what it removes (the rms over the rows after the window of what
 it corrects beyond the polynomial, net of its window value) is not written. Correlated stand-ins:
