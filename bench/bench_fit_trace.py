@@ -2,7 +2,9 @@
 
 Reports wall and CPU time of the loop (the machine's load average beside them, as other
 work on a shared machine slows the wall clock), the CPU time of ``calibrate fit``'s start-up
-check and of its comparison with the packaged calibration after it, and the process's peak resident memory. Run:
+check and of its comparison with the packaged calibration after it, and the process's peak resident memory;
+then the same runs written as CSV logs and fitted by the command itself (``calibrate fit``, a child process: every
+step, the window terms' cost and the report included, figures not), its CPU time and peak memory. Run:
 ``python bench/bench_fit_trace.py [--hours 24] [--rate-hz 10]``; ``--runs 3 --hours 12``: a several-run fit of the
 same ``--hours`` in all, cold starts of the gyro (its own turn-on bias, noise and table order each) and, last, a
 warm restart (the lab protocol of doc/calibration.md). A benchmark, not a test.
@@ -13,14 +15,19 @@ from __future__ import annotations
 import argparse
 import os
 import resource
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 from art_gyro_calibration.calibration import load_packaged_calibration
 from art_gyro_calibration.analysis.baseline import compare_with_baseline
 from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.replay import startup_check
 from art_gyro_calibration.analysis.runs import joined
-from art_gyro_calibration.analysis.simulate import EFFECTS, SimulationSettings, same_gyro, simulate_run, warm_restart
+from art_gyro_calibration.analysis.simulate import (EFFECTS, SimulatedRun, SimulationSettings, same_gyro, simulate_run,
+                                                    warm_restart, write_run)
 from art_gyro_calibration.units import SECONDS_PER_HOUR
 
 
@@ -36,10 +43,11 @@ def main() -> None:
     cal = load_packaged_calibration(args.serial)
     effects = () if args.no_effects else tuple(EFFECTS)
     settings = SimulationSettings(hours=args.hours / args.runs, rate_hz=args.rate_hz, effects=effects)
-    runs = [(f'cold{k + 1}', simulate_run(cal, same_gyro(settings, k)).log(cal), True) for k in range(args.runs)]
+    simulated: list[tuple[str, SimulatedRun, bool]] = [
+        (f'cold{k + 1}', simulate_run(cal, same_gyro(settings, k)), True) for k in range(args.runs)]
     if args.runs > 1:   # the last a warm restart, an hour after its power-on
-        runs[-1] = ('warm', warm_restart(cal, same_gyro(settings, args.runs), SECONDS_PER_HOUR).log(cal), False)
-    log, fitted = joined(runs)
+        simulated[-1] = ('warm', warm_restart(cal, same_gyro(settings, args.runs), SECONDS_PER_HOUR), False)
+    log, fitted = joined([(name, run.log(cal), cold) for name, run, cold in simulated])
     start, cpu_start = time.perf_counter(), time.process_time()
     result = close_loop(log, cal.polynomial.rows, cal.polynomial.columns, LoopOptions(serial_number=args.serial),
                         fitted)
@@ -59,6 +67,27 @@ def main() -> None:
     print(f'start-up check: {check_cpu:.2f} s CPU; dropped: {dropped or "nothing"}')
     verdict = f'{versus.verdict} ({versus.refit_dph:.2f} against {versus.baseline_dph:.2f} deg/h)' if versus else 'none'
     print(f'baseline comparison: {baseline_cpu:.2f} s CPU; verdict: {verdict}')
+    command(simulated, args.serial, cal.polynomial.rows, cal.polynomial.columns)
+
+
+def command(simulated: list[tuple[str, SimulatedRun, bool]], serial: str, rows: int, columns: int) -> None:
+    """``calibrate fit`` on the runs written as CSV logs, in a child process: its CPU time and peak memory."""
+    with tempfile.TemporaryDirectory() as folder:
+        logs, warm = [], []
+        for name, run, cold in simulated:
+            path = Path(folder) / f'{name}.csv'
+            write_run(path, run)
+            logs.append(str(path))
+            warm += [] if cold else ['--warm-start', str(path)]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        subprocess.run([sys.executable, '-m', 'art_gyro_calibration.analysis.cli', 'fit', *logs, *warm,
+                        '--rows', str(rows), '--columns', str(columns), '--serial', serial,
+                        '--out', str(Path(folder) / 'cal.yaml'), '--report', str(Path(folder) / 'REPORT.json')],
+                       check=True, stdout=subprocess.DEVNULL)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    print(f'calibrate fit (the command, from the CSV logs to the report): {cpu:.2f} s CPU; '
+          f'peak RSS {after.ru_maxrss / 1024:.0f} MiB')
 
 
 if __name__ == '__main__':

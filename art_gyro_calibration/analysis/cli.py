@@ -604,16 +604,19 @@ ANALYSIS_EXTRA = ('scipy', 'matplotlib', 'threadpoolctl', 'rosbags')
 
 # glibc's mallopt parameter, and the size from which a block is mapped on its own (returned when freed).
 _M_MMAP_THRESHOLD = -3
-_MMAP_THRESHOLD_BYTES = 1 << 20
+_MMAP_THRESHOLD_BYTES = 32 << 20
 
 
 def _return_freed_arrays() -> None:
-    """Have glibc give large freed blocks back to the system at once (a fixed mmap threshold of 1 MiB).
+    """Have glibc map blocks of 32 MiB and more on their own, and trim the heap as it frees (a fixed threshold).
 
-    By default glibc raises its threshold up to 32 MiB as large blocks are freed; the
-    chunks' arrays then come from the heap, whose freed pages stay resident: ``calibrate
-    fit`` of 24 h at 100 Hz held 1.0 GiB after its loop for 0.6 GiB of live arrays. Elsewhere
-    (no glibc) nothing is done.
+    By default glibc raises its threshold as large blocks are freed and its trim threshold with it
+    (to 64 MiB): freed heap pages then stay resident (``calibrate fit`` of 24 h at 100 Hz once held
+    1.0 GiB after its loop for 0.6 GiB of live arrays). Fixed, the trim threshold stays at its
+    128 KiB. Not lower than 32 MiB: a chunk's columns (2 MiB) and design matrices (25 MiB), made and
+    dropped thousands of times a fit, would each be mapped afresh, and their pages faulted in and
+    zeroed every time: a large share of the fit's CPU for little less memory (doc/benchmark.md). Elsewhere (no
+    glibc) nothing is done.
     """
     try:
         ctypes.CDLL(None).mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_BYTES)
