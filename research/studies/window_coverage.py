@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 import yaml
 
 REPO = Path(__file__).resolve().parents[2]
@@ -66,13 +67,19 @@ def rows(out: Path) -> tuple[list[dict[str, Any]], list[str]]:
             found.append({'case': r['case'], 'rep': r['rep'], 'fit': label, 'k_true': k_true,
                           'k_written': k_written, 'window_dph': window_rate * k_written, 'error_dph': error,
                           'implied_dph': terms[0]['implied_bias_dph'],
+                          'z': abs(error) / terms[0]['implied_bias_dph'],
                           'warm_up': float(r['physics'].get('warmup_dph', 0.0)) > 0.0})
     return found, skipped
 
 
+def _z(found: list[dict[str, Any]], fit: str) -> NDArray[np.float64]:
+    """The z of every row of the fit ``fit``."""
+    return np.array([f['z'] for f in found if f['fit'] == fit])
+
+
 def summary(found: list[dict[str, Any]], fit: str) -> str:
     """One table row: how often the error exceeds twice the implied bias, and the median and rms of z."""
-    z = np.array([abs(f['error_dph']) / f['implied_dph'] for f in found if f['fit'] == fit])
+    z = _z(found, fit)
     if not z.size:
         return f'| {LABELS[fit]} | 0 | | | |'
     return (f'| {LABELS[fit]} | {z.size} | {np.mean(z > 2.0) * 100:.0f} % ({int(np.sum(z > 2.0))}) | '
@@ -83,7 +90,7 @@ def reading(found: list[dict[str, Any]]) -> list[str]:
     """What the summary says, a sentence per fit: the rms of z is the factor the implied bias understates by."""
     out = []
     for fit, name in LABELS.items():
-        z = np.array([abs(f['error_dph']) / f['implied_dph'] for f in found if f['fit'] == fit])
+        z = _z(found, fit)
         if z.size:
             verdict = ('covers the error' if np.mean(z > 2.0) <= 0.1 and np.sqrt(np.mean(z ** 2)) <= 1.5 else
                        f'understates the error: by about {np.sqrt(np.mean(z ** 2)):.1f} x in rms')
@@ -108,7 +115,7 @@ def document(found: list[dict[str, Any]], skipped: list[str], out: Path, commit:
     for f in found:
         lines.append(f'| {f["case"]} | {f["rep"]} | {LABELS[f["fit"]]} | {f["k_true"]:g} | {f["k_written"]:.3f} | '
                      f'{f["window_dph"]:.2f} | {f["error_dph"]:+.2f} | {f["implied_dph"]:.2f} | '
-                     f'{abs(f["error_dph"]) / f["implied_dph"]:.2f} | {"yes" if f["warm_up"] else ""} |')
+                     f'{f["z"]:.2f} | {"yes" if f["warm_up"] else ""} |')
     if skipped:
         lines += ['', 'Left out: ' + '; '.join(skipped) + '.']
     return '\n'.join(lines) + '\n'
