@@ -272,7 +272,7 @@ def window_markdown(window: dict[str, Any], bias_samples: int) -> list[str]:
         lines += ['', 'Not written, and the run that would settle each:', '']
         lines += [f'- **{c["signal"]}** ({c["description"]}): {c["settle"]}' for c in unsettled]
     written = [c for c in window['terms'] if c['written']]
-    if written and not window['method'].startswith('leave-one-run-out'):
+    if written and window['runs'] == 1:
         lines += ['', 'Written from one run, whose own noise is all that says how well: '
                   + '; '.join(f'{c["signal"]}: {c["settle"]}' for c in written) + '.']
     if window['stand_ins']:

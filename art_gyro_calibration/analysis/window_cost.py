@@ -10,16 +10,16 @@ what the polynomial takes with the term when its coefficient moves (the columns'
 polynomial over the fitted rows: a lagged temperature is mostly the temperature, and its coefficient
 trades with the polynomial's; a constant cancels in the node).
 
-The spread of ``w . beta``: over the runs when the fit had several (leave-one-run-out refits: a
-warm-up's amplitude against each run's turn-on bias and start). On one run, the coefficients'
-covariance with the noise's autocovariance as what the fit leaves shows it (1-minute means, over as
-long as it stays correlated and at least the loop's held-out block): a bias that wanders for an hour
-counts as such, not as white noise. Not a jackknife over blocks of the one run: a warm-up's amplitude
-rests on the first block, and a refit without it carries the written shape back from hours later (it
-read several times the error the written warm-up then made on a second cold run, and dropped warm-ups
-that helped). A term with a time constant is spread with it held and free (:func:`_uncertainty`).
-Either is a lower bound: a wander that outlasts the correlation of what the fit leaves, or a few runs'
-refits that agree by chance, leave the coefficient further off than it says.
+The spread of ``w . beta``: the coefficients' covariance under the noise, a white part and a
+Gauss-Markov wander (1-minute means) fitted to what the fit leaves as the fit would leave them
+(:func:`_kernel`): a bias that wanders for an hour counts as such, not as white noise, and what the
+fit took of it is put back. With several runs, at least the spread of leave-one-run-out refits (a
+warm-up's amplitude against each run's turn-on bias and start); they alone may agree by chance. Not
+a jackknife over blocks of one run: a warm-up's amplitude rests on the first block, and a refit
+without it carries the written shape back from hours later (it read several times the error the
+written warm-up then made on a second cold run, and dropped warm-ups that helped). A term with a
+time constant is spread with it held and free (:func:`_uncertainty`). A wander longer than the
+runs, or of another shape, leaves the coefficient further off than it says.
 
 A term whose implied bias exceeds what it removes (the rms over the rows after the window of what
 it corrects beyond the polynomial, net of its window value) is not written. Correlated stand-ins:
@@ -36,11 +36,11 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.optimize import nnls  # type: ignore[import-untyped]  # scipy ships no types
 
 from art_gyro_calibration.analysis.chunks import chunks
 from art_gyro_calibration.analysis.fit import Design, Instruments, TermSpec, polynomial_basis, solve_normal
 from art_gyro_calibration.analysis.loop import LoopResult
-from art_gyro_calibration.analysis.metrics import Segments, correlation_time_s
 from art_gyro_calibration.analysis.runs import Run, run_of_rows
 from art_gyro_calibration.compensation import RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog
@@ -53,7 +53,8 @@ from art_gyro_calibration.units import DEG_PER_H_PER_DPS
 # The signals whose terms act in the static-bias window: the warm-up, and the filtered signals (their
 # filter, or the refinement, gives them a value there that the coefficient carries into the bias).
 WINDOW_SIGNALS = (POWER_ON_SIGNAL, 'temperature_rate', LAGGED_SIGNAL, 'rate_change')
-# One run: its noise's autocovariance is followed over at most this fraction of it (longer lags pair too few bins).
+# The noise's model is fitted to the residual's autocovariance over lags to this fraction of the longest run (longer
+# lags pair too few bins).
 MAX_LAG_SHARE = 0.25
 # The fit's sums are kept per bin of this many seconds of a run, and grouped into blocks or runs from there.
 BIN_S = 60.0
@@ -95,17 +96,20 @@ class TermCost:
 class WindowCost:
     """The loop's result with the window terms it should not write dropped (the rest refitted), and why.
 
-    ``method``: how the uncertainty was measured; ``stand_ins``: why one term replaced several ('' if none did).
+    ``method``: how the uncertainty was measured; ``runs``: how many runs it was measured on; ``stand_ins``: why one
+    term replaced several ('' if none did).
     """
 
     result: LoopResult
     costs: tuple[TermCost, ...]
     method: str
+    runs: int
     stand_ins: str = ''
 
     def section(self) -> dict[str, Any]:
         """REPORT.json's ``window_terms``."""
-        return {'method': self.method, 'terms': [c.to_dict() for c in self.costs], 'stand_ins': self.stand_ins or None}
+        return {'method': self.method, 'runs': self.runs, 'terms': [c.to_dict() for c in self.costs],
+                'stand_ins': self.stand_ins or None}
 
 
 def _spec(term: Term) -> TermSpec:
@@ -113,28 +117,67 @@ def _spec(term: Term) -> TermSpec:
     return TermSpec(**{f.name: getattr(term, f.name) for f in fields(TermSpec)})
 
 
-def _kernel(result: LoopResult, bin_k: NDArray[np.int64],
-            residual: NDArray[np.float64]) -> tuple[NDArray[np.float64], str]:
-    """The autocovariance of what the fit leaves (its means over bins of :data:`BIN_S`, numbered ``bin_k``), per lag.
+def _kernel(bin_k: NDArray[np.int64], run_bins: int, residual: NDArray[np.float64], columns: NDArray[np.float64],
+            influence: NDArray[np.float64]) -> tuple[NDArray[np.float64], str]:
+    """The noise's covariance per lag (:data:`BIN_S` means, lags below ``run_bins``): white and a Gauss-Markov wander.
 
-    Tapered (Bartlett) to zero over as long as it stays correlated, and at least the loop's held-out block
-    (a wander seen over a shorter span is cut off, and its variance with it); at most
-    :data:`MAX_LAG_SHARE` of the run (longer lags pair too few bins). How it was made, for people.
+    Fitted to what the fit leaves, as the fit would leave it: the residual at the grid places ``bin_k`` is
+    ``(I - H) e``, ``H = columns @ influence`` the fit's bins' hat matrix (``columns`` the bins' mean
+    design rows), so its autocovariance is that of ``(I - H) S (I - H)'`` for the noise's ``S``. The
+    fit and the runs' constants take much of a wander as long as a run out of its residual, and a
+    kernel read off the residual itself (tapered where it fell below 1/e) put the spread of a warm-up's
+    window value at a half to a third of what it was. For each time constant on a grid up to the
+    longest run, the white and the wander variances are a non-negative least-squares fit of the
+    expected autocovariance to the residual's over lags to :data:`MAX_LAG_SHARE` of that run, weighted
+    by their pairs; the best fit is taken. Runs lie on the grid apart by more than ``run_bins`` (no
+    pair spans two). How it was made, for people.
     """
-    times = (bin_k + 0.5) * BIN_S
-    whole = Segments(np.array([0]), np.array([len(times)]), np.zeros(1))
-    correlated_s = correlation_time_s(times, residual, whole, BIN_S)
-    span_s = max(min(max(result.held_out_block_s, correlated_s), float(times[-1] - times[0]) * MAX_LAG_SHARE), BIN_S)
-    lags = int(span_s // BIN_S)
     n = int(bin_k[-1]) + 1
-    grid, present = np.zeros(n), np.zeros(n)
-    grid[bin_k], present[bin_k] = residual - residual.mean(), 1.0
-    pairs = np.correlate(present, present, 'full')[n - 1:n + lags]
-    covariance = np.correlate(grid, grid, 'full')[n - 1:n + lags] / np.maximum(pairs, 1.0)
-    taper = 1.0 - np.arange(len(covariance)) / (lags + 1.0)
-    return covariance * taper, (f'the coefficients\' covariance on the one run with the autocovariance of what the '
-                                f'fit leaves (1 min means, over {span_s / 60.0:.0f} min: it stays correlated for '
-                                f'{correlated_s / 60.0:.0f} min)')
+    size = 1 << int(2 * n).bit_length()
+    lags = max(int(run_bins * MAX_LAG_SHARE), 1)
+    present = np.zeros(n)
+    present[bin_k] = 1.0
+    x = np.zeros((columns.shape[1], n))
+    x[:, bin_k] = columns.T
+    b = np.zeros_like(x)
+    b[:, bin_k] = influence
+    grid = np.zeros(n)
+    grid[bin_k] = residual - residual.mean()
+    fx, fb, fm = (np.fft.rfft(v, size) for v in (x, b, present))
+    pairs = np.rint(np.fft.irfft(np.conj(fm) * fm, size)[:lags + 1])
+    observed = np.fft.irfft(np.conj(np.fft.rfft(grid, size)) * np.fft.rfft(grid, size), size)[:lags + 1]
+
+    def expected(lag_kernel: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per lag 0..lags, the sum over pairs of ``(I - H) S (I - H)'`` for ``S``'s covariance per lag."""
+        whole = np.zeros(size)
+        whole[:len(lag_kernel)] = lag_kernel
+        whole[size - len(lag_kernel) + 1:] = lag_kernel[:0:-1]
+        fs = np.fft.rfft(whole)
+        c = np.fft.irfft(fs * fb, size)[:, :n] * present      # S B' (columns of C), on the bins present
+        fc = np.fft.rfft(c, size)
+        q = b @ c.T                                            # B S B'
+        cross = np.sum(np.conj(fx) * fc + np.conj(fc) * fx, axis=0)
+        both = np.sum(np.conj(fx) * (q @ fx), axis=0)
+        own = np.zeros(lags + 1)
+        own[:min(lags + 1, len(lag_kernel))] = lag_kernel[:lags + 1]
+        return np.asarray(np.fft.irfft(both - cross, size)[:lags + 1] + pairs * own, dtype=np.float64)
+
+    white_kernel = np.zeros(run_bins)
+    white_kernel[0] = 1.0
+    white = expected(white_kernel)
+    weight = np.sqrt(pairs) / np.maximum(pairs, 1.0)   # a lag's mean product is as uncertain as 1/sqrt(its pairs)
+    fits = []
+    for tau in np.geomspace(0.5, run_bins, 24):
+        variances, misfit = nnls(np.stack([white, expected(np.exp(-np.arange(run_bins) / tau))], axis=1)
+                                 * weight[:, None], observed * weight)
+        fits.append((misfit, float(variances[0]), float(variances[1]), float(tau)))
+    _, white_var, wander_var, tau = min(fits)
+    kernel = wander_var * np.exp(-np.arange(run_bins) / tau)
+    kernel[0] += white_var
+    return kernel, (f'the coefficients\' covariance with the noise fitted to what the fit leaves, as the fit leaves '
+                    f'it: 1 min means, white {math.sqrt(white_var) * DEG_PER_H_PER_DPS:.2f} deg/h and a wander of '
+                    f'{math.sqrt(wander_var) * DEG_PER_H_PER_DPS:.2f} deg/h correlated for '
+                    f'{tau * BIN_S / 60.0:.0f} min')
 
 
 class _Fit:
@@ -187,19 +230,23 @@ class _Fit:
         # The constant column is 1 on every row: a bin's residual sum is its error's less its columns' sums times beta.
         residual = (cross[:, 0] - gram[:, 0, :] @ self.beta) / gram[:, 0, 0]
         self.width = width
+        # Per bin, how beta moves with its rows' error: a bin's columns' sums are the constant column's row.
+        self.influence = solve_normal(total, gram[:, 0, :].T)
+        # Each run's bins on one grid, runs apart by more than the longest run (the kernel's lags).
+        run_bins = int(k.max()) + 1
+        self.bin_k = run[first] * 2 * run_bins + k[first]
+        self.kernel, self.method = _kernel(self.bin_k, run_bins, residual, gram[:, 0, :] / gram[:, 0, :1],
+                                           self.influence)
+        self.replicates: NDArray[np.float64] | None = None
         if len(runs) > 1:
             run_gram, run_cross = np.zeros((len(runs), width, width)), np.zeros((len(runs), width))
             np.add.at(run_gram, run[first], gram)
             np.add.at(run_cross, run[first], cross)
-            self.replicates: NDArray[np.float64] | None = np.array(
+            self.replicates = np.array(
                 [solve_normal(total - run_gram[r], rhs - run_cross[r]) for r in range(len(runs)) if run_gram[r, 0, 0]])
-            self.method = f'leave-one-run-out over {len(runs)} runs'
+            self.method = f'the larger of leave-one-run-out over {len(runs)} runs and {self.method}'
         else:
-            self.replicates = None
-            self.bin_k = k[first]
-            self.kernel, self.method = _kernel(result, self.bin_k, residual)
-            # Per bin, how beta moves with its rows' error: a bin's columns' sums are the constant column's row.
-            self.influence = solve_normal(total, gram[:, 0, :].T)
+            self.method = f'on the one run, {self.method}'
         p = polynomial.rows * polynomial.columns
         q = p + self.design.offsets
         self.poly_columns = np.r_[0:q]
@@ -214,14 +261,18 @@ class _Fit:
                         for s, c in zip(specs, own)]
 
     def spread(self, statistic: NDArray[np.float64]) -> float:
-        """The standard deviation of ``statistic @ beta`` (deg/s): over the runs left out, or from one run's noise."""
-        if self.replicates is not None:
-            return _jackknife_std(self.replicates @ statistic)
+        """The standard deviation of ``statistic @ beta`` (deg/s) from the noise, and at least over the runs left out.
+
+        From the noise: at least its white part (lag 0), as a residual's long lags read below zero (the fit and its
+        mean take part of a wander out of it). The runs left out alone may agree by chance (two or three runs).
+        """
         h = np.zeros(int(self.bin_k[-1]) + 1)
         h[self.bin_k] = statistic @ self.influence
         n, lags = len(h), len(self.kernel)
         products = np.correlate(h, h, 'full')[n - 1:n - 1 + lags]
-        return math.sqrt(max(float(products[0] * self.kernel[0] + 2.0 * products[1:] @ self.kernel[1:]), 0.0))
+        white = float(products[0] * self.kernel[0])
+        noise = math.sqrt(max(white + 2.0 * float(products[1:] @ self.kernel[1:]), white, 0.0))
+        return noise if self.replicates is None else max(noise, _jackknife_std(self.replicates @ statistic))
 
     def beyond_polynomial(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """The term columns of ``x`` less their projection on the polynomial's."""
@@ -359,7 +410,7 @@ def window_cost(result: LoopResult, runs: Sequence[Run], bias_samples: int) -> W
     specs = [_spec(t) for t in result.extended.terms]
     window = [s for s in specs if s.signal in WINDOW_SIGNALS]
     if not window:
-        return WindowCost(result, (), '')
+        return WindowCost(result, (), '', len(runs))
     fit = _Fit(result, specs, runs)
     windows = _windows(result, fit, bias_samples)
     stand_ins = ''
@@ -397,7 +448,7 @@ def window_cost(result: LoopResult, runs: Sequence[Run], bias_samples: int) -> W
         result = _Fit(result, [s for s in specs if s.signal not in dropped], runs).calibration_of(result)
     free = any(s.time_constant_s > 0.0 for s in window)
     method = fit.method + ('; the larger spread of the time constants held and free' if free else '')
-    return WindowCost(result, costs, method, stand_ins)
+    return WindowCost(result, costs, method, len(runs), stand_ins)
 
 
 def _spread(result: LoopResult, fit: _Fit, windows: NDArray[np.float64],
