@@ -35,6 +35,13 @@ FIRST_ORDER_TAU_S = 120.0
 # The local quadratic fit's time constant (:mod:`art_gyro_calibration.temperature_rate`): the lowest median
 # error against the true rate over bench/bench_temperature_rate.py's profiles.
 DEFAULT_TEMPERATURE_RATE_TAU_S = 20.0
+# With the local quadratic temperature rate, the fit reads the temperature smoothed both ways over this (or the
+# filter's time constant, if shorter): the counts' noise in the node's rate estimate dilutes a temperature-rate
+# coefficient fitted on it by a few per cent, and the node's static-bias refinement, which takes the term's window
+# value, has no such noise. (A file that names no form is fitted on the first-order filter as it was.)
+FIT_SMOOTHING_S = 20.0
+# A two-way smoothing's ends are point-reflected over this many time constants.
+REFLECTED_TAUS = 10.0
 # Angular acceleration of a rate table or robot settles within a second.
 DEFAULT_RATE_CHANGE_TAU_S = 0.5
 
@@ -483,6 +490,26 @@ def first_order_smooth(x: NDArray[np.float64], log_decay: NDArray[np.float64],
     return out
 
 
+def smoothed_both_ways(t: NDArray[np.float64], x: NDArray[np.float64], tau_s: float) -> NDArray[np.float64]:
+    """``x`` through a first-order filter of ``tau_s`` forwards, then backwards: averaged, and no lag.
+
+    The ends are point-reflected over :data:`REFLECTED_TAUS` time constants, so a slope at an end is kept.
+    """
+    if len(x) < 3:
+        return x.copy()
+    head = max(int(np.searchsorted(t, t[0] + REFLECTED_TAUS * tau_s)), 2)
+    tail = min(int(np.searchsorted(t, t[-1] - REFLECTED_TAUS * tau_s)), len(x) - 3)
+    tt = np.concatenate((2.0 * t[0] - t[head - 1:0:-1], t, 2.0 * t[-1] - t[-2:tail:-1]))
+    xx = np.concatenate((2.0 * x[0] - x[head - 1:0:-1], x, 2.0 * x[-1] - x[-2:tail:-1]))
+    forwards = np.empty(len(xx))
+    forwards[0] = xx[0]
+    first_order_smooth(xx, _log_decay(tt, tau_s), forwards[1:])
+    backwards = np.empty(len(xx))
+    backwards[0] = forwards[-1]
+    first_order_smooth(forwards[::-1], _log_decay(-tt[::-1], tau_s), backwards[1:])
+    return backwards[::-1][head - 1:head - 1 + len(x)].copy()
+
+
 def compute_signals(t: ArrayLike, rate_dps: ArrayLike, temp_c: ArrayLike,
                     extras: Mapping[str, ArrayLike] | None = None,
                     filters: SignalFilters = SignalFilters(), state: SignalState | None = None,
@@ -493,12 +520,20 @@ def compute_signals(t: ArrayLike, rate_dps: ArrayLike, temp_c: ArrayLike,
     For a log read in chunks, ``state`` is the previous chunk's :meth:`Signals.end_state`
     (None for the first chunk); the chunks' signals then equal the whole log's. ``run_starts``:
     the log is several runs, one after another (:attr:`Signals.run_starts`). ``refined_start``: the
-    fit's signals (:attr:`Signals.refined_start`).
+    fit's signals (:attr:`Signals.refined_start`) of a whole log; with the local quadratic temperature rate, on its
+    temperature smoothed both ways (:func:`smoothed_both_ways`, over :data:`FIT_SMOOTHING_S`), each run apart.
     """
     if run_starts and (state is not None or run_starts[0][0] != 0):
         raise ValueError('several runs start afresh at row 0: no state to continue from')
-    return Signals(t=np.asarray(t, dtype=float), rate=np.asarray(rate_dps, dtype=float),
-                   temperature=np.asarray(temp_c, dtype=float),
+    times, temperature = np.asarray(t, dtype=float), np.asarray(temp_c, dtype=float)
+    if refined_start and filters.temperature_rate_form == LOCAL_QUADRATIC:   # the fit's, of a whole log
+        if state is not None:
+            raise ValueError('the fit\'s signals are of a whole log: no state to continue from')
+        tau_s = min(filters.temperature_rate_tau_s, FIT_SMOOTHING_S)
+        bounds = [first for first, _ in run_starts[1:]]
+        temperature = np.concatenate([smoothed_both_ways(a, b, tau_s) for a, b in
+                                      zip(np.split(times, bounds), np.split(temperature, bounds))])
+    return Signals(t=times, rate=np.asarray(rate_dps, dtype=float), temperature=temperature,
                    extras={k: np.asarray(v, dtype=float) for k, v in (extras or {}).items()}, filters=filters,
                    previous=state, powered_on_at_start=powered_on_at_start, run_starts=run_starts,
                    refined_start=refined_start)

@@ -7,7 +7,7 @@ import pytest
 
 from art_gyro_calibration.model import ArtPolynomial, ErrorModel
 from art_gyro_calibration.signals import (DERIVED_SIGNALS, FIRST_ORDER_TAU_S, LAGGED_SIGNAL, SIGNALS, Envelope,
-                                          SignalFilters, Signals, SignalTracker, compute_signals)
+                                          SignalFilters, Signals, SignalTracker, compute_signals, smoothed_both_ways)
 from art_gyro_calibration.temperature_rate import FIRST_ORDER, FORMS, LocalQuadraticRate
 from art_gyro_calibration.terms import Term
 
@@ -226,3 +226,41 @@ def test_the_temperature_rate_filters_time_scales_and_bounds() -> None:
         (-200.0 / 60.0, 200.0 / 60.0)
     with pytest.raises(ValueError, match="filters.temperature_rate_form must be one of first_order, local_quadratic"):
         SignalFilters(temperature_rate_form='second_order')
+
+
+def _chamber_counts() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """6 h at 10 Hz of chamber ramps of 0.1 degC/min between holds: time, true temperature, its 0.05 degC counts."""
+    t = np.arange(0.0, 6 * 3600.0, 0.1)
+    knots_s = np.cumsum([0.0, 1200.0, 6000.0, 1800.0, 6000.0, 1800.0])
+    true_c = np.interp(t, knots_s, [20.0, 20.0, 30.0, 30.0, 20.0, 20.0])
+    return t, true_c, np.round(true_c / 0.05) * 0.05
+
+
+def test_the_fit_s_temperature_rate_is_not_diluted_by_the_counts_noise() -> None:
+    # A temperature-rate coefficient fitted on the node's rate from 0.05 degC counts came out at 0.94 of the true
+    # one (the noise in a regressor shrinks its coefficient); the node's static-bias refinement, which takes the
+    # term's value into the mission's bias, has no such noise. The fit reads the temperature smoothed both ways.
+    t, true_c, counts = _chamber_counts()
+    true_rate = np.gradient(true_c, t)
+    node = compute_signals(t, np.zeros(len(t)), counts).temperature_rate
+    fit = compute_signals(t, np.zeros(len(t)), counts, refined_start=True).temperature_rate
+    late = t > 600.0   # past the refinement's minutes
+    assert float(node[late] @ true_rate[late] / (node[late] @ node[late])) < 0.95
+    assert float(fit[late] @ true_rate[late] / (fit[late] @ fit[late])) == pytest.approx(1.0, abs=0.01)
+    # The node's own signals, and the first-order filter's (a file that names no form), are as they were.
+    first_order = SignalFilters(FIRST_ORDER_TAU_S, 0.5, FIRST_ORDER)
+    np.testing.assert_array_equal(compute_signals(t, np.zeros(len(t)), counts, filters=first_order,
+                                                  refined_start=True).temperature, counts)
+
+
+def test_a_two_way_smoothing_keeps_a_slope_to_the_ends_and_each_run_apart() -> None:
+    t = np.arange(0.0, 600.0, 0.1)
+    line = 20.0 + 0.01 * t
+    np.testing.assert_allclose(smoothed_both_ways(t, line, 20.0), line, atol=1e-5)
+    # Two runs of one fit, the second 10 degC warmer: neither is smoothed into the other.
+    temp = np.where(t < 300.0, 20.0, 30.0)
+    start = int(np.searchsorted(t, 300.0))
+    signals = compute_signals(t, np.zeros(len(t)), temp, run_starts=((0, True), (start, False)), refined_start=True)
+    np.testing.assert_allclose(signals.temperature, temp, atol=1e-9)
+    with pytest.raises(ValueError, match='whole log'):
+        compute_signals(t, np.zeros(len(t)), temp, state=signals.end_state(), refined_start=True)

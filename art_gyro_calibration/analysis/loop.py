@@ -276,7 +276,7 @@ def close_loop(log: GyroLog, rows: int, columns: int, options: LoopOptions = Loo
             strong.append(_strong(found))
         specs = retuned(binned, specs)
     # A square is judged once every effect is in the model, so it cannot stand in for one not yet found.
-    specs = [_maybe_square(spec, binned, specs[:i] + specs[i + 1:], materiality)
+    specs = [_maybe_square(spec, binned, specs[:i] + specs[i + 1:], materiality, options)
              for i, spec in enumerate(specs)]
     # Every effect must lower the held-out error of the final model, every row counted (on the blocks
     # of the last round): one that passed its screen only given candidates that did not make it is dropped.
@@ -708,20 +708,35 @@ def _finite(x: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.where(infinite, np.max(x[~infinite]), x)
 
 
-def _maybe_square(spec: TermSpec, binned: trace.Binned, specs: list[TermSpec], materiality_dph: float) -> TermSpec:
-    """``spec`` with powers [1, 2] if the square lowers the held-out error and its curvature is material.
+def _maybe_square(spec: TermSpec, binned: trace.Binned, specs: list[TermSpec], materiality_dph: float,
+                  options: trace.ScreenOptions) -> TermSpec:
+    """``spec`` with powers [1, 2] if the square beats chance, lowers the held-out error and its curvature is material.
 
-    The curvature is the square's part that a straight line in the signal cannot give,
-    half its range over the logged envelope.
+    Chance as the screen judges a candidate (:func:`trace.trace_residual`): what the square explains
+    beyond the model with the line, against ``options.draws`` phase-randomised copies of what that
+    model leaves, at level ``options.alpha``. On a heating's one decay the line and the square are
+    alike, and a wander took the square in (a Shupe gyro's linear term written as 0.04 + 10 r^2).
+    The curvature is the square's part that a straight line in the signal cannot give, half its
+    range over the logged envelope.
     """
     if spec.form != 'power' or spec.powers != (1,) or spec.signal not in _SQUARABLE + tuple(binned.signals.extras):
         return spec
     squared = replace(spec, powers=(1, 2))
-    both = trace.Screen(binned, specs + [squared])
-    if both.base_sse() >= trace.Screen(binned, specs + [spec]).base_sse():
+    line = trace.Screen(binned, specs + [spec])
+    if trace.Screen(binned, specs + [squared]).base_sse() >= line.base_sse():
+        return spec
+    family = {'square': [replace(spec, powers=(2,))]}
+    residual = line.residual()
+    held_out = {'square': float(line.held_out_improvements(family, residual[:, None])['square'][0])}
+    spectrum = trace.null_spectrum(line, family, residual, held_out)
+    rng = np.random.default_rng(options.seed)
+    chance = np.concatenate([line.explained(family, trace.phase_surrogates(
+        spectrum, min(trace.SURROGATE_BATCH, options.draws - start), rng)[:len(residual)])['square'][0]
+        for start in range(0, options.draws, trace.SURROGATE_BATCH)])
+    if line.explained(family, residual[:, None])['square'][0, 0] <= np.quantile(chance, 1.0 - options.alpha):
         return spec
     _, beta = trace.Screen(binned, specs).fit_with(squared)
     means = binned.candidate_means([squared])[:, 0, :]
-    line = np.column_stack([np.ones(len(means)), means[:, 0]])
-    bend = means[:, 1] - line @ np.linalg.lstsq(line, means[:, 1], rcond=None)[0]
+    line_fit = np.column_stack([np.ones(len(means)), means[:, 0]])
+    bend = means[:, 1] - line_fit @ np.linalg.lstsq(line_fit, means[:, 1], rcond=None)[0]
     return squared if 0.5 * np.ptp(bend * beta[1]) * DEG_PER_H_PER_DPS >= materiality_dph else spec

@@ -259,8 +259,8 @@ def window_markdown(window: dict[str, Any], bias_samples: int) -> list[str]:
     lines = ['', '## Terms in the static-bias window', '',
              f'The node takes its static bias over a run\'s first {bias_samples} rows with these terms applied: the '
              'error of a term\'s value there is a bias for the whole mission, while its own error decays. Implied '
-             f'bias: the uncertainty of that value beyond the polynomial, from {window["method"]}; a lower bound (a '
-             'wander that outlasts what the fit leaves correlated, or runs that agree by chance, add to it). Removes: '
+             f'bias: the uncertainty of that value beyond the polynomial, from {window["method"]}; a 1-sigma for a '
+             'wander no longer than the runs (a slower one adds to it). Removes: '
              'the rms after the window of what the term corrects beyond the polynomial, net of its window value. A '
              'term whose implied bias exceeds what it removes is not written.', '',
              '| term | in the window (deg/h) | implied mission bias (deg/h) | removes (deg/h) | written |',

@@ -169,12 +169,14 @@ def test_the_fit_s_refined_start_is_whole_in_every_run_s_first_chunk():
     log = simulate_run(cal, SimulationSettings(hours=1.0, rate_hz=2.0, seed=3, self_heating_c=4.0)).log(cal)
     starts = ((0, True), (3000, False))
     whole = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, run_starts=starts, refined_start=True)
-    filtered = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, run_starts=starts).temperature_rate
+    # On the fit's temperature (smoothed both ways, signals.FIT_SMOOTHING_S), as the node's filter would read it.
+    temp_c = whole.temperature
+    filtered = compute_signals(log.t, log.rate_dps, temp_c, log.extras, run_starts=starts).temperature_rate
     span = int(refinement_span_s(whole.filters.refinement_scale_s) * 2.0)   # rows at 2 Hz
     for first, _ in starts:
         rows = slice(first, first + span)
         np.testing.assert_array_equal(whole.temperature_rate[rows],
-                                      refined_temperature_rate(log.t[first:], log.temp_c[first:],
+                                      refined_temperature_rate(log.t[first:], temp_c[first:],
                                                                whole.filters.refinement_scale_s))
         assert not np.allclose(whole.temperature_rate[rows], filtered[rows])
         after = slice(first + span, first + 2 * span)

@@ -197,3 +197,21 @@ def test_the_reason_an_effect_is_not_written_says_what_to_do():
     reason = not_written_reason('supply_v')
     assert reason.startswith('the node has no supply_v at run time')
     assert '--node-signal supply_v' in reason and '--exclude supply_v' in reason
+
+
+def test_a_square_is_written_when_it_beats_chance_not_when_a_heating_s_one_decay_fits_it():
+    # A Shupe gyro (0.24 on its true temperature rate) heating itself 4 degC over 10 min, 1 h: the square held out
+    # a little better than the line, material, and was written (0.108 + 8.2 r^2 for 0.24; with seed 2 on the fit's
+    # smoothed temperature, 0.04 + 10 r^2): one decay of the rate, and a wander, fit both alike.
+    cal = load_packaged_calibration(SERIAL)
+    log = simulate_run(cal, SimulationSettings(hours=1.0, effects=('shupe_true_rate',), seed=1, self_heating_c=4.0,
+                                               self_heating_tau_s=600.0)).log(cal)
+    [term] = close_loop(log, 3, 2, LoopOptions()).extended.terms
+    assert term.signal == 'temperature_rate' and term.powers == (1,)
+    assert term.coefficients[0] == pytest.approx(0.24, rel=0.05)
+    # A supply voltage's square of 0.008 deg/s per V^2 over the log's 0.9 V is told from chance and written.
+    log = simulate_run(cal, SimulationSettings(hours=1.0, effects=('supply_voltage',), seed=1)).log(cal)
+    bent = replace(log, rate_dps=log.rate_dps + 0.008 * (log.extras['supply_v'] - 24.0) ** 2)
+    [term] = close_loop(bent, 3, 2, LoopOptions(node_signals=('supply_v',))).extended.terms
+    assert term.signal == 'supply_v' and term.powers == (1, 2)
+    assert term.coefficients[1] == pytest.approx(0.008, rel=0.1)
