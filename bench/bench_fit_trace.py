@@ -2,7 +2,8 @@
 
 Reports wall and CPU time of the loop (the machine's load average beside them, as other
 work on a shared machine slows the wall clock), the CPU time of ``calibrate fit``'s start-up
-check and of its comparison with the packaged calibration after it, and the process's peak resident memory;
+check, of the window terms' cost and of its comparison with the packaged calibration after them, and the
+process's peak resident memory;
 then the same runs written as CSV logs and fitted by the command itself (``calibrate fit``, a child process: every
 step, the window terms' cost and the report included, figures not), its CPU time and peak memory. Run:
 ``python bench/bench_fit_trace.py [--hours 24] [--rate-hz 10]``; ``--runs 3 --hours 12``: a several-run fit of the
@@ -28,11 +29,13 @@ from art_gyro_calibration.analysis.replay import startup_check
 from art_gyro_calibration.analysis.runs import joined
 from art_gyro_calibration.analysis.simulate import (EFFECTS, SimulatedRun, SimulationSettings, same_gyro, simulate_run,
                                                     warm_restart, write_run)
+from art_gyro_calibration.analysis.window_cost import window_cost
+from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
 from art_gyro_calibration.units import SECONDS_PER_HOUR
 
 
 def main() -> None:
-    """Simulate, then time close_loop and the start-up check."""
+    """Simulate, then time close_loop, the start-up check, the window cost and the baseline comparison."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--hours', type=float, default=24.0)
     parser.add_argument('--rate-hz', type=float, default=10.0)
@@ -55,6 +58,10 @@ def main() -> None:
     check_cpu = time.process_time()
     checked, check, _ = startup_check(result, log)
     check_cpu = time.process_time() - check_cpu
+    window_cpu = time.process_time()
+    window = window_cost(checked, fitted, DEFAULT_SAMPLES)
+    window_cpu = time.process_time() - window_cpu
+    checked = window.result
     baseline_cpu = time.process_time()
     versus = compare_with_baseline(log, checked, checked.extended, cal, f'config/{args.serial}.yaml')
     baseline_cpu = time.process_time() - baseline_cpu
@@ -65,6 +72,9 @@ def main() -> None:
           f'peak RSS {peak_mib:.0f} MiB (whole process, simulation included)')
     dropped = ', '.join(d.term.signal for d in check.dropped) if check else 'no check'
     print(f'start-up check: {check_cpu:.2f} s CPU; dropped: {dropped or "nothing"}')
+    not_written = ', '.join(c.signal for c in window.costs if not c.written)
+    print(f'window terms\' cost: {window_cpu:.2f} s CPU; {len(window.costs)} judged, not written: '
+          f'{not_written or "none"}')
     verdict = f'{versus.verdict} ({versus.refit_dph:.2f} against {versus.baseline_dph:.2f} deg/h)' if versus else 'none'
     print(f'baseline comparison: {baseline_cpu:.2f} s CPU; verdict: {verdict}')
     command(simulated, args.serial, cal.polynomial.rows, cal.polynomial.columns)
