@@ -251,7 +251,11 @@ def test_line_faults_are_counted_and_no_good_frame_is_lost(tmp_path: Path, loopb
         held_back = counter(link, 'rejected_unlocked') - unlocked
         assert held_back >= LOCK_FRAMES - 1
         assert counter(link, 'bytes_skipped') == sum(map(len, faults)) + 8 * (held_back + unlocked)
-        assert link['connected'] == 'True' and link['level'] == OK
+        assert link['connected'] == 'True'
+        # The report that first counts them all may still cover the faults' second (it was once an ERROR, at CI);
+        # the link is OK once they stop. What they cost in frames is checked below, by sequence number.
+        listener.wait_status('link', lambda s: s['connected'] == 'True' and s['level'] == OK,
+                             'the link OK after the faults', proc, output)
         # Nothing of the above passed as a frame: only the fake's own frames, none lost but those held back.
         assert len(residues(listener.temperatures(start))) == len(listener.temperatures(start))
         wait_lost_held_back(listener, unlocked, 0, proc, output)
