@@ -183,8 +183,9 @@ def _kernel(bin_k: NDArray[np.int64], run_bins: int, residual: NDArray[np.float6
 class _Fit:
     """The polynomial, a constant per run beyond the first and ``specs`` on the loop's steady rows, and its spread.
 
-    ``beta`` (scaled, :class:`Design`) of all rows; several runs: ``replicates``, one per run left out; one:
-    ``influence`` (how beta moves with each bin's error) and ``kernel`` (the noise's autocovariance per lag).
+    ``beta`` (scaled, :class:`Design`) of all rows; ``influence`` (how beta moves with each bin's error) and
+    ``kernel`` (the noise's covariance per lag, :func:`_kernel`); several runs: also ``replicates``, one per run
+    left out.
     ``projection``: the term columns' least-squares projection on the polynomial's (and the runs' constants).
     ``free_time_constants``: each spec with a time constant has its twin (:data:`TWIN_LOG_STEP`) beside it, its
     columns among the spec's (``columns``).
@@ -263,8 +264,9 @@ class _Fit:
     def spread(self, statistic: NDArray[np.float64]) -> float:
         """The standard deviation of ``statistic @ beta`` (deg/s) from the noise, and at least over the runs left out.
 
-        From the noise: at least its white part (lag 0), as a residual's long lags read below zero (the fit and its
-        mean take part of a wander out of it). The runs left out alone may agree by chance (two or three runs).
+        From the noise: at least its lag-0 product (a floor kept from the kernel read off the residual, whose long
+        lags could read below zero; under the fitted kernel it binds only where the statistic's own influence
+        alternates in sign). The runs left out alone may agree by chance (two or three runs).
         """
         h = np.zeros(int(self.bin_k[-1]) + 1)
         h[self.bin_k] = statistic @ self.influence
