@@ -252,6 +252,7 @@ class SerialGyroDriver:
             if data == b'':   # readable with nothing to read: pyserial's sign of a device gone
                 raise serial.SerialException('device reports readiness to read but returned no data '
                                              '(device disconnected or multiple access on port?)')
+            before_ns = self._monotonic_ns()   # the offset of the two clocks is read between two monotonic reads
             now_ns = self._clock_ns()
             monotonic_ns = self._monotonic_ns()
         except BlockingIOError:   # woken with nothing to read after all
@@ -265,7 +266,7 @@ class SerialGyroDriver:
             self._check_path()
             self._check_quiet(monotonic_ns)
             return
-        self._on_data(data, now_ns, monotonic_ns)
+        self._on_data(data, now_ns, monotonic_ns, monotonic_ns - before_ns)
 
     def _release(self) -> None:
         """Deliver the frame the look-ahead holds, if any, without its next one."""
@@ -275,13 +276,16 @@ class SerialGyroDriver:
             self._guard.release()
             self._on_frame(held)
 
-    def _on_data(self, data: bytes, now_ns: int, monotonic_ns: int) -> None:
-        """One read's bytes, read at ``now_ns`` (stamps' clock) and ``monotonic_ns``: parsed, stamped, guarded."""
+    def _on_data(self, data: bytes, now_ns: int, monotonic_ns: int, clock_read_ns: int) -> None:
+        """One read's bytes, read at ``now_ns`` (stamps' clock, read in ``clock_read_ns`` before) and ``monotonic_ns``.
+
+        Parsed, stamped, guarded.
+        """
         frames = self._parser.feed(data, monotonic_ns)
         self._window_bytes += len(data)
         if monotonic_ns - self._window_ns >= NO_FRAMES_WARNING_S * 1e9:
             self._check_share(monotonic_ns)
-        stamps = self._stamper.stamp(now_ns, monotonic_ns, len(data), [end for _, end in frames])
+        stamps = self._stamper.stamp(now_ns, monotonic_ns, len(data), [end for _, end in frames], clock_read_ns)
         if self._stamper.too_fast and not self._too_fast_said:
             self._too_fast_said = True
             self._warn(self._stamper.too_fast)
@@ -329,12 +333,11 @@ class SerialGyroDriver:
             return stamps
         self._stamp_source = 'unit_clock'
         offset, steps = self._stamper.offset_ns, self._stamper.steps_ns
-        latest = stamps[-1][0]   # the chunk's last message arrived then: none of the chunk left the unit later
         out = []
         for (sample, _), (arrival, _steady) in zip(frames, stamps):
             stamp = arrival
             if sample.unit_time_us is not None:
-                stamp = min(latest, clock.map(sample.unit_time_us) + offset)
+                stamp = clock.map(sample.unit_time_us) + offset
             if stamp <= self._last_stamp and not self._stamper.step_ns:   # never back, but a clock step
                 stamp = self._last_stamp + 1
             self._last_stamp = stamp

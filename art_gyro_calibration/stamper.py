@@ -10,6 +10,7 @@ freezing them or spreading it. Pure: no I/O.
 from __future__ import annotations
 
 import math
+from collections import deque
 
 from art_gyro_calibration.frame import BITS_PER_BYTE
 
@@ -18,15 +19,18 @@ from art_gyro_calibration.frame import BITS_PER_BYTE
 # late, by up to a few hundred ms when its executor is busy: within
 # this it is jitter, which stamps never follow backwards.
 CLOCK_STEP_NS = 1_000_000_000
+# A read of the caller's clock that took longer than this and 4 times the quickest was preempted between the
+# monotonic clock's reads around it: the offset it gives is off by up to its duration, and the one before is kept.
+CLOCK_READ_NS = 20_000
 # A measured interval per frame this far from the period estimate is a lost frame or a reopen, not the period.
 PERIOD_ACCEPT = (0.6, 1.6)
 PERIOD_SMOOTHING = 16   # the estimate averages about this many chunks
 # A unit's clock (kvh_fog Format B) is mapped once the mapping spans this long.
 UNIT_CLOCK_BASELINE_S = 1.0
-# The unit's clock is mapped to the host's over about this long: the drift a temperature change brings is followed.
-UNIT_CLOCK_MEMORY_S = 60.0
-# The lower envelope of the arrivals (the least delayed message) may rise this fast (s/s): a slowly shrinking delay.
-UNIT_CLOCK_RELAX = 1e-4
+# The mapping is the line under the least delayed arrivals of this long: the drift a temperature change brings is
+# followed, and a delay that grows for good after this long.
+UNIT_CLOCK_WINDOW_S = 20.0
+UNIT_CLOCK_BUCKET_S = 0.25   # the least delayed arrival is kept per this long
 # The mapping is slewed, never stepped, at most this fast (s/s): stamps stay the unit's period apart within 0.1 %.
 UNIT_CLOCK_SLEW = 1e-3
 
@@ -59,8 +63,8 @@ class WireStamper:
     """
 
     __slots__ = ('byte_ns', 'frame_ns', 'period_ns', '_updates', '_last_steady', '_last_stamp', '_last_out',
-                 '_offset_ns', '_pending_ns', 'steps_ns', 'step_ns', '_frame_bytes', '_bytes', '_first_ns', 'baud',
-                 'too_fast', 'ahead')
+                 '_offset_ns', '_pending_ns', '_quickest_read_ns', 'steps_ns', 'step_ns', '_frame_bytes', '_bytes',
+                 '_first_ns', 'baud', 'too_fast', 'ahead')
 
     def __init__(self, baud: int, frame_bytes: int) -> None:
         self.byte_ns = wire_byte_ns(baud)
@@ -72,6 +76,7 @@ class WireStamper:
         self._last_out = 0                     # the last steady time handed out
         self._offset_ns: int | None = None     # caller's clock minus the monotonic clock
         self._pending_ns: int | None = None    # an offset one read saw beyond a step, not yet confirmed
+        self._quickest_read_ns = math.inf   # the quickest read of the caller's clock
         self.steps_ns = 0               # sum of the clock steps re-anchored to
         self.step_ns = 0                # the step found by the latest chunk, 0 if none
         self.baud = baud
@@ -90,10 +95,13 @@ class WireStamper:
         """The caller's clock less the monotonic clock, as the latest chunk was stamped with."""
         return self._offset_ns or 0
 
-    def stamp(self, clock_ns: int, monotonic_ns: int, chunk_bytes: int,
-              ends: list[int]) -> list[tuple[int, int]]:
-        """(stamp, steady) of the frames ending at ``ends`` of a chunk whose read returned at the given times."""
-        offset = self._clock_offset(clock_ns - monotonic_ns)
+    def stamp(self, clock_ns: int, monotonic_ns: int, chunk_bytes: int, ends: list[int],
+              clock_read_ns: int = 0) -> list[tuple[int, int]]:
+        """(stamp, steady) of the frames ending at ``ends`` of a chunk whose read returned at the given times.
+
+        The caller's clock was read between ``monotonic_ns - clock_read_ns`` and ``monotonic_ns``.
+        """
+        offset = self._clock_offset(clock_ns - monotonic_ns + clock_read_ns // 2, clock_read_ns)
         if not ends:
             return []
         previous = self._last_steady
@@ -104,9 +112,15 @@ class WireStamper:
         self._last_steady = steady[-1]
         return self._hand_out(steady, offset)
 
-    def _clock_offset(self, offset: int) -> int:
-        """The offset to stamp this chunk with: ``offset`` read now, or the one before while a step is unconfirmed."""
+    def _clock_offset(self, offset: int, read_ns: int) -> int:
+        """The offset to stamp this chunk with: ``offset`` read now (in ``read_ns``), or the one before.
+
+        The one before while a step is unconfirmed, or when the read was preempted.
+        """
         self.step_ns = 0
+        self._quickest_read_ns = min(self._quickest_read_ns, read_ns)
+        if self._offset_ns is not None and read_ns > max(CLOCK_READ_NS, 4 * self._quickest_read_ns):
+            return self._offset_ns
         if self._offset_ns is not None and abs(offset - self._offset_ns) > CLOCK_STEP_NS:
             # A step is taken when a second read agrees on it: one read of a clock that goes back and
             # forth (a simulated /clock whose messages two executor threads apply out of order) is none.
@@ -208,15 +222,17 @@ class WireStamper:
 class UnitClock:
     """Format B's microsecond clock mapped onto the host's monotonic clock: drift and offset tracked.
 
-    A line through (unit time, arrival) by least squares with exponential forgetting over about
-    UNIT_CLOCK_MEMORY_S (so a drift that changes with temperature is followed), lowered to the
-    envelope of the least delayed arrivals (a stamp is when the message left the unit, not when a
-    busy host read it), that envelope taken from half of UNIT_CLOCK_BASELINE_S on. Ready once it has
-    spanned UNIT_CLOCK_BASELINE_S; :meth:`reset` when the
-    clock is broken (a reopen, a clock fault), after which the driver stamps by arrival again.
+    A stamp is when the message left the unit, not when a busy host read it: the mapping is the line
+    under every (unit time, arrival) of the last UNIT_CLOCK_WINDOW_S that lies closest to them on
+    the whole (an edge of their lower hull: the least delayed arrivals, by linear programming as
+    Moon, Skelly and Towsley, "Estimation and removal of clock skew from network delay
+    measurements", INFOCOM 1999). A least-squares line would follow the mean delay, which the
+    host's load moves. The hull is of the least delayed arrival of each UNIT_CLOCK_BUCKET_S. Ready
+    once it has spanned UNIT_CLOCK_BASELINE_S; :meth:`reset` when the clock is broken (a reopen, a
+    clock fault), after which the driver stamps by arrival again.
     """
 
-    __slots__ = ('_w', '_n0', '_t0', '_mean_n', '_mean_t', '_c_nt', '_c_nn', '_low', '_first_ns', '_last_ns',
+    __slots__ = ('_n0', '_t0', '_first_ns', '_last_ns', '_lows', '_bucket', '_bucket_end_ns', '_line', '_latest',
                  '_mapped')
 
     def __init__(self) -> None:
@@ -224,58 +240,82 @@ class UnitClock:
 
     def reset(self) -> None:
         """Forget the mapping."""
-        self._w = 0.0
         self._n0 = self._t0 = 0
-        self._mean_n = self._mean_t = self._c_nt = self._c_nn = 0.0
-        self._low = math.inf
         self._first_ns = self._last_ns = 0
+        # (unit time, arrival) since the first, in us and ns: the least delayed of each past bucket, of the current.
+        self._lows: deque[tuple[float, float]] = deque(maxlen=round(UNIT_CLOCK_WINDOW_S / UNIT_CLOCK_BUCKET_S))
+        self._bucket: tuple[float, float] | None = None
+        self._bucket_end_ns: int | None = None
+        self._line: tuple[float, float, float] | None = None   # (unit time, arrival) on it, and its slope
+        self._latest = 0.0   # the latest arrival: no message mapped after it
         self._mapped: tuple[int, float] | None = None   # the last (unit time, mapped time) given
 
     @property
     def ready(self) -> bool:
         """The mapping spans UNIT_CLOCK_BASELINE_S."""
-        return math.isfinite(self._low) and self._last_ns - self._first_ns >= UNIT_CLOCK_BASELINE_S * 1e9
+        return self._line is not None and self._last_ns - self._first_ns >= UNIT_CLOCK_BASELINE_S * 1e9
 
     def add(self, unit_us: int, arrival_ns: int) -> None:
         """A message of unit time ``unit_us`` (unwrapped) arrived at ``arrival_ns`` (monotonic, wire time less)."""
-        if not self._w:
+        if self._bucket_end_ns is None:
             self._n0, self._t0, self._first_ns = unit_us, arrival_ns, arrival_ns
-            self._last_ns = arrival_ns
-        n = float(unit_us - self._n0)
-        t = float(arrival_ns - self._t0)
-        decay = math.exp(-(arrival_ns - self._last_ns) * 1e-9 / UNIT_CLOCK_MEMORY_S)
-        self._low += (arrival_ns - self._last_ns) * UNIT_CLOCK_RELAX
+            self._bucket_end_ns = arrival_ns
         self._last_ns = arrival_ns
-        self._w = self._w * decay + 1.0
-        dn = n - self._mean_n
-        self._mean_n += dn / self._w
-        self._mean_t += (t - self._mean_t) / self._w
-        self._c_nt = self._c_nt * decay + dn * (t - self._mean_t)
-        self._c_nn = self._c_nn * decay + dn * (n - self._mean_n)
-        if self._c_nn > 0.0 and self._last_ns - self._first_ns >= UNIT_CLOCK_BASELINE_S * 0.5e9:
-            # Over the half second before it is ready: earlier, the line is too loose for its residuals.
-            self._low = min(self._low, t - self._line(n))
-
-    def _line(self, n: float) -> float:
-        return self._mean_t + self._c_nt / self._c_nn * (n - self._mean_n)
+        n, t = float(unit_us - self._n0), float(arrival_ns - self._t0)
+        self._latest = t
+        bucket = self._bucket
+        slope = self._line[2] if self._line is not None else 1e3
+        if bucket is None or t - bucket[1] < slope * (n - bucket[0]):   # less delayed than the bucket's least
+            bucket = self._bucket = (n, t)
+        if arrival_ns >= self._bucket_end_ns:
+            self._lows.append(bucket)
+            self._bucket = None
+            self._bucket_end_ns = arrival_ns + int(UNIT_CLOCK_BUCKET_S * 1e9)
+            self._line = _support_line(self._lows) or self._line
 
     @property
     def ns_per_us(self) -> float:
         """Host nanoseconds per unit microsecond (1000 less the unit clock's drift)."""
-        return self._c_nt / self._c_nn if self._c_nn > 0.0 else math.nan
+        return self._line[2] if self._line is not None else math.nan
 
     def map(self, unit_us: int) -> int:
         """The monotonic time at which the message of unit time ``unit_us`` left the unit (call when ready).
 
-        The line and its envelope move as arrivals come: the mapping follows them by at most
-        UNIT_CLOCK_SLEW from the last time it gave, so stamps never jump.
+        The line moves as arrivals come: the mapping follows it by at most UNIT_CLOCK_SLEW from the
+        last time it gave, so stamps never jump; never after the latest arrival, and the messages after
+        one held there go on from it.
         """
+        assert self._line is not None
         n = float(unit_us - self._n0)
-        target = self._line(n) + (self._low if math.isfinite(self._low) else 0.0)
+        n_on, t_on, slope = self._line
+        target = t_on + slope * (n - n_on)
+        if self._bucket is not None:
+            target = min(target, self._bucket[1] + slope * (n - self._bucket[0]))
         if self._mapped is not None and unit_us > self._mapped[0]:
             elapsed_us = unit_us - self._mapped[0]
-            predicted = self._mapped[1] + elapsed_us * self.ns_per_us
+            predicted = self._mapped[1] + elapsed_us * slope
             step = UNIT_CLOCK_SLEW * elapsed_us * 1e3
             target = predicted + min(step, max(-step, target - predicted))
+        target = min(target, self._latest)
         self._mapped = (unit_us, target)
         return self._t0 + int(target)
+
+
+def _support_line(points: deque[tuple[float, float]]) -> tuple[float, float, float] | None:
+    """The edge of the points' lower hull over their mean abscissa: under them all, closest to them on the whole.
+
+    ``points`` go by abscissa; (a point on the line, its slope), or None while there are fewer than two.
+    """
+    hull: list[tuple[float, float]] = []
+    for p in points:   # Andrew's monotone chain, lower half
+        while len(hull) >= 2 and ((hull[-1][0] - hull[-2][0]) * (p[1] - hull[-2][1])
+                                  - (hull[-1][1] - hull[-2][1]) * (p[0] - hull[-2][0])) <= 0.0:
+            hull.pop()
+        hull.append(p)
+    if len(hull) < 2:
+        return None
+    middle = sum(p[0] for p in points) / len(points)
+    for a, b in zip(hull, hull[1:]):
+        if b[0] >= middle:
+            break
+    return a[0], a[1], (b[1] - a[1]) / (b[0] - a[0])

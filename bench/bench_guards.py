@@ -90,7 +90,7 @@ def run(protocol: str, rate_hz: float, raw_rates: NDArray[np.int64], raw_temps: 
     latency = rng.uniform(0, 0.3 * period_ns, len(wire))
     for i, chunk in enumerate(wire):
         now[0] = int(t0 + i * period_ns + len(chunk) * 1e10 / BAUD + latency[i])
-        driver._on_data(chunk, now[0], now[0])   # the per-chunk path, without a device
+        driver._on_data(chunk, now[0], now[0], 0)   # the per-chunk path, without a device
     driver._release()   # the last frame, held by the look-ahead
     index = np.array([round((f.steady_ns - t0) / period_ns) for f in frames], dtype=np.int64)
     return frames, index, driver

@@ -39,7 +39,7 @@ def deliver(protocol, rates, temps, rate_hz, seed=0, lost=(), look_ahead=False):
             continue
         chunk = encode(int(rate), int(temp))
         now[0] = int(1e9 + i * 1e9 / rate_hz + len(chunk) * 1e10 / BAUD + latency[i])
-        driver._on_data(chunk, now[0], now[0])   # the per-chunk path, without a device
+        driver._on_data(chunk, now[0], now[0], 0)   # the per-chunk path, without a device
     driver._release()   # the last frame, if the look-ahead holds it
     return got, driver.stats
 

@@ -107,6 +107,23 @@ def test_a_clock_that_goes_back_and_forth_for_one_read_is_no_step():
     assert np.all(np.abs(steps - period) < 1000)
 
 
+def test_a_clock_read_preempted_before_the_monotonic_read_moves_no_stamp():
+    """The caller's clock read 3 ms before the monotonic clock (the thread preempted between them): the offset before.
+
+    Such an offset, 3 ms off, was once taken, and that chunk's stamp moved with it.
+    """
+    period = 5_000_000
+    stamper = WireStamper(921600, 8)
+    wall = 1_700_000_000_000_000_000
+    stamps = []
+    for k in range(60):
+        mono = k * period
+        read = 3_000_000 if k in (30, 41) else 2_000   # the clock read this long before the monotonic read
+        stamps += stamper.stamp(wall + mono - read, mono, 8, [8], read)
+    steps = np.diff([s for s, _ in stamps[20:]])
+    assert np.all(np.abs(steps - period) < 1000), steps
+
+
 def test_the_steady_time_never_goes_back_across_a_step_after_a_stale_clock_read():
     """A /clock read 50 ms stale held the stamps up (never back); the step's chunk, not held, went 20 ms back.
 
@@ -187,6 +204,30 @@ def test_unit_clock_maps_format_b_time_to_the_host_with_its_drift_and_offset(dri
     assert len(errors) > 200 * 18
     assert max(abs(e) for e in errors) < 300_000   # from the moment it is ready
     assert clock.ns_per_us == pytest.approx(1000.0 / (1 + drift_ppm * 1e-6), rel=2e-6)
+
+
+def test_unit_clock_s_mapping_stays_at_the_least_delayed_arrivals_when_the_load_changes():
+    """A host that gets busy (messages read 3 ms late on average instead of 0.1) for 20 s, then idle again.
+
+    The mapping was a least-squares line, which rises with the mean delay, lowered by the least delayed
+    arrival's distance below it as it was then: a busy host lifted it above the arrivals (stamps held at
+    them, out of the unit's period, in CI). Now: never after an arrival, the unit's period apart within the slew.
+    """
+    rng = random.Random(5)
+    clock = UnitClock()
+    boot_ns = 5_000_000_000
+    mapped, late = [], 0
+    for i in range(200 * 60):
+        true_ns = boot_ns + i * 5_000_000
+        unit_us = round((true_ns - boot_ns) * 1e-3 * (1 + 40e-6))
+        mean_delay = 3e6 if 20 * 200 <= i < 40 * 200 else 1e5
+        arrival = true_ns + 50_000 + int(rng.expovariate(1.0 / mean_delay))
+        clock.add(unit_us, arrival)
+        if clock.ready:
+            mapped.append(clock.map(unit_us))
+            late += mapped[-1] > arrival
+    assert late == 0
+    assert np.all(np.abs(np.diff(mapped) - 5_000_000) < 6_000)   # the slew: 5 us a message at most
 
 
 # --- stamps of a recorded sequence of reads, to the nanosecond ------------------------------------------------------
