@@ -26,7 +26,7 @@ import serial
 from art_gyro_calibration.frame import LOCK_FRAMES, Frame, RawSample
 from art_gyro_calibration.frame_guard import FrameGuard
 from art_gyro_calibration.protocols import KVH_BAUDS, KvhFogConfig, make_parser
-from art_gyro_calibration.stamper import UnitClock, WireStamper, wire_byte_ns
+from art_gyro_calibration.stamper import STAMP_STEP_NS, UnitClock, WireStamper, held_after, wire_byte_ns
 
 STANDARD_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 # Every rate the driver opens: the standard ones and a KVH unit's (576000, 4147200: pyserial sets them on Linux).
@@ -334,12 +334,12 @@ class SerialGyroDriver:
         self._stamp_source = 'unit_clock'
         offset, steps = self._stamper.offset_ns, self._stamper.steps_ns
         out = []
-        for (sample, _), (arrival, _steady) in zip(frames, stamps):
+        for i, ((sample, _), (arrival, _steady)) in enumerate(zip(frames, stamps)):
             stamp = arrival
             if sample.unit_time_us is not None:
                 stamp = clock.map(sample.unit_time_us) + offset
-            if stamp <= self._last_stamp and not self._stamper.step_ns:   # never back, but a clock step
-                stamp = self._last_stamp + 1
+            if stamp < self._last_stamp + STAMP_STEP_NS and not self._stamper.step_ns:   # never back, but a clock step
+                stamp = held_after(self._last_stamp, monotonic_ns + offset, len(frames) - i)
             self._last_stamp = stamp
             out.append((stamp, stamp - steps))
         return out

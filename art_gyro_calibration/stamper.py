@@ -19,6 +19,10 @@ from art_gyro_calibration.frame import BITS_PER_BYTE
 # late, by up to a few hundred ms when its executor is busy: within
 # this it is jitter, which stamps never follow backwards.
 CLOCK_STEP_NS = 1_000_000_000
+# A stamp held from going back is this much after the last, if the read's frames fit so before it returned: a CSV
+# log keeps microseconds, and a float of seconds since 1970 (a bag's reader, a ROS consumer's) resolves 2.4e-7 s;
+# stamps a nanosecond apart were one there. A backlog read faster than that shares what fits.
+STAMP_STEP_NS = 1_000
 # A read of the caller's clock that took longer than this and 4 times the quickest was preempted between the
 # monotonic clock's reads around it: the offset it gives is off by up to its duration, and the one before is kept.
 CLOCK_READ_NS = 20_000
@@ -110,7 +114,7 @@ class WireStamper:
             self._floor(steady, previous)
         self._ceiling(steady, monotonic_ns, chunk_bytes, ends)
         self._last_steady = steady[-1]
-        return self._hand_out(steady, offset)
+        return self._hand_out(steady, offset, monotonic_ns + offset)
 
     def _clock_offset(self, offset: int, read_ns: int) -> int:
         """The offset to stamp this chunk with: ``offset`` read now (in ``read_ns``), or the one before.
@@ -186,13 +190,16 @@ class WireStamper:
                                      f'bytes/s measured, {self.baud // BITS_PER_BYTE} at most): stamped at arrival '
                                      'less their wire time at the measured rate; check the baud parameter')
 
-    def _hand_out(self, steady: list[int], offset: int) -> list[tuple[int, int]]:
-        """(stamp, steady) on the caller's clock by ``offset``: neither goes back (but a stamp at a clock step)."""
+    def _hand_out(self, steady: list[int], offset: int, read_at: int) -> list[tuple[int, int]]:
+        """(stamp, steady) on the caller's clock by ``offset``: neither goes back (but a stamp at a clock step).
+
+        ``read_at``: when the read returned, on the caller's clock.
+        """
         out = []
-        for t in steady:
+        for i, t in enumerate(steady):
             stamp = t + offset
-            if not self.step_ns and stamp <= self._last_stamp:   # jitter of a coarse clock: never back
-                stamp = self._last_stamp + 1
+            if not self.step_ns and stamp < self._last_stamp + STAMP_STEP_NS:   # jitter of a coarse clock: never back
+                stamp = held_after(self._last_stamp, read_at, len(steady) - i)
             self._last_stamp = stamp
             # The steady time never goes back either, a step's chunk included: the stamps before it may have
             # been held up by a stale clock read (a /clock 50 ms late, then a step: the raw log went 20 ms back).
@@ -217,6 +224,14 @@ class WireStamper:
             return
         self._updates += 1
         self.period_ns = period + (per_frame - period) / min(self._updates, PERIOD_SMOOTHING)
+
+
+def held_after(last_ns: int, read_at_ns: int, frames: int) -> int:
+    """A stamp held from going back, the first of ``frames`` left in a read that returned at ``read_at_ns``.
+
+    STAMP_STEP_NS after ``last_ns``, or less so that all fit by ``read_at_ns`` (a nanosecond at least).
+    """
+    return last_ns + max(1, min(STAMP_STEP_NS, (read_at_ns - last_ns) // frames))
 
 
 class UnitClock:
