@@ -40,8 +40,6 @@ def record_topics(out: str, namespace: str, duration_s: float | None, quiet_s: f
     rclpy.init(args=[])
     try:
         return _record(out, namespace, duration_s, quiet_s)
-    except ExternalShutdownException:
-        return 0
     finally:
         rclpy.utilities.try_shutdown()
 
@@ -69,7 +67,7 @@ def _record(out: str, namespace: str, duration_s: float | None, quiet_s: float) 
             if hint_at and not writer and time.monotonic() >= hint_at:
                 print(_silence_hint(rate_topic, quiet_s), file=sys.stderr, flush=True)
                 hint_at = 0.0
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):   # the latter: Ctrl-C while spin_once waits
         pass   # a stop as asked: the bag is finished below
     finally:
         node.destroy_node()   # type: ignore[no-untyped-call]  # rclpy leaves it unannotated
