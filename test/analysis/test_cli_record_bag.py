@@ -76,9 +76,10 @@ def test_record_refuses_a_bag_named_mcap_and_an_existing_bag(tmp_path: Path,
 def test_a_record_stopped_by_sigint_keeps_what_came_and_rows_land_as_they_come(tmp_path: Path, name: str) -> None:
     out = tmp_path / name
     with FakeGyro('NAVC3545', rate_hz=100, profile='30', temperature=31.5, seed=5) as fake:
-        proc = subprocess.Popen([sys.executable, '-m', 'art_gyro_calibration.analysis.cli', 'record', '--port',
-                                 fake.path, '--baud', '115200', '--out', str(out), '--serial', 'NAVC3545'],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+        # -X faulthandler: a record that outlives the wait is made to say where its threads are (SIGABRT).
+        proc = subprocess.Popen([sys.executable, '-X', 'faulthandler', '-m', 'art_gyro_calibration.analysis.cli',
+                                 'record', '--port', fake.path, '--baud', '115200', '--out', str(out), '--serial',
+                                 'NAVC3545'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
         try:
             deadline = time.monotonic() + 20
             while not out.exists() and time.monotonic() < deadline:
@@ -87,7 +88,13 @@ def test_a_record_stopped_by_sigint_keeps_what_came_and_rows_land_as_they_come(t
             if name.endswith('.csv'):   # rows reach the file itself while recording, not a hidden one
                 assert len(out.read_text().splitlines()) > 100
             proc.send_signal(signal.SIGINT)
-            stdout, stderr = proc.communicate(timeout=20)
+            try:
+                stdout, stderr = proc.communicate(timeout=20)
+            except subprocess.TimeoutExpired:   # once in CI-like load, both cases: say where it was
+                proc.send_signal(signal.SIGABRT)
+                stdout, stderr = proc.communicate(timeout=20)
+                pytest.fail(f'record did not end within 20 s of SIGINT; its stdout: {stdout!r}; '
+                            f'its stderr and threads: {stderr[-6000:]}')
         finally:
             if proc.poll() is None:
                 os.kill(proc.pid, signal.SIGKILL)
