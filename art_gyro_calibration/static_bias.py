@@ -260,25 +260,28 @@ class Refinement:
         solved = counted[last[1:] != last[:-1]]
         # Per sample, the provisional fit in force: -1 the one before these samples, else an index into solved.
         in_force = np.searchsorted(solved, np.arange(len(t)), side='right') - 1
-        slopes = np.zeros((len(solved) + 1, REFINE_DEGREE))
-        means = np.zeros(len(solved) + 1)
-        has = np.zeros(len(solved) + 1, dtype=bool)
-        if self.slope is not None:
-            slopes[-1], means[-1], has[-1] = self.slope, self.window_terms_dps, True
-        for i, row in enumerate(solved):
-            self._provisional(sums[row])
-            if self.slope is not None:
-                slopes[i], means[i], has[i] = self.slope, self.window_terms_dps, True
+        solved_slopes, determined = _slopes(sums[solved], self.span_s)
+        solved_means = np.zeros(len(solved))
+        if determined.any():
+            solved_means[determined] = self._window_terms(solved_slopes[determined])
+        # Rows: the solves, then the fit in force before these samples (-1). A solve not determined keeps the last.
+        slopes = np.vstack((solved_slopes, self.slope if self.slope is not None else np.zeros(REFINE_DEGREE)))
+        means = np.append(solved_means, self.window_terms_dps)
+        has = np.append(determined, self.slope is not None)
+        kept = np.maximum.accumulate(np.where(determined, np.arange(len(solved)), -1))
+        row = np.append(kept, -1)[in_force]
+        if determined.any():
+            self.slope, self.window_terms_dps = solved_slopes[kept[-1]].copy(), float(solved_means[kept[-1]])
         out = others_dps + window.causal_dps
-        fitted = has[in_force]
+        fitted = has[row]
         if fitted.any():
             u = (t[fitted] - self.center) / self.span_s
-            rate_of_temp = np.asarray(np.polynomial.polynomial.polyval(u, slopes[in_force[fitted]].T, tensor=False),
+            rate_of_temp = np.asarray(np.polynomial.polynomial.polyval(u, slopes[row[fitted]].T, tensor=False),
                                       dtype=np.float64)
             terms = np.zeros(len(rate_of_temp))
             for term in self.terms:
                 terms += term.evaluate(rate_of_temp, rate_dps[fitted])
-            out[fitted] += terms - means[in_force[fitted]]
+            out[fitted] += terms - means[row[fitted]]
         if len(t):
             self.sums = sums[-1].copy()
             self.tick = int(last[-1])
@@ -288,15 +291,20 @@ class Refinement:
         """Solve the fit for the samples summed in ``sums``; if it is not determined, keep the last."""
         slope = _slope(sums, self.span_s)
         if slope is not None:
-            self.slope, self.window_terms_dps = slope, self._window_terms(slope)
+            self.slope, self.window_terms_dps = slope, float(self._window_terms(slope[None])[0])
 
-    def _window_terms(self, slope: NDArray[np.float64]) -> float:
-        """The terms' mean over the window with the temperature rate of ``slope`` at each window sample."""
+    def _window_terms(self, slopes: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per row of ``slopes``: the terms' mean over the window with the temperature rate it gives each sample."""
         window = self.bias.window
         assert window is not None
-        rate_of_temp = np.asarray(np.polynomial.polynomial.polyval((window.t - self.center) / self.span_s, slope),
-                                  dtype=np.float64)
-        return float(sum(np.mean(t.evaluate(rate_of_temp, window.rate_dps)) for t in self.terms))
+        n = len(window.t)
+        rate_of_temp = np.asarray(np.polynomial.polynomial.polyval((window.t - self.center) / self.span_s, slopes.T),
+                                  dtype=np.float64).ravel()
+        rate = np.tile(window.rate_dps, len(slopes))
+        total = np.zeros(len(slopes))
+        for term in self.terms:
+            total += term.evaluate(rate_of_temp, rate).reshape(-1, n).mean(axis=1)
+        return total
 
     def refined(self) -> StaticBias:
         """The static bias with ``CalcStaticBiasDrift`` recomputed; unchanged if the fit is not determined."""
@@ -305,7 +313,7 @@ class Refinement:
             return replace(self.bias, window=None)
         window = self.bias.window
         assert window is not None
-        delta = self._window_terms(slope) - window.causal_dps
+        delta = float(self._window_terms(slope[None])[0]) - window.causal_dps
         return replace(self.bias, calc_static_bias_drift_dps=self.bias.calc_static_bias_drift_dps + delta,
                        window=None, refined_dps=delta)
 
@@ -324,12 +332,24 @@ def _columns(t: NDArray[np.float64], temp_c: NDArray[np.float64], center: float,
 
 def _slope(sums: NDArray[np.float64], span_s: float) -> NDArray[np.float64] | None:
     """The derivative in time of the polynomial the sums fit (coefficients in u, degC/s); None if not determined."""
+    slopes, determined = _slopes(sums[None], span_s)
+    return slopes[0] if determined[0] else None
+
+
+def _slopes(sums: NDArray[np.float64], span_s: float) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Per row of ``sums``: the derivative in time of the polynomial they fit (as :func:`_slope`), and if determined.
+
+    Rows not determined (too few samples, not finite, ill-conditioned) give zeros.
+    """
     d = REFINE_DEGREE
-    normal = np.array([[sums[i + j] for j in range(d + 1)] for i in range(d + 1)])
-    if sums[0] < d + 1 or not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
-        return None
-    coefficients = np.linalg.solve(normal, sums[2 * d + 1:])
-    return np.asarray(np.polynomial.polynomial.polyder(coefficients), dtype=np.float64) / span_s
+    normal = sums[:, np.add.outer(np.arange(d + 1), np.arange(d + 1))]
+    determined = (sums[:, 0] >= d + 1) & np.all(np.isfinite(normal), axis=(1, 2))
+    determined[determined] = np.linalg.cond(normal[determined]) <= 1e12
+    slopes = np.zeros((len(sums), d))
+    if determined.any():
+        coefficients = np.linalg.solve(normal[determined], sums[determined, 2 * d + 1:, None])[..., 0]
+        slopes[determined] = coefficients[:, 1:] * np.arange(1, d + 1) / span_s
+    return slopes, determined
 
 
 def refined_temperature_rate(t: NDArray[np.float64], temp_c: NDArray[np.float64],
