@@ -54,8 +54,8 @@ class WireStamper:
 
     :meth:`stamp` takes these steps, each a method with one reason:
 
-    1. :meth:`_clock_offset`: the caller's clock against the monotonic one; a step of it is taken
-       once two reads agree on it.
+    1. :meth:`_clock_offset`: the caller's clock against the monotonic one (a preempted read of it
+       skipped); a step of it is taken once two reads agree on it.
     2. :meth:`_last_departure`: when the chunk's last frame left the gyro (its arrival less the wire
        time of it and of the bytes after it).
     3. :meth:`_spread`: the chunk's earlier frames before it, a period apart at least (frames queued
@@ -247,8 +247,7 @@ class UnitClock:
     clock fault), after which the driver stamps by arrival again.
     """
 
-    __slots__ = ('_n0', '_t0', '_first_ns', '_last_ns', '_lows', '_bucket', '_bucket_end_ns', '_line', '_latest',
-                 '_mapped')
+    __slots__ = ('_n0', '_t0', '_first_ns', '_last_ns', '_lows', '_bucket', '_bucket_end_ns', '_line', '_mapped')
 
     def __init__(self) -> None:
         self.reset()
@@ -262,7 +261,6 @@ class UnitClock:
         self._bucket: tuple[float, float] | None = None
         self._bucket_end_ns: int | None = None
         self._line: tuple[float, float, float] | None = None   # (unit time, arrival) on it, and its slope
-        self._latest = 0.0   # the latest arrival: no message mapped after it
         self._mapped: tuple[int, float] | None = None   # the last (unit time, mapped time) given
 
     @property
@@ -277,7 +275,6 @@ class UnitClock:
             self._bucket_end_ns = arrival_ns
         self._last_ns = arrival_ns
         n, t = float(unit_us - self._n0), float(arrival_ns - self._t0)
-        self._latest = t
         bucket = self._bucket
         slope = self._line[2] if self._line is not None else 1e3
         if bucket is None or t - bucket[1] < slope * (n - bucket[0]):   # less delayed than the bucket's least
@@ -311,7 +308,7 @@ class UnitClock:
             predicted = self._mapped[1] + elapsed_us * slope
             step = UNIT_CLOCK_SLEW * elapsed_us * 1e3
             target = predicted + min(step, max(-step, target - predicted))
-        target = min(target, self._latest)
+        target = min(target, float(self._last_ns - self._t0))   # the latest arrival
         self._mapped = (unit_us, target)
         return self._t0 + int(target)
 
