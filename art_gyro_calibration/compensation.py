@@ -339,7 +339,7 @@ class Applied:
     corrected_dps: NDArray[np.float64]
     bias: StaticBias            # the static bias at the chunk's end (refined, once it was)
     kept: NDArray[np.bool_]     # per row of the log: plausible, so compensated (the node drops the rest)
-    state: SignalState          # the signals after the last kept sample: where the next chunk continues
+    signals: Signals            # the kept samples' signals (their end state is where the next chunk continues)
     outside_range: int = 0      # kept rows (this chunk and those before) outside the expected temperature range
     refinement: Refinement | None = None   # a static bias refinement still gathering temperatures
     start: RunStart = RunStart()
@@ -350,6 +350,11 @@ class Applied:
     # Kept rows (this chunk and those before) whose rate is within the unit's range and corrected rate beyond it (or
     # not a number): written uncorrected, as the node publishes them flagged (Compensator.correct).
     beyond_unit_range: int = 0
+
+    @property
+    def state(self) -> SignalState:
+        """The signals after the last kept sample: where the next chunk continues (asked of a chunk's alone)."""
+        return self.signals.end_state()
 
 
 def _fed_values(log: GyroLog, calibration: Calibration,
@@ -448,5 +453,5 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
     if beyond.any():
         corrected[beyond] = log.rate_dps[beyond]
     beyond_unit_range = int(np.count_nonzero(beyond)) + (0 if after is None else after.beyond_unit_range)
-    return Applied(comp, corrected, bias, kept, signals.end_state(), outside_range, refinement, start, last_values,
+    return Applied(comp, corrected, bias, kept, signals, outside_range, refinement, start, last_values,
                    flagged, beyond_unit_range)
