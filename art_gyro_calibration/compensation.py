@@ -36,8 +36,8 @@ from art_gyro_calibration.calibration import (MAX_UNIT_RANGE_DPS, PLAUSIBLE_TEMP
 from art_gyro_calibration.frame import INT16_MAX, NOT_FINITE
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ErrorModel
-from art_gyro_calibration.signals import (DERIVED_SIGNALS, SignalFeed, Signals, SignalState, SignalTracker,
-                                          compute_signals)
+from art_gyro_calibration.signals import (DERIVED_SIGNALS, SignalFeed, SignalFilters, Signals, SignalState,
+                                          SignalTracker, compute_signals)
 from art_gyro_calibration.static_bias import (DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, NO_BIAS,
                                               BiasWindow, Refinement, StaticBias, StaticBiasCollector,
                                               static_bias)
@@ -390,10 +390,18 @@ def _fed_values(log: GyroLog, calibration: Calibration,
     return replace(log, extras=extras), held, flagged
 
 
+def run_signals(log: GyroLog, filters: SignalFilters, start: RunStart = RunStart()) -> Signals:
+    """The signals :func:`apply_calibration` computes for a run from its first row (the rows the node keeps)."""
+    kept = plausible(log.temp_c)
+    if not kept.all():
+        log = log.slice(kept)
+    return compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters, None, start.powered_on_at_start)
+
+
 def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
                       max_mean_dps: float = DEFAULT_MAX_MEAN_DPS,
                       max_std_dps: float = DEFAULT_MAX_STD_DPS, *, after: Applied | None = None,
-                      start: RunStart = RunStart()) -> Applied:
+                      start: RunStart = RunStart(), signals: Signals | None = None) -> Applied:
     """Static bias over the first ``bias_samples`` kept rows, then compensation of every kept row.
 
     Vectorised over the log, so not :class:`FrameCorrector` itself, which the node runs; a test
@@ -404,7 +412,9 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
     holding at least ``bias_samples`` kept rows): its signals continue, and its bias is kept.
     ``start`` says how the run began (the first chunk's; later chunks continue it). A row whose corrected rate
     is beyond the unit's range is written uncorrected and counted (:attr:`Applied.beyond_unit_range`), as the node
-    publishes it flagged.
+    publishes it flagged. ``signals``: :func:`run_signals` of this log with ``calibration.filters`` and ``start``, made
+    once for several calibrations replayed on one run (not for a later chunk; not where the calibration's limits
+    move an extra signal's values: then computed here).
     """
     kept = plausible(log.temp_c)
     if not kept.all():
@@ -416,10 +426,14 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
         check_signals_available(calibration, DERIVED_SIGNALS + tuple(log.extras))
     else:
         start = after.start
+    given = log.extras
     log, last_values, flagged = _fed_values(log, calibration, after)
     model = calibration.model
-    signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, calibration.filters,
-                              None if after is None else after.state, start.powered_on_at_start)
+    if signals is None or after is not None or any(log.extras[k] is not given[k] for k in given) \
+            or (signals.filters, signals.powered_on_at_start, len(signals.t)) \
+            != (calibration.filters, start.powered_on_at_start, len(log)):
+        signals = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, calibration.filters,
+                                  None if after is None else after.state, start.powered_on_at_start)
     comp = model.error(signals)
     low, high = calibration.expected_range_c or (-math.inf, math.inf)
     outside_range = int(np.count_nonzero((log.temp_c < low) | (log.temp_c > high))) \

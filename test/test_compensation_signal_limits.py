@@ -15,7 +15,7 @@ import pytest
 from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.calibration import (SIGNAL_RANGE_MARGIN, Calibration, load_calibration,
                                               load_packaged_calibration, write_calibration)
-from art_gyro_calibration.compensation import Compensator, FrameCorrector, apply_calibration
+from art_gyro_calibration.compensation import Compensator, FrameCorrector, apply_calibration, run_signals
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ArtPolynomial
 from art_gyro_calibration.signals import SignalFeed
@@ -109,3 +109,26 @@ def test_calibrate_apply_says_how_many_rows_were_not_corrected_as_logged(tmp_pat
             'the node flags such rates uncorrected') in err, err
     out = np.loadtxt(tmp_path / 'out.csv', delimiter=',', skiprows=1)
     assert np.isfinite(out).all() and np.abs(out[:, 4]).max() < 1.0
+
+
+def test_signals_made_once_for_a_run_give_what_each_calibration_computes_alone() -> None:
+    # The baseline comparison replays many calibrations on one run with its signals made once (run_signals).
+    # Where a calibration's limits move a supply voltage beyond them, its own signals are computed, not the shared.
+    rng = np.random.default_rng(3)
+    n = 600
+    volts = np.where(np.arange(n) < 300, 24.0, 30.0)   # beyond the fitted 23..25 V half the run
+    log = GyroLog(np.arange(n) * 0.1, rng.normal(0.0, 0.01, n), np.linspace(20.0, 26.0, n),
+                  extras={'supply_v': volts})
+    no_limits, limited = _calibration(fitted=False), _calibration()
+    # A temperature-rate term on other filters: the shared signals (made with the default filters) would be wrong.
+    faster = dataclasses.replace(no_limits.filters, temperature_rate_tau_s=30.0)
+    other_filters = dataclasses.replace(no_limits, filters=faster,
+                                        terms=no_limits.terms + (Term('temperature_rate', 'power', (1.0,), (1,)),))
+    shared = run_signals(log, no_limits.filters)
+    for cal in (no_limits, limited, other_filters):
+        alone = apply_calibration(log, cal, 100, max_mean_dps=10.0)
+        given = apply_calibration(log, cal, 100, max_mean_dps=10.0, signals=shared)
+        np.testing.assert_array_equal(given.corrected_dps, alone.corrected_dps)
+    assert apply_calibration(log, no_limits, 100, max_mean_dps=10.0, signals=shared).signals is shared
+    assert apply_calibration(log, limited, 100, max_mean_dps=10.0, signals=shared).signals is not shared
+    assert apply_calibration(log, other_filters, 100, max_mean_dps=10.0, signals=shared).signals is not shared

@@ -64,9 +64,10 @@ from art_gyro_calibration.analysis.loop import LoopResult, retuned
 from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, field_errors, steady_segments
 from art_gyro_calibration.analysis.replay import RESTART_FRACTIONS, field_score_dps, own_restarts, replay_anyway
 from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibration, CalibrationError
-from art_gyro_calibration.compensation import RunStart
+from art_gyro_calibration.compensation import RunStart, run_signals
 from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.model import ArtPolynomial, Continuation, ErrorModel
+from art_gyro_calibration.signals import SignalFilters, Signals
 from art_gyro_calibration.static_bias import DEFAULT_SAMPLES
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
@@ -410,9 +411,9 @@ def rebiased(result: LoopResult, baseline: Calibration, base_error: NDArray[np.f
 
 
 def _replay_run(log: GyroLog, calibration: Calibration, bias_samples: int, settle_s: float,
-                start: RunStart) -> tuple[NDArray[np.float64], NDArray[np.bool_], bool]:
+                start: RunStart, signals: Signals) -> tuple[NDArray[np.float64], NDArray[np.bool_], bool]:
     """Per-row error (NaN where the node drops the row), kept rows and whether the node refused the static bias."""
-    r, refused = replay_anyway(log, calibration, bias_samples, settle_s, start)
+    r, refused = replay_anyway(log, calibration, bias_samples, settle_s, start, signals=signals)
     error = np.full(len(log), np.nan)
     error[r.applied.kept] = r.error_dps
     return error, r.applied.kept, refused
@@ -429,10 +430,14 @@ def _field(log: GyroLog, error: NDArray[np.float64], kept: NDArray[np.bool_], bi
 
 def held_out(log: GyroLog, runs: Sequence[Run], fold: NDArray[np.int64], calibrations: Sequence[Calibration],
              bias_samples: int, settle_s: float) -> list[FieldErrors]:
-    """Field errors per run where each row's error is that of ``calibrations[fold of the row]``."""
+    """Field errors per run where each row's error is that of ``calibrations[fold of the row]``.
+
+    A run's signals are made once per filter set for every calibration replayed on it (the folds' share theirs).
+    """
     out = []
     for run in runs:
         part = log.slice(slice(run.start, run.stop))
+        shared: dict[SignalFilters, Signals] = {}
         error = np.full(len(part), np.nan)
         kept = np.ones(len(part), dtype=bool)
         refused = False
@@ -440,7 +445,10 @@ def held_out(log: GyroLog, runs: Sequence[Run], fold: NDArray[np.int64], calibra
             mine = fold[run.start:run.stop] == k if len(calibrations) > 1 else np.ones(len(part), dtype=bool)
             if not mine.any():
                 continue
-            e, kept, was_refused = _replay_run(part, calibration, bias_samples, settle_s, run.run_start)
+            if calibration.filters not in shared:
+                shared[calibration.filters] = run_signals(part, calibration.filters, run.run_start)
+            e, kept, was_refused = _replay_run(part, calibration, bias_samples, settle_s, run.run_start,
+                                               shared[calibration.filters])
             error[mine] = e[mine]
             refused = refused or was_refused
         out.append(_field(part, error, kept, bias_samples, settle_s, refused))

@@ -35,7 +35,7 @@ from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors,
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.compensation import Applied, RunStart, apply_calibration
 from art_gyro_calibration.log import GyroLog, LogError
-from art_gyro_calibration.signals import POWER_ON_SIGNAL
+from art_gyro_calibration.signals import POWER_ON_SIGNAL, Signals
 from art_gyro_calibration.static_bias import DEFAULT_MAX_MEAN_DPS, DEFAULT_MAX_STD_DPS, DEFAULT_SAMPLES, MotionError
 from art_gyro_calibration.terms import Term
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS
@@ -52,16 +52,19 @@ class Replay:
 
 def replay(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_SAMPLES,
            settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart(),
-           max_mean_dps: float = DEFAULT_MAX_MEAN_DPS, max_std_dps: float = DEFAULT_MAX_STD_DPS) -> Replay:
+           max_mean_dps: float = DEFAULT_MAX_MEAN_DPS, max_std_dps: float = DEFAULT_MAX_STD_DPS,
+           signals: Signals | None = None) -> Replay:
     """Apply ``calibration`` to ``log`` as the node does and measure it from the end of the static bias.
 
     ``start``: how the run began, as the node is told (a warm-up applies only from a declared
     power-on). The rows the node would drop (:func:`compensation.plausible`) are left out.
+    ``signals``: the run's, made once for several calibrations (:func:`compensation.run_signals`).
     Raises :class:`static_bias.MotionError` when the run's first ``bias_samples`` rows show motion.
     """
     if log.ref_rate is None:
         raise LogError('the log has no ref_rate column: a replay measures against the rate table\'s true rate')
-    applied = apply_calibration(log, calibration, bias_samples, max_mean_dps, max_std_dps, start=start)
+    applied = apply_calibration(log, calibration, bias_samples, max_mean_dps, max_std_dps, start=start,
+                                signals=signals)
     seen = log if applied.kept.all() else log.slice(applied.kept)
     assert seen.ref_rate is not None   # the log's, sliced with it
     error = applied.corrected_dps - seen.ref_rate
@@ -71,7 +74,7 @@ def replay(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_S
 
 def replay_anyway(log: GyroLog, calibration: Calibration, bias_samples: int = DEFAULT_SAMPLES,
                   settle_s: float = DEFAULT_SETTLE_S, start: RunStart = RunStart(),
-                  checked: bool = True) -> tuple[Replay, bool]:
+                  checked: bool = True, signals: Signals | None = None) -> tuple[Replay, bool]:
     """:func:`replay`, also where the node would refuse the static bias, and whether it would have.
 
     Such a run is measured with the bias taken anyway; not ``checked``, the node's motion
@@ -79,10 +82,11 @@ def replay_anyway(log: GyroLog, calibration: Calibration, bias_samples: int = DE
     """
     if checked:
         try:
-            return replay(log, calibration, bias_samples, settle_s, start), False
+            return replay(log, calibration, bias_samples, settle_s, start, signals=signals), False
         except MotionError:
             pass
-    anyway = replay(log, calibration, bias_samples, settle_s, start, max_mean_dps=math.inf, max_std_dps=math.inf)
+    anyway = replay(log, calibration, bias_samples, settle_s, start, max_mean_dps=math.inf, max_std_dps=math.inf,
+                    signals=signals)
     return anyway, checked
 
 
