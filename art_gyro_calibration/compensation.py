@@ -390,11 +390,15 @@ def _fed_values(log: GyroLog, calibration: Calibration,
     return replace(log, extras=extras), held, flagged
 
 
+def _kept_rows(log: GyroLog) -> tuple[NDArray[np.bool_], GyroLog]:
+    """The rows the node keeps (:func:`plausible`), and the log of them alone."""
+    kept = plausible(log.temp_c)
+    return kept, (log if kept.all() else log.slice(kept))
+
+
 def run_signals(log: GyroLog, filters: SignalFilters, start: RunStart = RunStart()) -> Signals:
     """The signals :func:`apply_calibration` computes for a run from its first row (the rows the node keeps)."""
-    kept = plausible(log.temp_c)
-    if not kept.all():
-        log = log.slice(kept)
+    _, log = _kept_rows(log)
     return compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, filters, None, start.powered_on_at_start)
 
 
@@ -416,9 +420,7 @@ def apply_calibration(log: GyroLog, calibration: Calibration, bias_samples: int,
     once for several calibrations replayed on one run (not for a later chunk; not where the calibration's limits
     move an extra signal's values: then computed here).
     """
-    kept = plausible(log.temp_c)
-    if not kept.all():
-        log = log.slice(kept)
+    kept, log = _kept_rows(log)
     if after is None:
         if not 2 <= bias_samples <= len(log):
             raise ValueError(f'bias_samples must be between 2 and the {len(log)} plausible rows of the log, '
