@@ -295,16 +295,16 @@ class SerialGyroDriver:
         if self._unit_clock is not None and frames:
             stamps = self._unit_clock_stamps(frames, stamps, monotonic_ns, len(data))
         guard, period_ns, on_frame = self._guard, self._stamper.period_ns, self._on_frame
-        for (sample, _), (stamp, steady) in zip(frames, stamps):
+        for (sample, _), (stamp, steady), missed in zip(frames, stamps, self._parser.frames_missed, strict=True):
             if guard is None:
                 on_frame(Frame(sample, stamp, steady))
                 continue
             held = self._held
             if held is not None:
                 self._held = None
-                if guard.confirm(sample.raw_rate, steady, period_ns):
+                if guard.confirm(sample.raw_rate, steady, period_ns, missed):
                     on_frame(held)
-            if guard.passes(sample.raw_rate, sample.raw_temp, steady, period_ns):
+            if guard.passes(sample.raw_rate, sample.raw_temp, steady, period_ns, missed):
                 if self._look_ahead:
                     self._held = Frame(sample, stamp, steady)
                 else:

@@ -139,11 +139,15 @@ class FrameParser(Protocol):
     """An incremental parser of one protocol: the interface the driver reads every protocol through.
 
     ``frame_bytes`` is a frame's length on the wire (nominal for text lines), for stamping.
+    ``frames_missed``: for each frame the last :meth:`feed` returned, how many of the gyro's frames came between
+    it and the frame returned before and were refused or lost, as far as the parser can tell (the frame guard
+    bridges them: a backlog read in one chunk has no time gap to tell them by).
     """
 
     frame_bytes: int
     stats: ParserStats
     description: ProtocolDescription
+    frames_missed: list[int]
 
     def feed(self, data: bytes, arrival_ns: int | None = None) -> list[tuple[RawSample, int]]:
         """Parse a chunk whose read returned at ``arrival_ns`` (monotonic, if known).
@@ -185,6 +189,8 @@ class ChunkParser:
         self._buffer = b''
         self.lock_frames = lock_frames
         self._run = 0   # valid frames in a row so far
+        self.frames_missed: list[int] = []
+        self._missed = 0   # frames refused since the last one accepted
 
     @property
     def measured_rate_hz(self) -> float | None:
@@ -201,13 +207,24 @@ class ChunkParser:
         self._run += 1
         if self._run >= self.lock_frames:
             out.append((sample, end))
+            self.frames_missed.append(self._missed)
+            self._missed = 0
             self.stats.frames += 1
         else:
-            self.stats.rejected_by_reason[UNLOCKED] += 1
-            self.stats.bytes_skipped += frame_bytes
+            self._refuse(UNLOCKED, frame_bytes)
+
+    def _refuse(self, reason: str, frame_bytes: int) -> None:
+        """A frame of the gyro's refused for ``reason``: counted, its bytes skipped, missed before the next one."""
+        self.stats.rejected_by_reason[reason] += 1
+        self.stats.bytes_skipped += frame_bytes
+        self._missed += 1
 
     def _join(self, data: bytes) -> tuple[bytes, int]:
-        """The held bytes followed by ``data``, and how many were held (offsets in ``data`` start there)."""
+        """A chunk's start: the held bytes, then ``data``; how many were held (offsets in ``data`` start there).
+
+        ``frames_missed`` is the new chunk's from here.
+        """
+        self.frames_missed = []
         held = len(self._buffer)
         return (self._buffer + data if held else bytes(data)), held
 

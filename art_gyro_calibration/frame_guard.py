@@ -13,11 +13,12 @@ A corrupt frame is told from real motion by two things the motion cannot do (doc
 
 The prediction follows vibration whatever its frequency: a sinusoid with an offset obeys
 ``x[n] = x[n-3] + g * (x[n-1] - x[n-2])`` with ``g = 1 + 2 cos(w)`` (a ramp: g = 3), and g is fitted on the
-recent frames. Frames the parser lost are filled with the prediction (guesses: a frame predicted from them is
-tested with a wider tolerance, and neither refits g nor widens the envelope); after a refusal it starts again from
-the next frames (a motion wrongly refused is not followed by a guess). By default there is no latency: each frame
-is decided as it comes. With ``look_ahead`` a frame whose departure is a smaller corruption's step is decided by the
-next frame (a one-frame spike that returns is refused), at a frame of latency.
+recent frames. Frames the parser refused (it says how many: ``FrameParser.frames_missed``, which a backlog read in
+one chunk needs) or that never came (a gap in the stamps) are filled with the prediction (guesses: a frame predicted
+from them is tested with a wider tolerance, and neither refits g nor widens the envelope); after a refusal it
+starts again from the next frames (a motion wrongly refused is not followed by a guess). By default there is no
+latency: each frame is decided as it comes. With ``look_ahead`` a frame whose departure is a smaller corruption's
+step is decided by the next frame (a one-frame spike that returns is refused), at a frame of latency.
 
 What no test here can refuse (doc/benchmark.md counts them): a two-bit error of the checksum and a low rate bit is
 the valid frame of a rate 1 to 16 counts off, within the noise.
@@ -118,14 +119,17 @@ class FrameGuard:
         """Frames refused, of all reasons."""
         return sum(self.rejected_by_reason.values())
 
-    def passes(self, raw_rate: float, raw_temp: float, steady_ns: int, period_ns: float) -> bool:
+    def passes(self, raw_rate: float, raw_temp: float, steady_ns: int, period_ns: float,
+               missed_frames: int = 0) -> bool:
         """Whether a frame is delivered; one that is not is counted.
 
         ``steady_ns``: its monotonic stamp; ``period_ns``: the gyro's period as estimated (0: unknown): frames
-        lost between two are bridged by the prediction.
+        lost between two are bridged by the prediction. ``missed_frames``: the frames the parser refused or lost
+        just before this one (:attr:`FrameParser.frames_missed`), which a backlog read in one chunk shows no gap for.
         """
         # Frames lost since the last one (none for a frame closer than a period: an extra one is tested as the next).
         missed = max(round((steady_ns - self._steady) / period_ns) - 1, 0) if period_ns > 0 and self._steady else 0
+        missed = max(missed, missed_frames)
         self._steady = steady_ns
         # The temperature may move a count for each frame since the one it is compared with.
         temp, refused, skipped = self._temp, self._refused_temp, self._skipped + missed
@@ -179,15 +183,16 @@ class FrameGuard:
         self._temp, self._skipped = raw_temp, 0
         return True
 
-    def confirm(self, raw_rate: float, steady_ns: int, period_ns: float) -> bool:
+    def confirm(self, raw_rate: float, steady_ns: int, period_ns: float, missed_frames: int = 0) -> bool:
         """With ``look_ahead``, before :meth:`passes` of the next frame: whether the last frame delivered stays so.
 
-        It does unless its departure was a corruption's step (held by :meth:`passes`) and this frame, the next one,
-        is back on what the frames before it predict: then it is counted refused (RATE_SPIKE) and replaced by its
-        prediction, the fit and envelope as before it.
+        It does unless its departure was a corruption's step (held by :meth:`passes`) and this frame, the next one
+        (none missed between: ``missed_frames`` as :meth:`passes` takes it), is back on what the frames before it
+        predict: then it is counted refused (RATE_SPIKE) and replaced by its prediction, the fit and envelope as
+        before it.
         """
         held, self._held = self._held, None
-        if held is None or period_ns <= 0 or round((steady_ns - self._steady) / period_ns) != 1:
+        if held is None or period_ns <= 0 or missed_frames or round((steady_ns - self._steady) / period_ns) != 1:
             return True
         predicted, tolerance, gain_uv, gain_vv, mean_square, trusted = held
         x3, x2, x1 = self._rates

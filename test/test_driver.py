@@ -345,3 +345,31 @@ def test_a_backlog_written_at_once_is_delivered_whole_in_order_each_frame_with_i
     assert [f.sample.raw_rate for f in recorder.frames] == rates[LOCK_FRAMES - 1:]
     stamps = np.array([f.stamp_ns for f in recorder.frames])
     assert np.all(np.diff(stamps) > 0)
+
+
+def test_frames_the_parser_refused_within_a_backlog_are_bridged_by_the_frame_guard(recorder, tmp_path):
+    """A fault and the frames the stream lock holds back after it, read in one chunk with the frames around them.
+
+    The frame guard lets the temperature move a count per frame since the last delivered one; the frames the
+    parser refused took no time the stamps of one chunk show, and the first frame after them was refused as a
+    temperature jump (a real frame lost: CI's intermittent test_line_faults_are_counted_and_no_good_frame_is_lost).
+    """
+    silent = FakeGyro('NAVC3545', link=str(tmp_path / 'rd2100'))   # not started: only what is injected
+    temps = list(range(500, 520))   # a count a frame: the most the guard allows without a frame lost
+    frames = [encode_binary(i % 3, t) for i, t in enumerate(temps)]
+    try:
+        driver = SerialGyroDriver(silent.path, 115200, 'binary', recorder.on_frame, rate_scale_dps=0.00305)
+        driver.start()
+        try:
+            assert wait_for(lambda: driver.stats.connected)
+            silent.inject(b''.join(frames[:10]) + b'\x05' + b''.join(frames[10:]))
+            # Every frame the lock let through, delivered or refused by the guard.
+            assert wait_for(lambda: driver.stats.frames + driver.stats.rejected_by_reason['temperature_jump']
+                            == len(frames) - 2 * (LOCK_FRAMES - 1))
+        finally:
+            driver.stop()
+    finally:
+        silent.stop()
+    reasons = driver.stats.rejected_by_reason
+    assert reasons[UNLOCKED] == 2 * (LOCK_FRAMES - 1) and reasons['temperature_jump'] == 0
+    assert [f.sample.raw_temp for f in recorder.frames] == temps[LOCK_FRAMES - 1:10] + temps[10 + LOCK_FRAMES - 1:]

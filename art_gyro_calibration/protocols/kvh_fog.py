@@ -435,6 +435,7 @@ class KvhFogParser(ChunkParser):
         self._last_sequence: int | None = None
         self._last_arrival_ns: int | None = None   # A and C: when the message of _last_sequence was read
         self._number = 0                    # intervals since the connection opened, by the sequence numbers
+        self._number_out: int | None = None   # _number of the last message returned (frames_missed)
         self._bad_crc_since = 0             # bad CRCs since the last good message (those messages are not lost)
         self._temp_c: float | None = None   # Format C: the latest temperature
         self._last_time_us: int | None = None   # Format B: the previous message's clock
@@ -452,6 +453,7 @@ class KvhFogParser(ChunkParser):
         self._in_garbage = False
         self._last_sequence = self._last_arrival_ns = None
         self._number = 0
+        self._number_out = None
         self._bad_crc_since = 0
         self._temp_c = None
         self._last_time_us = None
@@ -519,6 +521,8 @@ class KvhFogParser(ChunkParser):
                 stats.bytes_skipped += length
             else:
                 out.append((sample, end - held))
+                self.frames_missed.append(0 if self._number_out is None else self._number - self._number_out - 1)
+                self._number_out = self._number
                 stats.frames += 1
         if last_end >= 0 and arrival_ns is not None:
             # The read returned as its last byte came: this message's end came the bytes after it earlier.

@@ -63,20 +63,19 @@ class AsciiFrameParser(ChunkParser):
                 stats.bytes_skipped += end - pos
                 self._run = 0
             elif newline - pos > MAX_LINE_BYTES:
-                reasons[LINE_TOO_LONG] += 1
-                stats.bytes_skipped += end - pos
+                self._refuse(LINE_TOO_LONG, end - pos)
                 self._run = 0
             elif (match := _ASCII_LINE.fullmatch(buf, pos, newline)) is not None:
                 raw_rate, raw_temp = int(match.group(1)), int(match.group(2))
                 if INT16_MIN <= raw_rate <= INT16_MAX and INT16_MIN <= raw_temp <= INT16_MAX:
                     self._accept(RawSample(raw_rate, raw_temp), end - held, end - pos, out)
                 else:
-                    reasons[OUT_OF_RANGE] += 1
-                    stats.bytes_skipped += end - pos
+                    self._refuse(OUT_OF_RANGE, end - pos)
                     self._run = 0
             else:
                 if _BLANK.fullmatch(buf, pos, newline) is None:   # blank lines are not frames, nor break the lock
                     reasons[MALFORMED] += 1
+                    self._missed += 1
                     self._run = 0
                 stats.bytes_skipped += end - pos
             pos = end
@@ -84,6 +83,7 @@ class AsciiFrameParser(ChunkParser):
         if self._discarding or rest > MAX_LINE_BYTES:
             if not self._discarding:
                 reasons[LINE_TOO_LONG] += 1
+                self._missed += 1
                 self._discarding = True
                 self._run = 0
             stats.bytes_skipped += rest

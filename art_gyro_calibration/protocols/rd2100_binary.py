@@ -99,7 +99,6 @@ class BinaryFrameParser(BinaryChunkParser):
         """Parse a chunk (``arrival_ns`` unused); each valid frame with the offset just past it in ``data``."""
         buf, held = self._join(data)
         out: list[tuple[RawSample, int]] = []
-        stats = self.stats
         pos = 0
         search = _CANDIDATE.search
         while (match := search(buf, pos)) is not None:
@@ -107,17 +106,14 @@ class BinaryFrameParser(BinaryChunkParser):
             self._skip(start - pos)
             bits = _decode_bits(match.group())
             if sum(bits.to_bytes(7, 'big')) & 0xFF:
-                stats.rejected_by_reason[BAD_CHECKSUM] += 1
-                stats.bytes_skipped += BINARY_FRAME_BYTES
+                self._refuse(BAD_CHECKSUM, BINARY_FRAME_BYTES)
                 self._run = 0
             elif not bits:
-                stats.rejected_by_reason[ALL_ZERO] += 1
-                stats.bytes_skipped += BINARY_FRAME_BYTES
+                self._refuse(ALL_ZERO, BINARY_FRAME_BYTES)
                 self._run = 0
             elif (status := (bits >> 32) & 0xFFFF) != self._status and status != self._refused_status \
                     and self._status is not None:
-                stats.rejected_by_reason[STATUS_CHANGE] += 1
-                stats.bytes_skipped += BINARY_FRAME_BYTES
+                self._refuse(STATUS_CHANGE, BINARY_FRAME_BYTES)
                 self._refused_status = status
             else:
                 self._status, self._refused_status = status, None

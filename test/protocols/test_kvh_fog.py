@@ -101,11 +101,14 @@ def test_kvh_stream_with_the_sample_cut_repeated_bit_flipped_and_a_sequence_gap(
     results = {}
     for size in (len(stream), 1, 7, 36, 37):   # whole, a byte at a time, and chunks across the messages
         parser = KvhFogParser(config)
-        got = [s for i in range(0, len(stream), size) for s in kvh_samples(parser, stream[i:i + size])]
+        got, missed = [], []
+        for i in range(0, len(stream), size):
+            got += kvh_samples(parser, stream[i:i + size])
+            missed += parser.frames_missed
         stats = parser.stats
         results[size] = (got, stats.rejected_by_reason, stats.lost_frames, stats.frames, stats.bytes_skipped,
-                         parser.stats.garbage_runs)
-    got, reasons, lost, frames, skipped, garbage_runs = results[len(stream)]
+                         parser.stats.garbage_runs, missed)
+    got, reasons, lost, frames, skipped, garbage_runs, missed = results[len(stream)]
     assert all(r == results[len(stream)] for r in results.values())
     assert got == [(pytest.approx(-1.3111e-05, rel=1e-4), 40.0)] + [(pytest.approx(0.001), 40.0)] * 3
     assert frames == 4
@@ -116,6 +119,8 @@ def test_kvh_stream_with_the_sample_cut_repeated_bit_flipped_and_a_sequence_gap(
     assert garbage_runs == 2 and parser.stats.rejected == 3   # runs of garbage are no rejected messages
     # 64 and 65 never sent; 62 came with a bad CRC: one rejected frame, not also a lost one.
     assert lost == 2
+    # What the frame guard is told came between the messages returned (61, 63, 66, 67): 62, then 64 and 65.
+    assert missed == [0, 1, 2, 0]
     # Every byte is in an accepted message, skipped, or held (the last message, still arriving).
     assert skipped + 36 * frames + len(parser._buffer) == len(stream) and len(parser._buffer) == 30
 

@@ -42,6 +42,28 @@ def test_one_byte_at_a_time_gives_the_same_frames_with_offsets(protocol):
     assert got == PAIRS[:40]
 
 
+@pytest.mark.parametrize('protocol, bad', [('binary', encode_binary(5, 500)[:7] + b'\x7f'), ('ascii', b'5 x\r\n')])
+def test_frames_missed_counts_the_frames_refused_before_each_one_returned(protocol, bad):
+    """The stream lock's held-back frames and a refused frame count; bytes between frames and blank lines do not.
+
+    Read whole or a byte at a time alike: the frame guard is told of them however the backlog was read.
+    """
+    encode = make_encoder(protocol)
+    good = [encode(r, 500) for r in range(12)]
+    filler = b'\x05\x06' if protocol == 'binary' else b'\r\n'
+    stream = b''.join(good[:5]) + filler + b''.join(good[5:8]) + bad + b''.join(good[8:])
+    for size in (len(stream), 1):
+        parser = make_parser(protocol, lock_frames=3)
+        got, missed = [], []
+        for i in range(0, len(stream), size):
+            got += [s.raw_rate for s, _ in parser.feed(stream[i:i + size])]
+            missed += parser.frames_missed
+        # Binary: 0, 1 held back; the garbage breaks the lock (5, 6 held back); the bad frame, then 8, 9.
+        # Ascii: the blank line breaks nothing; the malformed line, then 8, 9 held back.
+        assert got == ([2, 3, 4, 7, 10, 11] if protocol == 'binary' else [2, 3, 4, 5, 6, 7, 10, 11]), size
+        assert missed == ([2, 0, 0, 2, 3, 0] if protocol == 'binary' else [2, 0, 0, 0, 0, 0, 3, 0]), size
+
+
 @pytest.mark.parametrize('value', [32768, -32769, 1 << 20])
 @pytest.mark.parametrize('encode', [encode_binary, encode_ascii])
 def test_encoders_refuse_values_outside_16_bits(encode, value):
