@@ -108,8 +108,11 @@ class Listener:
         self.imu: list[Imu] = []
         self.temperature: list[float] = []
         self.diagnostics: list[DiagnosticArray] = []
-        self.node.create_subscription(Imu, 'imu/data_raw', lambda m: self._add(self.imu, m), 50)
-        self.node.create_subscription(Float64, 'imu/temperature', lambda m: self._add(self.temperature, m.data), 50)
+        # Deep: the tests count every frame, and this process's executor thread may wait seconds for the GIL on a
+        # loaded machine; 50 messages (a quarter second at 200 Hz) overflowed at CI and showed as frames lost.
+        depth = 2000
+        self.node.create_subscription(Imu, 'imu/data_raw', lambda m: self._add(self.imu, m), depth)
+        self.node.create_subscription(Float64, 'imu/temperature', lambda m: self._add(self.temperature, m.data), depth)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', lambda m: self._add(self.diagnostics, m), 10)
         self.client = self.node.create_client(Trigger, 'imu/static_bias')
         self.executor = SingleThreadedExecutor(context=self.context)

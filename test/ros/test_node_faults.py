@@ -134,9 +134,18 @@ def lost(seq: np.ndarray) -> int:
 def wait_lost_held_back(listener: Listener, unlocked_at_start: int, other: int, proc: subprocess.Popen[bytes],
                         output: Path) -> None:
     """Every frame missing from the sequence is ``other`` or one the stream lock held back (counted unlocked)."""
-    missing = lost(residues(listener.temperatures())) - other
-    listener.wait_status('link', lambda s: counter(s, 'rejected_unlocked') - unlocked_at_start == missing,
-                         f'the {missing} frames lost counted as rejected_unlocked', proc, output)
+    seq = residues(listener.temperatures())
+    missing = lost(seq) - other
+    steps = np.mod(np.diff(seq), CYCLE)
+    where = [f'{seq[i]}+{steps[i]}' for i in np.flatnonzero(steps != 1)]   # where a run ends, and the step after
+    try:
+        listener.wait_status('link', lambda s: counter(s, 'rejected_unlocked') - unlocked_at_start == missing,
+                             f'the {missing} frames lost counted as rejected_unlocked', proc, output)
+    except AssertionError as e:
+        link = listener.status('link')
+        rejected = {k: v for k, v in (link or {}).items() if k.startswith('rejected')}
+        raise AssertionError(f'{e}\nsteps of the sequence (seq mod {CYCLE} + step): {where}\nlink: {rejected}') \
+            from None
 
 
 def wait_frames(listener: Listener, n: int, proc: subprocess.Popen[bytes], output: Path) -> int:
