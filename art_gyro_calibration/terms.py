@@ -107,7 +107,9 @@ def term_basis(form: str, x: NDArray[np.float64], powers: tuple[int, ...] = (), 
             return np.stack([x ** p for p in powers], axis=1)
         if rate is None:
             raise ValueError(f'a term with rate_powers {list(rate_powers)} needs the rate')
-        return np.stack([x ** p * rate ** q for p in powers for q in rate_powers], axis=1)
+        # Each power once (a power other than 0, 1, 2 is a pow() per element), each product as before.
+        of_x, of_rate = [x ** p for p in powers], [rate ** q for q in rate_powers]
+        return np.stack([xp * rq for xp in of_x for rq in of_rate], axis=1)
     if form == 'exp_decay':
         return np.exp(-x / time_constant_s)[:, None]
     if form == 'harmonic':

@@ -93,10 +93,16 @@ class TermSpec:
         """Number of coefficients."""
         return Term.width(self.form, self.powers, self.rate_powers)
 
-    def basis(self, signals: Signals) -> NDArray[np.float64]:
-        """Unscaled basis columns over every sample of ``signals``."""
-        return term_basis(self.form, signals.for_term(self), self.powers, self.time_constant_s, self.rate_powers,
-                          signals.rate)
+    def basis(self, signals: Signals, rows: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """Unscaled basis columns over every sample of ``signals``, or over its ``rows``.
+
+        The signal is made over every sample (a lag's recursion runs through all), the basis of it only where asked
+        (every form's is sample by sample).
+        """
+        x, rate = signals.for_term(self), signals.rate
+        if rows is not None:
+            x, rate = x[rows], rate[rows]
+        return term_basis(self.form, x, self.powers, self.time_constant_s, self.rate_powers, rate)
 
     def term(self, coefficients: Sequence[float] | NDArray[np.float64]) -> Term:
         """The term with fitted ``coefficients``."""
@@ -171,7 +177,7 @@ def term_ranges(signals: Signals, specs: Sequence[TermSpec], index: NDArray[np.i
     high: dict[TermSpec, NDArray[np.float64]] = {}
     for chunk in chunks(signals, index, chunk_rows):
         for spec in specs:
-            basis = spec.basis(chunk.signals)[chunk.rows]   # every chunk: a lag's recursion runs through all
+            basis = spec.basis(chunk.signals, chunk.rows)   # every chunk: a lag's recursion runs through all
             if len(basis):
                 low[spec] = np.minimum(low[spec], basis.min(axis=0)) if spec in low else basis.min(axis=0)
                 high[spec] = np.maximum(high[spec], basis.max(axis=0)) if spec in high else basis.max(axis=0)
@@ -234,7 +240,7 @@ class Design:
                 out[:, p + run - 1] = 1.0
             p += self.offsets
         for spec in self.specs:   # every chunk: a lag's recursion runs through all
-            out[:, p:p + spec.width] = (spec.basis(signals)[rows] - self.column_offset[p:p + spec.width]) \
+            out[:, p:p + spec.width] = (spec.basis(signals, rows) - self.column_offset[p:p + spec.width]) \
                 / self.column_scale[p:p + spec.width]
             p += spec.width
         return out

@@ -312,7 +312,7 @@ class Binned:
         high: dict[TermSpec, NDArray[np.float64]] = {}
         for chunk in self._chunks():
             for spec in specs:   # every chunk, steady rows in it or not: a lag's recursion runs through all
-                basis = spec.basis(chunk.signals)[chunk.rows]
+                basis = spec.basis(chunk.signals, chunk.rows)
                 if len(basis):
                     lo, hi = basis.min(axis=0), basis.max(axis=0)
                     if spec not in provisional:
@@ -560,15 +560,17 @@ def phase_surrogates_alike(spectra: Sequence[NDArray[np.complex128]], count: int
                            rng: np.random.Generator) -> list[NDArray[np.float64]]:
     """:func:`phase_surrogates` of each of ``spectra`` (one length), all with the same random phases."""
     n2 = 2 * (len(spectra[0]) - 1)
-    out = [np.empty((n2 // 2, count)) for _ in spectra]
+    # A draw a row (written whole), turned to a series a column at the end: a column written a draw at a time
+    # strode through the whole array.
+    drawn = [np.empty((count, n2 // 2)) for _ in spectra]
     for j in range(count):   # one draw at a time: the complex temporaries are one series long, not ``count``
         phases = rng.uniform(0.0, 2.0 * np.pi, len(spectra[0]))
         phases[0] = 0.0
         phases[-1] = 0.0   # the Nyquist term of the (even) mirrored length stays real
         turn = np.exp(1j * phases)
-        for series, spectrum in zip(out, spectra):
-            series[:, j] = np.fft.irfft(spectrum * turn, n2)[:n2 // 2]
-    return out
+        for draws, spectrum in zip(drawn, spectra):
+            draws[j] = np.fft.irfft(spectrum * turn, n2)[:n2 // 2]
+    return [np.ascontiguousarray(draws.T) for draws in drawn]
 
 
 def null_spectrum(screen: Screen, families: Mapping[str, Sequence[TermSpec]], residual: NDArray[np.float64],
