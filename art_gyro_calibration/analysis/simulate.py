@@ -42,7 +42,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter  # type: ignore[import-untyped]  # scipy ships no types
 
 from art_gyro_calibration.calibration import Calibration
 from art_gyro_calibration.gyro_physics import (ANN_ARBOR_LATITUDE_DEG, earth_rate_dps, measured_from_true, to_counts,
@@ -51,6 +50,7 @@ from art_gyro_calibration.log import GyroLog
 from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals, first_order_smooth
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 from art_gyro_calibration.analysis.csv_writer import write_columns
+
 
 FULL_SCALE_DPS = 100.0
 # Table rates of one cycle (both signs of each); a cycle lasts about 27 minutes.
@@ -172,6 +172,16 @@ def table_profile(t: NDArray[np.float64], settings: SimulationSettings,
     return np.asarray(rates)[np.searchsorted(starts, t, side='right') - 1]
 
 
+def _lfilter(b: list[float], a: list[float], x: NDArray[np.float64], zi: list[float] | None = None) -> Any:
+    """``scipy.signal.lfilter``, imported when a run is simulated.
+
+    Every ``calibrate`` command's parser reads this module's effect names: imported with it, scipy.signal took most
+    of a second of each.
+    """
+    from scipy.signal import lfilter  # type: ignore[import-untyped]  # scipy ships no types
+    return lfilter(b, a, x) if zi is None else lfilter(b, a, x, zi=zi)
+
+
 def chamber_profile(t: NDArray[np.float64], settings: SimulationSettings,
                     temperature_range_c: tuple[float, float]) -> NDArray[np.float64]:
     """Gyro temperature: chamber holds and ramps between the range's ends, seen through a thermal lag."""
@@ -186,7 +196,7 @@ def chamber_profile(t: NDArray[np.float64], settings: SimulationSettings,
         high - (phase - 2 * hold - ramp_s) / ramp_s * (high - low))
     dt = 1.0 / settings.rate_hz
     a = -math.expm1(-dt / settings.thermal_lag_s)
-    lagged, _ = lfilter([a], [1.0, a - 1.0], chamber, zi=[(1.0 - a) * low])
+    lagged, _ = _lfilter([a], [1.0, a - 1.0], chamber, zi=[(1.0 - a) * low])
     return np.asarray(lagged, dtype=np.float64)
 
 
@@ -225,7 +235,7 @@ def simulate_run(calibration: Calibration, settings: SimulationSettings) -> Simu
     phi = math.exp(-1.0 / (settings.rate_hz * settings.bias_instability_tau_s))
     drive = rng.normal(0.0, settings.bias_instability_dps * math.sqrt(1.0 - phi * phi), n)
     drive[0] = rng.normal(0.0, settings.bias_instability_dps)
-    instability = lfilter([1.0], [1.0, -phi], drive)
+    instability = _lfilter([1.0], [1.0, -phi], drive)
     supply_v = _supply_voltage(t, rng)
     signals = compute_signals(t, table, temp, {'supply_v': supply_v}, SignalFilters())
     effects: dict[str, Any] = {}
@@ -360,7 +370,7 @@ def _slow_noise(n: int, settings: SimulationSettings) -> NDArray[np.float64]:
         phi = math.exp(-dt / settings.wander_tau_s)
         drive = rng.normal(0.0, settings.wander_dps * math.sqrt(1.0 - phi * phi), n)
         drive[0] = rng.normal(0.0, settings.wander_dps)
-        out += lfilter([1.0], [1.0, -phi], drive)
+        out += _lfilter([1.0], [1.0, -phi], drive)
     if settings.rate_random_walk_dph_rthr > 0.0:
         # K deg/h/sqrt(h) = K / 3600 deg/s per sqrt(3600 s): steps of K / 3600 / 60 * sqrt(dt) deg/s.
         step = settings.rate_random_walk_dph_rthr / DEG_PER_H_PER_DPS / math.sqrt(SECONDS_PER_HOUR) * math.sqrt(dt)
