@@ -285,7 +285,8 @@ class SerialGyroDriver:
         self._window_bytes += len(data)
         if monotonic_ns - self._window_ns >= NO_FRAMES_WARNING_S * 1e9:
             self._check_share(monotonic_ns)
-        stamps = self._stamper.stamp(now_ns, monotonic_ns, len(data), [end for _, end in frames], clock_read_ns)
+        stamps = self._stamper.stamp(now_ns, monotonic_ns, len(data), [end for _, end in frames], clock_read_ns,
+                                     self._parser.frames_missed)
         if self._stamper.too_fast and not self._too_fast_said:
             self._too_fast_said = True
             self._warn(self._stamper.too_fast)

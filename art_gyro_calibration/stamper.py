@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 
 from art_gyro_calibration.frame import BITS_PER_BYTE
 
@@ -100,16 +101,21 @@ class WireStamper:
         return self._offset_ns or 0
 
     def stamp(self, clock_ns: int, monotonic_ns: int, chunk_bytes: int, ends: list[int],
-              clock_read_ns: int = 0) -> list[tuple[int, int]]:
+              clock_read_ns: int = 0, missed: Sequence[int] = ()) -> list[tuple[int, int]]:
         """(stamp, steady) of the frames ending at ``ends`` of a chunk whose read returned at the given times.
 
-        The caller's clock was read between ``monotonic_ns - clock_read_ns`` and ``monotonic_ns``.
+        The caller's clock was read between ``monotonic_ns - clock_read_ns`` and ``monotonic_ns``. ``missed``: for
+        each frame, the gyro's frames the parser refused or lost just before it (``FrameParser.frames_missed``;
+        none if not given), which left the gyro a period each.
         """
         offset = self._clock_offset(clock_ns - monotonic_ns + clock_read_ns // 2, clock_read_ns)
         if not ends:
             return []
+        if missed and len(missed) != len(ends):
+            raise ValueError(f'{len(missed)} counts of frames missed for {len(ends)} frames')
         previous = self._last_steady
-        steady = self._spread(self._last_departure(monotonic_ns, chunk_bytes, ends[-1]), previous, ends)
+        slots = [1 + m for m in missed] if missed else [1] * len(ends)   # periods from the frame before each
+        steady = self._spread(self._last_departure(monotonic_ns, chunk_bytes, ends[-1]), previous, ends, slots)
         if previous is not None:
             self._floor(steady, previous)
         self._ceiling(steady, monotonic_ns, chunk_bytes, ends)
@@ -145,20 +151,22 @@ class WireStamper:
         # the gyro its own and every later byte's wire time earlier.
         return monotonic_ns - (chunk_bytes - last_end) * self.byte_ns - self.frame_ns
 
-    def _spread(self, last: int, previous: int | None, ends: list[int]) -> list[int]:
-        """The chunk's frames, the last at ``last``, each earlier one its wire spacing or a period before the next.
+    def _spread(self, last: int, previous: int | None, ends: list[int], slots: list[int]) -> list[int]:
+        """The chunk's frames, the last at ``last``, each earlier one its wire spacing or its periods before the next.
 
+        ``slots``: the gyro's periods from the frame before each (one, and one more per frame missed between).
         The period is measured here (from the previous chunk's last frame), and the step between two
         frames is never more than that measure, so the first never goes before the previous chunk's last.
         """
         n = len(ends)
         step = self.period_ns
         if previous is not None and last > previous:
-            per_frame = (last - previous) / n
+            per_frame = (last - previous) / sum(slots)
             self._update_period(per_frame)
             step = min(self.period_ns, per_frame)
-        # Frames queued by a stall (or before an open) left the gyro a period apart, not a wire time apart.
-        spacing = [max(float((ends[i + 1] - ends[i]) * self.byte_ns), step) for i in range(n - 1)]
+        # Frames queued by a stall (or before an open) left the gyro a period apart, not a wire time apart; a frame
+        # after frames the parser refused, a period more for each.
+        spacing = [max(float((ends[i + 1] - ends[i]) * self.byte_ns), step * slots[i + 1]) for i in range(n - 1)]
         steady = [last] * n
         for i in range(n - 2, -1, -1):
             steady[i] = steady[i + 1] - int(spacing[i])

@@ -373,3 +373,28 @@ def test_frames_the_parser_refused_within_a_backlog_are_bridged_by_the_frame_gua
     reasons = driver.stats.rejected_by_reason
     assert reasons[UNLOCKED] == 2 * (LOCK_FRAMES - 1) and reasons['temperature_jump'] == 0
     assert [f.sample.raw_temp for f in recorder.frames] == temps[LOCK_FRAMES - 1:10] + temps[10 + LOCK_FRAMES - 1:]
+
+
+def test_a_stalled_burst_with_a_fault_is_stamped_when_each_frame_left_the_gyro():
+    """The frames before a fault in a stall's burst keep the periods of the frames the parser refused after them.
+
+    Spaced a period from the frame after the fault (the parser's refused frames unseen), each was stamped late by
+    three periods: the bad frame's and the two the stream lock held back.
+    """
+    period, now = 100_000_000, [1_000_000_000]
+    got: list[Frame] = []
+    driver = SerialGyroDriver('/dev/null', 115200, 'binary', got.append, clock_ns=lambda: now[0],
+                              monotonic_ns=lambda: now[0])
+    byte_ns = 10 * 1_000_000_000 // 115200
+    frames = [encode_binary(k % 3, 500) for k in range(70)]
+    sent = [now[0] + k * period for k in range(70)]
+    for k in range(50):   # one frame a read, each read as its last byte arrives
+        now[0] = sent[k] + 8 * byte_ns
+        driver._on_data(frames[k], now[0], now[0], 0)
+    frames[58] = frames[58][:7] + bytes([frames[58][7] ^ 0x01])   # a bad checksum; the lock holds 59, 60 back
+    now[0] = sent[69] + 8 * byte_ns   # a 2 s stall: the 20 frames after it in one read
+    driver._on_data(b''.join(frames[50:]), now[0], now[0], 0)
+    stamped = {round((f.stamp_ns - sent[0]) / period): f.stamp_ns for f in got}
+    delivered = [k for k in range(LOCK_FRAMES - 1, 70) if k not in (58, 59, 60)]
+    assert sorted(stamped) == delivered
+    assert max(abs(stamped[k] - sent[k]) for k in delivered) < period / 10

@@ -44,6 +44,27 @@ def test_stamper_spaces_a_burst_after_a_stall_by_the_gyro_period():
     assert stamper.period_ns == pytest.approx(period, rel=1e-3)
 
 
+def test_frames_the_parser_refused_in_a_stalled_burst_keep_their_periods_in_the_stamps():
+    """A stall's burst with a fault in it: the frames before the fault left the gyro its frames' periods earlier.
+
+    Spaced a period from the frame after the fault, every frame before it was stamped late by the periods of the
+    frames the parser refused there (the fault's, and those the stream lock held back after it).
+    """
+    period = 100_000_000
+    stamper = WireStamper(9600, 8)
+    _steady_gyro(stamper, lambda m: m, period, 50)
+    # 20 frames sent during a 2 s stall; the parser refused frames 8, 9 and 10 of them (their 24 bytes skipped).
+    sent = [50 * period + k * period for k in range(20)]
+    kept = [k for k in range(20) if k not in (8, 9, 10)]
+    ends = [8 * (k + 1) for k in kept]
+    read = sent[-1] + 8 * stamper.byte_ns
+    burst = stamper.stamp(read, read, 160, ends, missed=[3 if k == 11 else 0 for k in kept])
+    assert [s for s, _ in burst] == pytest.approx([sent[k] for k in kept], abs=1_000_000)
+    assert stamper.period_ns == pytest.approx(period, rel=1e-3)
+    with pytest.raises(ValueError, match='2 counts of frames missed for 1 frames'):
+        stamper.stamp(read + period, read + period, 8, [8], missed=[0, 0])
+
+
 def test_a_wrong_first_period_estimate_does_not_lock_the_stamps_at_wire_spacing():
     """A period first measured as a frame's wire time is corrected by the right measures after it.
 
