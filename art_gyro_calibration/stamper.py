@@ -60,7 +60,8 @@ class WireStamper:
     2. :meth:`_last_departure`: when the chunk's last frame left the gyro (its arrival less the wire
        time of it and of the bytes after it).
     3. :meth:`_spread`: the chunk's earlier frames before it, a period apart at least (frames queued
-       by a stall left the gyro a period apart, not a wire time apart).
+       by a stall left the gyro a period apart, not a wire time apart), a period more for each frame the
+       parser refused between two.
     4. :meth:`_floor`: none before the previous chunk's last frame and its wire time.
     5. :meth:`_ceiling`: none after it arrived (bytes faster than the baud allows), less its wire
        time at the byte rate measured.
