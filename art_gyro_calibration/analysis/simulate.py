@@ -51,7 +51,6 @@ from art_gyro_calibration.signals import SignalFilters, Signals, compute_signals
 from art_gyro_calibration.units import DEG_PER_H_PER_DPS, SECONDS_PER_HOUR
 from art_gyro_calibration.analysis.csv_writer import write_columns
 
-
 FULL_SCALE_DPS = 100.0
 # Table rates of one cycle (both signs of each); a cycle lasts about 27 minutes.
 TABLE_RATES_DPS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)

@@ -72,11 +72,10 @@ class AsciiFrameParser(ChunkParser):
                 else:
                     self._refuse(OUT_OF_RANGE, end - pos)
                     self._run = 0
-            else:
-                if _BLANK.fullmatch(buf, pos, newline) is None:   # blank lines are not frames, nor break the lock
-                    reasons[MALFORMED] += 1
-                    self._missed += 1
-                    self._run = 0
+            elif _BLANK.fullmatch(buf, pos, newline) is None:
+                self._refuse(MALFORMED, end - pos)
+                self._run = 0
+            else:   # blank lines are not frames, nor break the lock
                 stats.bytes_skipped += end - pos
             pos = end
         rest = len(buf) - pos
