@@ -30,7 +30,12 @@ electronics) kept, its bias's temperature dependence (which moves as a fibre coi
 fitted again with the terms on top. Its few coefficients a log pins where the whole
 polynomial's twelve follow the log's wander. The simpler file is written unless the
 richer one is better held out by the materiality: the baseline (with or without the
-terms), the rebiased baseline, the refit.
+terms), the rebiased baseline, the refit. One run cannot tell a bias slope in temperature
+from a drift in time (its chamber moves with the clock); several runs, at other chamber
+temperatures and each with its own turn-on bias, can. So a fit of several runs judges the
+rebiased baseline once more where the blocks did not show it better (:class:`PairedCheck`):
+its bias column alone (the terms on both sides), on contiguous parts of each run, every
+start to its run's end, the two files paired segment by segment.
 
 Where the robot will run (the operating range: by default the logged temperatures) decides
 where else it is judged. Held out on the log, the refit is judged only at the log's
@@ -61,8 +66,10 @@ from numpy.typing import NDArray
 from art_gyro_calibration.analysis import trace
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.analysis.loop import LoopResult, retuned
-from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, field_errors, steady_segments
+from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, Segments, field_errors, steady_segments
 from art_gyro_calibration.analysis.replay import RESTART_FRACTIONS, field_score_dps, own_restarts, replay_anyway
+from art_gyro_calibration.analysis.runs import Run as LoggedRun
+from art_gyro_calibration.analysis.runs import run_of_rows
 from art_gyro_calibration.calibration import PLAUSIBLE_TEMPERATURE_C, Calibration, CalibrationError
 from art_gyro_calibration.compensation import RunStart, run_signals
 from art_gyro_calibration.log import GyroLog
@@ -78,6 +85,9 @@ FOLDS = 4
 REFIT, BASELINE, REBIASED = 'refit', 'baseline', 'baseline_bias_refitted'
 # Temperature step (degC) of the grid on which the written file is compared with the baseline beyond the log.
 BEYOND_STEP_C = 0.5
+# The t its fall must reach over a several-run fit's (run, quarter) units for the bias-refitted baseline to be
+# written by the paired judge (:class:`PairedCheck`).
+PAIRED_T = 2.0
 
 
 Span = tuple[float, float]
@@ -167,6 +177,58 @@ class Run:
 
 
 @dataclass(frozen=True)
+class PairedCheck:
+    r"""The baseline's bias column refitted against its own, the same terms on top of both, on a several-run fit.
+
+    Each run of the fit is cut into :data:`FOLDS` contiguous quarters, each fitted without, and
+    each start of the node replayed to its run's end; both files' errors are paired by steady
+    segment (after the static bias). Over the runs :math:`r` and their segments :math:`i`,
+    with :math:`a` the bias-refitted file's segment mean error and :math:`b` the baseline's (deg/h):
+
+    .. math::
+
+        d = \sqrt{\langle \langle (b_{ri} - a_{ri})^2 \rangle_i \rangle_r}, \qquad
+        F = \langle \langle b_{ri}^2 - a_{ri}^2 \rangle_i \rangle_r, \qquad
+        t = \bar F_u \big/ (s_{F_u} / \sqrt{n_u})
+
+    with :math:`F_u` the fall over the segments of one (run, quarter) unit. Written when the two
+    differ by more than the materiality of what the loop's model leaves (:math:`d > m`), the
+    change removes at least half its own square (:math:`F \ge d^2 / 2`: it is mostly a
+    correction, not a difference) and the fall holds over the units (:math:`t \ge`
+    :data:`PAIRED_T`). Round-robin blocks an hour apart share a log's slow wander; a quarter
+    held out asks the fit, as a mission does, to carry the bias's temperature dependence to
+    hours it did not see, and the other runs, at other chamber temperatures and with their own
+    turn-on bias, tell that dependence from the time since power-on, which one run cannot.
+    """
+
+    differ_dph: float
+    fall_dph2: float
+    t: float
+    units: int
+    materiality_dph: float
+
+    @property
+    def passed(self) -> bool:
+        """The bias-refitted baseline is written."""
+        return (self.differ_dph > self.materiality_dph and self.fall_dph2 >= 0.5 * self.differ_dph ** 2
+                and self.t >= PAIRED_T)
+
+    def to_dict(self) -> dict[str, Any]:
+        """REPORT.json's ``baseline.bias_refitted_on_runs``."""
+        return {'differ_dph': self.differ_dph, 'fall_dph2': self.fall_dph2, 't': self.t, 'units': self.units,
+                'materiality_dph': self.materiality_dph, 'min_t': PAIRED_T, 'passed': self.passed}
+
+    def describe(self) -> str:
+        """One clause for the verdict's message."""
+        return (f'judged on the runs (each cut into {FOLDS} contiguous parts, each fitted without; every start '
+                f'replayed to its run\'s end; the same terms on both sides), the bias column refitted differs from '
+                f'the baseline\'s by {self.differ_dph:.2f} deg/h (materiality {self.materiality_dph:.2f}), lowers '
+                f'the steady segments\' mean square by {self.fall_dph2:.2f} (deg/h)^2 '
+                f'({0.5 * self.differ_dph ** 2:.2f} wanted), t = {self.t:.1f} over {self.units} run parts '
+                f'({PAIRED_T:g} wanted)')
+
+
+@dataclass(frozen=True)
 class BaselineCheck:
     """The refit against the baseline on the log's held-out blocks and runs, and what is written.
 
@@ -188,6 +250,7 @@ class BaselineCheck:
     operating_c: Span | None = None
     unknown: UnknownBeyondLog | None = None
     rebiased_dph: float | None = None
+    rebiased_on_runs: PairedCheck | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """REPORT.json's ``baseline``."""
@@ -207,6 +270,7 @@ class BaselineCheck:
             'operating_range_c': None if self.operating_c is None else list(self.operating_c),
             'beyond_log': None if self.beyond is None else self.beyond.to_dict(),
             'unknown_beyond_log': None if self.unknown is None else self.unknown.to_dict(),
+            'bias_refitted_on_runs': None if self.rebiased_on_runs is None else self.rebiased_on_runs.to_dict(),
             'runs': [{'run': run.name, 'refit': refit.to_dict(), 'baseline': base.to_dict()}
                      for run, refit, base in self.runs],
         }
@@ -428,31 +492,110 @@ def _field(log: GyroLog, error: NDArray[np.float64], kept: NDArray[np.bool_], bi
     return replace(out, bias_refused=refused)
 
 
+def _run_error(log: GyroLog, run: Run, fold: NDArray[np.int64], calibrations: Sequence[Calibration],
+               bias_samples: int, settle_s: float, shared: dict[SignalFilters, Signals]
+               ) -> tuple[GyroLog, NDArray[np.float64], NDArray[np.bool_], bool]:
+    """One run's rows, its per-row error where each row's is that of ``calibrations[fold of the row]``, kept, refused.
+
+    ``shared``: the run's signals per filter set, made once for every calibration replayed on it.
+    """
+    part = log.slice(slice(run.start, run.stop))
+    error = np.full(len(part), np.nan)
+    kept = np.ones(len(part), dtype=bool)
+    refused = False
+    for k, calibration in enumerate(calibrations):
+        mine = fold[run.start:run.stop] == k if len(calibrations) > 1 else np.ones(len(part), dtype=bool)
+        if not mine.any():
+            continue
+        if calibration.filters not in shared:
+            shared[calibration.filters] = run_signals(part, calibration.filters, run.run_start)
+        e, kept, was_refused = _replay_run(part, calibration, bias_samples, settle_s, run.run_start,
+                                           shared[calibration.filters])
+        error[mine] = e[mine]
+        refused = refused or was_refused
+    return part, error, kept, refused
+
+
 def held_out(log: GyroLog, runs: Sequence[Run], fold: NDArray[np.int64], calibrations: Sequence[Calibration],
              bias_samples: int, settle_s: float) -> list[FieldErrors]:
-    """Field errors per run where each row's error is that of ``calibrations[fold of the row]``.
+    """Field errors per run where each row's error is that of ``calibrations[fold of the row]``."""
+    out = []
+    for run in runs:
+        part, error, kept, refused = _run_error(log, run, fold, calibrations, bias_samples, settle_s, {})
+        out.append(_field(part, error, kept, bias_samples, settle_s, refused))
+    return out
 
-    A run's signals are made once per filter set for every calibration replayed on it (the folds' share theirs).
+
+def run_quarters(t: NDArray[np.float64], runs: Sequence[LoggedRun], folds: int = FOLDS) -> NDArray[np.int64]:
+    """Each row's fold: its run's time cut into ``folds`` contiguous parts."""
+    fold = np.zeros(len(t), dtype=np.int64)
+    for run in runs:
+        tt = t[run.first_row:run.stop]
+        span = max(float(tt[-1] - tt[0]), 1e-9)
+        fold[run.first_row:run.stop] = np.minimum(np.floor(folds * (tt - tt[0]) / span), folds - 1)
+    return fold
+
+
+def _segment_errors(log: GyroLog, runs: Sequence[Run], fold: NDArray[np.int64],
+                    rich: Sequence[Calibration], simple: Sequence[Calibration], bias_samples: int,
+                    settle_s: float) -> list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]]:
+    """Per run: ``rich``'s and ``simple``'s mean errors (deg/h) over its steady segments after the static bias, folds.
+
+    A segment where the node dropped a row is NaN.
     """
     out = []
     for run in runs:
-        part = log.slice(slice(run.start, run.stop))
         shared: dict[SignalFilters, Signals] = {}
-        error = np.full(len(part), np.nan)
-        kept = np.ones(len(part), dtype=bool)
-        refused = False
-        for k, calibration in enumerate(calibrations):
-            mine = fold[run.start:run.stop] == k if len(calibrations) > 1 else np.ones(len(part), dtype=bool)
-            if not mine.any():
-                continue
-            if calibration.filters not in shared:
-                shared[calibration.filters] = run_signals(part, calibration.filters, run.run_start)
-            e, kept, was_refused = _replay_run(part, calibration, bias_samples, settle_s, run.run_start,
-                                               shared[calibration.filters])
-            error[mine] = e[mine]
-            refused = refused or was_refused
-        out.append(_field(part, error, kept, bias_samples, settle_s, refused))
+        part, a, _, _ = _run_error(log, run, fold, rich, bias_samples, settle_s, shared)
+        b = _run_error(log, run, fold, simple, bias_samples, settle_s, shared)[1]
+        assert part.ref_rate is not None
+        steady = steady_segments(part.t, part.ref_rate, settle_s)
+        starts = np.maximum(steady.starts, bias_samples)
+        keep = steady.stops > starts
+        later = Segments(starts[keep], steady.stops[keep], steady.rate[keep])
+        out.append((later.means(a) * DEG_PER_H_PER_DPS, later.means(b) * DEG_PER_H_PER_DPS,
+                    fold[run.start + later.starts]))
     return out
+
+
+def paired_check(segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]],
+                 materiality_dph: float) -> PairedCheck:
+    """:class:`PairedCheck` of :func:`_segment_errors`' output (segments NaN in either left out)."""
+    squares, falls, unit_falls = [], [], []
+    for rich, simple, fold in segments:
+        ok = np.isfinite(rich) & np.isfinite(simple)
+        if not ok.any():
+            continue
+        a, b, k = rich[ok], simple[ok], fold[ok]
+        fall = b ** 2 - a ** 2
+        squares.append(float(np.mean((b - a) ** 2)))
+        falls.append(float(np.mean(fall)))
+        unit_falls += [float(np.mean(fall[k == q])) for q in np.unique(k)]
+    units = np.asarray(unit_falls)
+    spread = float(units.std(ddof=1)) if len(units) > 1 else 0.0
+    t = float(units.mean()) / (spread / math.sqrt(len(units))) if spread > 0.0 else 0.0
+    return PairedCheck(math.sqrt(float(np.mean(squares))) if squares else 0.0,
+                       float(np.mean(falls)) if falls else 0.0, t, len(units), materiality_dph)
+
+
+def rebiased_on_runs(log: GyroLog, result: LoopResult, runs: Sequence[Run], baseline: Calibration,
+                     base_error: NDArray[np.float64], specs: Sequence[TermSpec], log_range_c: Span | None,
+                     source: str, bias_samples: int, settle_s: float) -> PairedCheck:
+    """``baseline`` with its bias column refitted against it on a several-run fit's runs: :class:`PairedCheck`.
+
+    ``specs`` are fitted on top of both (``baseline``'s own terms dropped), so that the bias column alone is
+    judged. ``runs``: the node's runs on the log (each until the next start); here each goes on to its run's end.
+    """
+    quarter = run_quarters(log.t, result.runs)
+    index = result.segments.rows()
+    trains = [index[quarter[index] != k] for k in range(FOLDS)]
+    stops = [result.runs[k].stop for k in run_of_rows(result.runs, np.array([run.start for run in runs]))]
+    to_end = [replace(run, stop=stop) for run, stop in zip(runs, stops)]
+    rich = [rebiased(result, baseline, base_error, specs, train, log_range_c, source) for train in trains]
+    simple = [_on_top(result, baseline, base_error, specs, train) for train in trains] if specs \
+        else [replace(baseline, terms=(), filters=result.art.filters)]
+    return paired_check(_segment_errors(log, to_end, quarter, rich, simple, bias_samples, settle_s),
+                        result.residual_materiality_dph or result.materiality_dph)
 
 
 class BaselineComparisonError(ValueError):
@@ -539,7 +682,7 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
             message += _unasked(calibration, baseline, operating_c, operating) + \
                 ('' if beyond is None else f'; {beyond.describe()}')
         return BaselineCheck(source, refit_dph, baseline_dph, on_top_dph, materiality, verdict, pairs, calibration,
-                             message, beyond, operating, unknown, rebiased_dph)
+                             message, beyond, operating, unknown, rebiased_dph, on_runs)
 
     # The baseline polynomial at its best: with the terms on top when they help it, its bias refitted when that helps.
     terms_help = on_top_dph is not None and on_top_dph + materiality < baseline_dph
@@ -550,6 +693,7 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     rebias_helps = rebiased_dph is not None and rebiased_dph + materiality < bar_dph
     if rebias_helps and rebiased_dph is not None:
         bar_dph, bar = rebiased_dph, f'the baseline {source} with its bias column refitted{with_terms}'
+    on_runs: PairedCheck | None = None
     if refit_dph + materiality < bar_dph:
         return check(REFIT, continued(written, baseline, source),
                      f'the refit is better than {bar} held out on this log: {refit_dph:.2f} against {bar_dph:.2f} '
@@ -557,12 +701,21 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
     verdict = (f'the refit polynomial is not better than {bar} by the materiality held out on this log '
                f'({refit_dph:.2f} against {bar_dph:.2f} deg/h; materiality {materiality:.2f} deg/h)')
     dropped = f' (its own terms {", ".join(t.signal for t in baseline.terms)} are not kept)' if baseline.terms else ''
+    rebias = (f'{verdict}: the written file keeps the baseline\'s rate terms{dropped} and refits its bias '
+              f'column{with_terms}')
     if rebias_helps:
         return check(REBIASED, rebiased(result, baseline, base_error, on_top, index, written.temperature_range_c,
                                         source),
-                     f'{verdict}: the written file keeps the baseline\'s rate terms{dropped} and refits its bias '
-                     f'column{with_terms} ({bar_dph:.2f} against {unchanged_dph:.2f} deg/h with the bias unchanged, '
-                     'held out)')
+                     f'{rebias} ({bar_dph:.2f} against {unchanged_dph:.2f} deg/h with the bias unchanged, held out)')
+    if rebiased_dph is not None and len(result.runs) > 1:
+        # Several runs tell a bias slope in temperature from a drift in time: the paired judge on the runs' parts.
+        on_runs = rebiased_on_runs(log, result, runs, baseline, base_error, on_top, written.temperature_range_c,
+                                   source, bias_samples, settle_s)
+        if on_runs.passed:
+            return check(REBIASED, rebiased(result, baseline, base_error, on_top, index, written.temperature_range_c,
+                                            source),
+                         f'{rebias}: not better by the materiality held out on blocks ({rebiased_dph:.2f} against '
+                         f'{bar_dph:.2f} deg/h), but {on_runs.describe()}')
     calibration = replace(baseline, terms=(), filters=written.filters)
     kept_terms = ''
     if specs:
@@ -574,5 +727,7 @@ def compare_with_baseline(log: GyroLog, result: LoopResult, written: Calibration
             kept_terms = f'; the terms {", ".join(s.signal for s in specs)} fitted on top of it did not make it ' \
                          f'better by the materiality ({on_top_dph:.2f} against {baseline_dph:.2f} deg/h, held out) ' \
                          'and are not written'
+    not_rebiased = '' if on_runs is None else \
+        f'; its bias column refitted is not written: {on_runs.describe()}'
     return check(BASELINE, calibration,
-                 f'{verdict}: the written file keeps the baseline polynomial{dropped}{kept_terms}')
+                 f'{verdict}: the written file keeps the baseline polynomial{dropped}{kept_terms}{not_rebiased}')
