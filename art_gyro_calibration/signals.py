@@ -221,6 +221,10 @@ class Signals:
     # States at the ends of chunks of the log (by chunk size), lags aside: :mod:`analysis.chunks` makes
     # each once. Not an init field, so that a replace()d Signals (another angle_correction) starts afresh.
     chunk_states: dict[int, list[SignalState]] = field(default_factory=dict, init=False, compare=False, repr=False)
+    # The temperature rate of each of those chunks (by chunk size and chunk), the costliest signal and the same on
+    # every pass: one array as long as the log, where each fit of a term on it filtered the log again.
+    chunk_rates: dict[tuple[int, int], NDArray[np.float64]] = field(
+        default_factory=dict, init=False, compare=False, repr=False)
 
     def runs(self) -> list[tuple[int, Signals]]:
         """(first row, signals) of each run: each starts afresh, as at a log's first sample (one run: this one)."""

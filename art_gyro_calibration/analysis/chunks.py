@@ -53,11 +53,17 @@ def chunks(signals: Signals, index: NDArray[np.int64], chunk_rows: int | None = 
                        extras={k: v[start:stop] for k, v in run.extras.items()}, filters=run.filters,
                        previous=state, powered_on_at_start=run.powered_on_at_start,
                        angle_correction=run.angle_correction, refined_start=run.refined_start)
+        rate = signals.chunk_rates.get((size, k))
+        if known is not None and rate is not None:   # the pass that made the states computed the filter's levels
+            part.__dict__['temperature_rate'] = rate
         start, stop = first + start, first + stop   # rows of the log
         high = low + int(np.searchsorted(index[low:], stop, side='left'))
         if np.any(np.diff(index[low:high]) <= 0) or (low < index.size and index[low] < start):
             raise ValueError('the rows to select must be increasing')
         yield Chunk(part, start, index[low:high] - start, slice(low, high))
+        if rate is None and 'temperature_rate' in part.__dict__:
+            signals.chunk_rates[(size, k)] = part.temperature_rate
+            part.temperature_rate.flags.writeable = False   # shared by every later pass
         # After the caller's work: the lags it computed continue too. The rest of the state (the
         # filters, the angle) is the same on every pass over the log: computed on the first.
         if known is None:

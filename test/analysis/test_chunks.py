@@ -13,6 +13,7 @@ from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.report import build_report
 from art_gyro_calibration.analysis.simulate import SimulationSettings, simulate_run
 from art_gyro_calibration.calibration import load_packaged_calibration
+from art_gyro_calibration import signals as signals_module
 from art_gyro_calibration.signals import compute_signals
 from art_gyro_calibration.static_bias import refined_temperature_rate, refinement_span_s
 
@@ -184,3 +185,21 @@ def test_the_fit_s_refined_start_is_whole_in_every_run_s_first_chunk():
     index = np.arange(len(log))
     got = [chunk.signals.temperature_rate for chunk in chunks.chunks(whole, index, 300)]
     np.testing.assert_allclose(np.concatenate(got), whole.temperature_rate, rtol=1e-12, atol=1e-12)
+
+
+def test_every_pass_after_the_first_takes_each_chunk_s_temperature_rate_as_made(monkeypatch):
+    """The temperature rate is filtered once per chunk: a fit after the loop's many filtered the log again each."""
+    log = simulated(0.3, 2.0)
+    starts = ((0, True), (1000, False))
+    whole = compute_signals(log.t, log.rate_dps, log.temp_c, log.extras, run_starts=starts)
+    index = np.arange(0, len(log), 2)
+    made = []
+    filtered = signals_module.Signals._filtered_temperature_rate
+    monkeypatch.setattr(signals_module.Signals, '_filtered_temperature_rate',
+                        lambda self: made.append(len(self)) or filtered(self))
+    passes = [[chunk.signals.temperature_rate.copy() for chunk in chunks.chunks(whole, index, 400)]
+              for _ in range(3)]
+    assert sum(made) == len(log)   # each row filtered once, on the first pass
+    for later in passes[1:]:
+        for got, want in zip(later, passes[0]):
+            np.testing.assert_array_equal(got, want)
