@@ -13,7 +13,7 @@ import pytest
 
 from art_gyro_calibration.calibration import load_calibration, load_packaged_calibration, write_calibration
 from art_gyro_calibration.compensation import RunStart
-from art_gyro_calibration.analysis.baseline import BASELINE, beyond_log, compare_with_baseline, continued
+from art_gyro_calibration.analysis.baseline import BASELINE, beyond_log, compare_with_baseline, continued, paired_check
 from art_gyro_calibration.analysis.cli import main
 from art_gyro_calibration.analysis.loop import LoopOptions, close_loop
 from art_gyro_calibration.analysis.replay import replay_field
@@ -297,3 +297,29 @@ def test_several_runs_of_a_gyro_that_did_not_age_keep_its_bias_column(tmp_path):
         on_runs
     np.testing.assert_array_equal(written.polynomial.coefficients,
                                   load_packaged_calibration(SERIAL).polynomial.coefficients)
+
+
+def test_the_paired_judge_wants_a_material_consistent_correction():
+    # Per run: the bias-refitted file's and the baseline's mean errors (deg/h) over steady segments, and their parts.
+    rng = np.random.default_rng(7)
+    folds = np.repeat(np.arange(4), 5)
+
+    def runs(rich, simple):
+        return [(rich + rng.normal(0.0, 0.1, 20), simple + rng.normal(0.0, 0.1, 20), folds) for _ in range(3)]
+
+    corrects = paired_check(runs(0.0, 2.0), 1.0)   # the refitted column removes a 2 deg/h error everywhere
+    assert corrects.passed and corrects.units == 12 and corrects.differ_dph == pytest.approx(2.0, rel=0.05)
+    assert corrects.fall_dph2 == pytest.approx(4.0, rel=0.1), corrects
+    assert not paired_check(runs(0.0, 2.0), 2.5).passed                 # smaller than the materiality
+    overshoots = paired_check(runs(-1.5, 2.0), 1.0)                   # more a difference than a correction
+    assert overshoots.t > 2.0 and 0.0 < overshoots.fall_dph2 < 0.5 * overshoots.differ_dph ** 2, overshoots
+    assert not overshoots.passed
+    assert not paired_check(runs(2.0, 0.0), 1.0).passed                 # a change for the worse
+    # A fall in one part of one run alone is not consistent over the parts.
+    spike = [(np.zeros(20), np.where(folds == 0, 6.0, 0.0) if k == 0 else np.zeros(20), folds) for k in range(3)]
+    alone = paired_check(spike, 1.0)
+    assert alone.differ_dph > 1.0 and alone.fall_dph2 >= 0.5 * alone.differ_dph ** 2 and alone.t < 2.0, alone
+    # A segment where the node dropped a row (NaN) is left out of the pairs.
+    rich, simple, k = runs(0.0, 2.0)[0]
+    rich[:5] = np.nan
+    assert paired_check([(rich, simple, k)], 1.0).units == 3
