@@ -66,7 +66,7 @@ from numpy.typing import NDArray
 from art_gyro_calibration.analysis import trace
 from art_gyro_calibration.analysis.fit import TermSpec, fit_model
 from art_gyro_calibration.analysis.loop import LoopResult, retuned
-from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, Segments, field_errors, steady_segments
+from art_gyro_calibration.analysis.metrics import DEFAULT_SETTLE_S, FieldErrors, field_errors, steady_segments
 from art_gyro_calibration.analysis.replay import RESTART_FRACTIONS, field_score_dps, own_restarts, replay_anyway
 from art_gyro_calibration.analysis.runs import Run as LoggedRun
 from art_gyro_calibration.analysis.runs import run_of_rows
@@ -492,14 +492,13 @@ def _field(log: GyroLog, error: NDArray[np.float64], kept: NDArray[np.bool_], bi
     return replace(out, bias_refused=refused)
 
 
-def _run_error(log: GyroLog, run: Run, fold: NDArray[np.int64], calibrations: Sequence[Calibration],
+def _run_error(part: GyroLog, run: Run, fold: NDArray[np.int64], calibrations: Sequence[Calibration],
                bias_samples: int, settle_s: float, shared: dict[SignalFilters, Signals]
-               ) -> tuple[GyroLog, NDArray[np.float64], NDArray[np.bool_], bool]:
-    """One run's rows, its per-row error where each row's is that of ``calibrations[fold of the row]``, kept, refused.
+               ) -> tuple[NDArray[np.float64], NDArray[np.bool_], bool]:
+    """``run``'s per-row error (its rows ``part``), each row's of ``calibrations[fold of the row]``; kept, refused.
 
     ``shared``: the run's signals per filter set, made once for every calibration replayed on it.
     """
-    part = log.slice(slice(run.start, run.stop))
     error = np.full(len(part), np.nan)
     kept = np.ones(len(part), dtype=bool)
     refused = False
@@ -513,7 +512,7 @@ def _run_error(log: GyroLog, run: Run, fold: NDArray[np.int64], calibrations: Se
                                            shared[calibration.filters])
         error[mine] = e[mine]
         refused = refused or was_refused
-    return part, error, kept, refused
+    return error, kept, refused
 
 
 def held_out(log: GyroLog, runs: Sequence[Run], fold: NDArray[np.int64], calibrations: Sequence[Calibration],
@@ -521,7 +520,8 @@ def held_out(log: GyroLog, runs: Sequence[Run], fold: NDArray[np.int64], calibra
     """Field errors per run where each row's error is that of ``calibrations[fold of the row]``."""
     out = []
     for run in runs:
-        part, error, kept, refused = _run_error(log, run, fold, calibrations, bias_samples, settle_s, {})
+        part = log.slice(slice(run.start, run.stop))
+        error, kept, refused = _run_error(part, run, fold, calibrations, bias_samples, settle_s, {})
         out.append(_field(part, error, kept, bias_samples, settle_s, refused))
     return out
 
@@ -546,13 +546,11 @@ def _segment_errors(log: GyroLog, runs: Sequence[Run], fold: NDArray[np.int64],
     out = []
     for run in runs:
         shared: dict[SignalFilters, Signals] = {}
-        part, a, _, _ = _run_error(log, run, fold, rich, bias_samples, settle_s, shared)
-        b = _run_error(log, run, fold, simple, bias_samples, settle_s, shared)[1]
+        part = log.slice(slice(run.start, run.stop))
+        a = _run_error(part, run, fold, rich, bias_samples, settle_s, shared)[0]
+        b = _run_error(part, run, fold, simple, bias_samples, settle_s, shared)[0]
         assert part.ref_rate is not None
-        steady = steady_segments(part.t, part.ref_rate, settle_s)
-        starts = np.maximum(steady.starts, bias_samples)
-        keep = steady.stops > starts
-        later = Segments(starts[keep], steady.stops[keep], steady.rate[keep])
+        later = steady_segments(part.t, part.ref_rate, settle_s).after(bias_samples)
         out.append((later.means(a) * DEG_PER_H_PER_DPS, later.means(b) * DEG_PER_H_PER_DPS,
                     fold[run.start + later.starts]))
     return out

@@ -56,6 +56,12 @@ class Segments:
         rows.flags.writeable = False
         return rows
 
+    def after(self, row: int) -> Segments:
+        """The segments from ``row`` on: one that begins before it counts from it, one that ends before it is gone."""
+        starts = np.maximum(self.starts, row)
+        keep = self.stops - starts >= 1
+        return Segments(starts[keep], self.stops[keep], self.rate[keep])
+
     def means(self, values: ArrayLike) -> NDArray[np.float64]:
         """Mean of ``values`` (one per log row) over each segment."""
         v = np.asarray(values, dtype=float)
@@ -224,9 +230,7 @@ def field_errors(t: ArrayLike, error: ArrayLike, segments: Segments, start: int)
     :data:`HEADING_HORIZONS_S`. Segments that begin before ``start`` count from ``start``.
     """
     e = np.asarray(error, dtype=float)
-    starts = np.maximum(segments.starts, start)
-    keep = segments.stops - starts >= 1
-    later = Segments(starts[keep], segments.stops[keep], segments.rate[keep])
+    later = segments.after(start)
     if not len(later):
         raise ValueError(f'the log has no steady segment after row {start} to measure field errors on')
     means = later.means(e)
